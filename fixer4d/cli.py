@@ -1,0 +1,76 @@
+"""The `fixer4d` command line: a thin dispatcher.
+
+Each verb lives in the package of the stage it drives, as a module with two functions:
+``add_arguments(parser)`` and ``run(args) -> int``. This file only lists them, so adding a verb
+never touches another stage's code, and `fixer4d --help` imports nothing heavy.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from fixer4d.errors import Fixer4DError
+
+# verb -> (module, one-line help)
+VERBS: dict[str, tuple[str, str]] = {
+    "run": ("fixer4d.pipeline_cli", "the whole method: poses -> init -> stage 1 -> (restore -> refine) x R -> evaluate"),
+    "reconstruct": ("fixer4d.train.cli", "stage 1: STGS on the four observed views from a sparse or MVS init"),
+    "refine": ("fixer4d.train.refine_cli", "stage 2: restoration-guided refinement of a reconstructed run"),
+    "eval": ("fixer4d.eval.cli", "evaluate a run folder on the held-out cameras"),
+    "init": ("fixer4d.init.cli", "per-frame point clouds: sparse (COLMAP) or dense (MVS)"),
+    "trajectories": ("fixer4d.geometry.trajectory_cli", "pair trajectories and arcs of a scene's train cameras -> presets"),
+    "make-scene": ("fixer4d.scene.cli", "write a synthetic scene spec to disk in the Neural3DV layout"),
+    "study": ("fixer4d.study_cli", "accuracy vs time: sweep the pipeline's knobs, draw the Pareto front"),
+    "bench": ("fixer4d.bench.cli", "benchmarks that print and save their numbers (raycast, raster, train-step, ...)"),
+    "export": ("fixer4d.model.cli", "convert a model (.ply/.npz) or a run's latest model"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="fixer4d", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=_version())
+    sub = parser.add_subparsers(dest="verb", metavar="VERB")
+    for verb, (module, help_text) in VERBS.items():
+        p = sub.add_parser(verb, help=help_text, description=help_text)
+        p.set_defaults(_module=module)
+        try:
+            mod = importlib.import_module(module)
+        except ModuleNotFoundError as exc:
+            if exc.name and exc.name.startswith("fixer4d"):
+                p.set_defaults(_missing=str(exc))
+                continue
+            raise
+        mod.add_arguments(p)
+    return parser
+
+
+def _version() -> str:
+    from fixer4d import __version__
+
+    return f"fixer4d {__version__}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not args.verb:
+        parser.print_help()
+        return 2
+    if getattr(args, "_missing", None):
+        print(f"fixer4d {args.verb}: not available in this build ({args._missing})", file=sys.stderr)
+        return 2
+    mod = importlib.import_module(args._module)
+    try:
+        return int(mod.run(args) or 0)
+    except Fixer4DError as exc:
+        print(f"fixer4d {args.verb}: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"\nfixer4d {args.verb}: interrupted; completed stages are saved and a rerun resumes", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

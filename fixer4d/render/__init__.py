@@ -1,0 +1,1 @@
+"""fixer4d.render"""

@@ -1,0 +1,137 @@
+"""The multi-view video interface every scene source implements.
+
+A scene is a fixed rig of synchronized cameras, T frames each. Frame f has time t = f / T
+(DESIGN.md §3). Frames are produced lazily and cached in a bounded LRU, so a scene never holds
+every frame in memory.
+"""
+from __future__ import annotations
+
+import abc
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Callable, Hashable
+
+import numpy as np
+
+from fixer4d.errors import InputError
+from fixer4d.geometry.camera import Camera
+
+
+def frame_time(frame: int, num_frames: int) -> float:
+    """t = f / T: the STGS convention, t in [0, 1)."""
+    return frame / float(num_frames)
+
+
+class LRUCache:
+    """A thread-safe least-recently-used cache bounded by item count."""
+
+    def __init__(self, max_items: int) -> None:
+        self.max_items = max(0, int(max_items))
+        self._items: OrderedDict[Hashable, object] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get_or_compute(self, key: Hashable, compute: Callable[[], object]) -> object:
+        with self._lock:
+            if key in self._items:
+                self._items.move_to_end(key)
+                return self._items[key]
+        value = compute()
+        with self._lock:
+            if self.max_items:
+                self._items[key] = value
+                self._items.move_to_end(key)
+                while len(self._items) > self.max_items:
+                    self._items.popitem(last=False)
+        return value
+
+    def clear(self) -> None:
+        with self._lock:
+            self._items.clear()
+
+
+@dataclass(frozen=True)
+class SceneBounds:
+    """Depth range and an axis-aligned box that contains the scene content (world units)."""
+
+    near: float
+    far: float
+    bbox_min: np.ndarray  # (3,)
+    bbox_max: np.ndarray  # (3,)
+
+
+class MultiViewVideo(abc.ABC):
+    """Synchronized videos from a fixed camera rig.
+
+    Attributes every implementation sets:
+      name: a short identifier ("demo", "panoptic_basketball", ...).
+      cameras: every camera of the rig (at the loaded resolution), index = camera index.
+      train_ids / test_ids: indices into ``cameras`` (the 4 observed views / the held-out ones).
+      num_frames: T. fps: playback rate (frames per second).
+    """
+
+    name: str
+    cameras: list[Camera]
+    train_ids: list[int]
+    test_ids: list[int]
+    num_frames: int
+    fps: float = 30.0
+
+    def __init__(self, cache_frames: int = 64) -> None:
+        self._cache = LRUCache(cache_frames)
+
+    # -- what implementations provide --------------------------------------------------
+    @abc.abstractmethod
+    def _load_frame(self, frame: int, cam: int) -> np.ndarray:
+        """(H, W, 3) float32 RGB in [0, 1] for camera index ``cam`` at frame ``frame``."""
+
+    def _load_depth(self, frame: int, cam: int) -> np.ndarray | None:
+        """(H, W) float32 ground-truth z-depth (inf where nothing is hit), or None if unknown."""
+        return None
+
+    def _load_mask(self, frame: int, cam: int) -> np.ndarray | None:
+        """(H, W) bool foreground mask, or None if the scene has none."""
+        return None
+
+    def bounds(self) -> SceneBounds | None:
+        """Known scene bounds (synthetic scenes, LLFF bounds), or None."""
+        return None
+
+    # -- public API --------------------------------------------------------------------
+    def time(self, frame: int) -> float:
+        return frame_time(frame, self.num_frames)
+
+    def frame(self, frame: int, cam: int) -> np.ndarray:
+        self._check(frame, cam)
+        return self._cache.get_or_compute(("rgb", frame, cam), lambda: self._load_frame(frame, cam))
+
+    def depth(self, frame: int, cam: int) -> np.ndarray | None:
+        self._check(frame, cam)
+        return self._cache.get_or_compute(("depth", frame, cam), lambda: self._load_depth(frame, cam))
+
+    def mask(self, frame: int, cam: int) -> np.ndarray | None:
+        self._check(frame, cam)
+        return self._load_mask(frame, cam)
+
+    @property
+    def has_depth(self) -> bool:
+        return False
+
+    @property
+    def train_cameras(self) -> list[Camera]:
+        return [self.cameras[i] for i in self.train_ids]
+
+    @property
+    def test_cameras(self) -> list[Camera]:
+        return [self.cameras[i] for i in self.test_ids]
+
+    def _check(self, frame: int, cam: int) -> None:
+        if not 0 <= frame < self.num_frames:
+            raise InputError(f"{self.name}: frame {frame} out of range [0, {self.num_frames})")
+        if not 0 <= cam < len(self.cameras):
+            raise InputError(f"{self.name}: camera index {cam} out of range [0, {len(self.cameras)})")
+
+    def describe(self) -> str:
+        c = self.cameras[0]
+        return (f"{self.name}: {len(self.cameras)} cameras ({len(self.train_ids)} train, {len(self.test_ids)} held out), "
+                f"{self.num_frames} frames at {c.width}x{c.height}")
