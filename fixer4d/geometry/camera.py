@@ -223,7 +223,7 @@ class Camera:
         if nz < 1e-12:
             raise InputError("look_at: eye and target coincide; no viewing direction")
         z /= nz
-        x = np.cross(z, -np.asarray(up, np.float64))
+        x = np.cross(z, np.asarray(up, np.float64))
         nx = np.linalg.norm(x)
         if nx < 1e-9:
             raise InputError("look_at: up is parallel to the viewing direction; choose another up vector")

@@ -1,1 +1,14 @@
-"""fixer4d.restore"""
+"""fixer4d.restore: reference-guided restoration of rendered clips (DESIGN.md §4).
+
+Restorers never render: a RestoreRequest carries every render they need. Built in:
+ReferenceWarpRestorer (CPU, deterministic); optional: CogVideoV2VRestorer (diffusers, local
+weights, CUDA). RestoreCache stores restored clips per round; RestoreJobs runs restorers off the
+caller's thread.
+"""
+from fixer4d.restore.base import RestoreCancelled, RestoreRequest, RestoreResult, Restorer
+from fixer4d.restore.cache import CacheEntry, RestoreCache
+from fixer4d.restore.jobs import Job, RestoreJobs
+from fixer4d.restore.reference_warp import ReferenceWarpConfig, ReferenceWarpRestorer
+
+__all__ = ["CacheEntry", "Job", "ReferenceWarpConfig", "ReferenceWarpRestorer", "RestoreCache", "RestoreCancelled",
+           "RestoreJobs", "RestoreRequest", "RestoreResult", "Restorer"]

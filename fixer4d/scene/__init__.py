@@ -1,1 +1,78 @@
-"""fixer4d.scene"""
+"""fixer4d.scene: multi-view video sources (synthetic, Neural3DV, Panoptic) behind one loader.
+
+``load_scene(source)`` is the only entry most code needs; the classes are exported for typing
+and for callers that want a specific layout.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from fixer4d.errors import InputError
+from fixer4d.scene.base import MultiViewVideo, SceneBounds
+from fixer4d.scene.synthetic import SyntheticScene, builtin_spec_path, is_builtin_name
+
+__all__ = ["load_scene", "detect_layout", "MultiViewVideo", "SceneBounds", "SyntheticScene",
+           "Neural3DVScene", "PanopticScene"]
+
+
+def detect_layout(path: str | Path) -> str:
+    """"n3dv" (poses_bounds.npy + camXX.mp4) or "panoptic" (train_meta.json + ims/) for a
+    directory; raises InputError naming the folder and the expected files otherwise."""
+    path = Path(path)
+    if (path / "poses_bounds.npy").is_file():
+        return "n3dv"
+    if (path / "train_meta.json").is_file() and (path / "ims").is_dir():
+        return "panoptic"
+    found = sorted(p.name for p in path.iterdir())[:8] if path.is_dir() else []
+    raise InputError(
+        f"{path}: unknown scene layout (found {found}). Expected a Neural3DV folder "
+        f"(poses_bounds.npy + cam00.mp4, cam01.mp4, ...), a Dynamic3DGaussians/Panoptic folder "
+        f"(train_meta.json, test_meta.json, ims/<cam>/<frame>.jpg), a scene spec .json, or 'demo'; "
+        f"write a synthetic one with `fixer4d make-scene demo --out DIR`")
+
+
+def load_scene(source: str | Path, *, scale: float = 1.0, frame_range: tuple[int, int] | None = None,
+               train_ids: list[int] | None = None, test_ids: list[int] | None = None) -> MultiViewVideo:
+    """Open a scene.
+
+    source: "demo" (or another bundled spec name: "tiny", "static_matte"; a bare name always
+      means the bundled spec, write "./demo" for a folder of that name), a spec .json path
+      (synthetic, ray-cast on demand), or a directory whose layout is detected (Neural3DV or
+      Panoptic/Dynamic3DGaussians).
+    scale: image scale (0.5 = half resolution); intrinsics scale with the image.
+    frame_range: (a, b), half-open: keep frames a..b-1; times become t = (f - a) / (b - a).
+    train_ids / test_ids: camera ids (the XX of camXX, the Panoptic cam_id, the synthetic
+      camera index) overriding the layout's default split.
+    """
+    if frame_range is not None:
+        frame_range = (int(frame_range[0]), int(frame_range[1]))
+    if is_builtin_name(source):
+        return SyntheticScene(builtin_spec_path(str(source)), scale=scale, frame_range=frame_range,
+                              train_ids=train_ids, test_ids=test_ids)
+    src = Path(source)
+    if src.is_dir():
+        layout = detect_layout(src)
+        if layout == "n3dv":
+            from fixer4d.scene.n3dv import Neural3DVScene
+
+            return Neural3DVScene(src, scale=scale, frame_range=frame_range, train_ids=train_ids, test_ids=test_ids)
+        from fixer4d.scene.panoptic import PanopticScene
+
+        return PanopticScene(src, scale=scale, frame_range=frame_range, train_ids=train_ids, test_ids=test_ids)
+    if src.suffix == ".json":
+        return SyntheticScene(src, scale=scale, frame_range=frame_range, train_ids=train_ids, test_ids=test_ids)
+    if not src.exists():
+        raise InputError(f"scene {source!s}: no such file or directory; pass 'demo', a spec .json or a scene folder")
+    raise InputError(f"scene {source!s}: not a directory or a .json spec; pass 'demo', a spec .json or a scene folder")
+
+
+def __getattr__(name: str):
+    if name == "Neural3DVScene":
+        from fixer4d.scene.n3dv import Neural3DVScene
+
+        return Neural3DVScene
+    if name == "PanopticScene":
+        from fixer4d.scene.panoptic import PanopticScene
+
+        return PanopticScene
+    raise AttributeError(name)

@@ -1,0 +1,380 @@
+"""The moderngl spacetime-Gaussian splat renderer (DESIGN.md §5).
+
+Instanced screen-space quads, one per Gaussian, drawn front to back. Raw parameters sit in an
+RGBA32F texture read with texelFetch (GL 3.3 data path, runs on macOS too); the vertex shader
+evaluates the spacetime terms at the current time and projects with the same EWA Jacobian and
+low-pass as the torch rasterizer. The depth order at the current time is computed on a worker
+thread and re-computed whenever the camera, the time or the Gaussians change; until it arrives
+the last order of the same Gaussians is drawn, so the UI never waits on a sort.
+
+Two float targets accumulate, with the blend src*(1 - dst_alpha) + dst:
+  colour (premultiplied rgb, accumulated alpha) and depth (alpha-weighted z, alpha).
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import moderngl
+import numpy as np
+
+from app.gaussians import GaussianArrays
+from app.gl.programs import load_program
+from fixer4d.geometry.camera import Camera
+from fixer4d.model.spacetime import T_LOG_SCALE_MIN
+# One constant set with the torch rasterizer, so the two agree (a test measures it).
+from fixer4d.render.constants import (ALPHA_MAX, ALPHA_MIN, DET_MIN, LOWPASS_2D, NEAR_PLANE, POWER_MAX,
+                                      SIGMA_EXTENT, TAN_FOV_MARGIN)
+
+
+# Texels per Gaussian in the parameter texture and the texture's width in texels. 4096 is within
+# every GL 3.3 implementation's minimum max-texture-size guarantee for float textures in practice
+# and gives 512 Gaussians per row (16M Gaussians before the 4096-row limit).
+TEXELS_PER_GAUSSIAN = 8
+TEXTURE_WIDTH = 4096
+
+# Debug modes of the resolve pass (heatmap.frag) and of the splat colours (splat.vert).
+RESOLVE_MODES = {"color": 0, "holes": 1, "depth": 2, "blur": 3, "alpha": 4}
+SPLAT_MODES = {"color": 0, "speed": 1, "temporal_opacity": 2}
+
+
+def pack_params(g: GaussianArrays) -> np.ndarray:
+    """(rows, TEXTURE_WIDTH, 4) float32 texture image holding TEXELS_PER_GAUSSIAN texels per
+    Gaussian: mean+opacity logit, log-scale+t_center, quat, colour+t_log_scale, m1+dynamic, m2,
+    m3, omega."""
+    n = g.n
+    texels = np.zeros((max(n, 1), TEXELS_PER_GAUSSIAN, 4), np.float32)
+    if n:
+        texels[:, 0, :3], texels[:, 0, 3] = g.means, g.opacity_logits
+        texels[:, 1, :3], texels[:, 1, 3] = g.log_scales, g.t_center
+        texels[:, 2] = g.quats
+        texels[:, 3, :3], texels[:, 3, 3] = g.colors, g.t_log_scale
+        texels[:, 4, :3], texels[:, 4, 3] = g.motion[:, 0:3], g.dynamic.astype(np.float32)
+        texels[:, 5, :3] = g.motion[:, 3:6]
+        texels[:, 6, :3] = g.motion[:, 6:9]
+        texels[:, 7] = g.omega
+    flat = texels.reshape(-1, 4)
+    rows = -(-flat.shape[0] // TEXTURE_WIDTH)
+    out = np.zeros((rows * TEXTURE_WIDTH, 4), np.float32)
+    out[: flat.shape[0]] = flat
+    return out.reshape(rows, TEXTURE_WIDTH, 4)
+
+
+def depth_order(g: GaussianArrays, w2c: np.ndarray, t: float) -> np.ndarray:
+    """Indices (uint32) of the Gaussians visible at time t, sorted front to back by camera z.
+
+    Gaussians whose opacity at t is below ALPHA_MIN or whose centre is behind the near plane are
+    left out (the shader would cull them anyway; leaving them out saves instances).
+    """
+    if g.n == 0:
+        return np.zeros(0, np.uint32)
+    mu = g.means_at(t)
+    r = np.asarray(w2c, np.float32)
+    z = mu @ r[2, :3] + r[2, 3]
+    live = (z > NEAR_PLANE) & (g.opacity_at(t) >= ALPHA_MIN)
+    idx = np.flatnonzero(live)
+    return idx[np.argsort(z[idx], kind="stable")].astype(np.uint32)
+
+
+class DepthSorter:
+    """Sorts on a worker thread. ``request`` replaces any pending job (only the newest view
+    matters); ``result`` returns the newest finished (key, order)."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._job: tuple | None = None
+        self._result: tuple | None = None
+        self._closed = False
+        self.last_sort_ms = 0.0
+        self._thread = threading.Thread(target=self._loop, name="splat-sort", daemon=True)
+        self._thread.start()
+
+    def request(self, key: tuple, g: GaussianArrays, w2c: np.ndarray, t: float) -> None:
+        with self._cond:
+            self._job = (key, g, w2c, t)
+            self._cond.notify_all()
+
+    def result(self) -> tuple | None:
+        with self._cond:
+            return self._result
+
+    def wait(self, key: tuple, timeout: float = 30.0) -> tuple | None:
+        """Block until the order for ``key`` is ready (tests, screenshots, benchmarks)."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while self._result is None or self._result[0] != key:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                self._cond.wait(left)
+            return self._result
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+        self._thread.join(timeout=5)
+
+    def _loop(self) -> None:
+        while True:
+            with self._cond:
+                while self._job is None and not self._closed:
+                    self._cond.wait()
+                if self._closed:
+                    return
+                key, g, w2c, t = self._job
+                self._job = None
+            t0 = time.perf_counter()
+            order = depth_order(g, w2c, t)
+            ms = 1e3 * (time.perf_counter() - t0)
+            with self._cond:
+                self._result = (key, order)
+                self.last_sort_ms = ms
+                self._cond.notify_all()
+
+
+@dataclass
+class FrameStats:
+    """Milliseconds spent in the last frame's parts (draw includes waiting for the GPU)."""
+
+    sort_ms: float = 0.0
+    upload_ms: float = 0.0
+    draw_ms: float = 0.0
+    instances: int = 0
+
+
+class SplatRenderer:
+    """Draws a ``GaussianArrays`` set for a ``Camera`` at a time into float targets.
+
+    Usage: ``set_gaussians(g)``; ``render(camera, t)``; then ``resolve()`` for a displayable RGBA8
+    texture, or ``read_rgb()/read_alpha()/read_depth()`` for numpy images (H, W, ...) with row 0
+    at the top.
+    """
+
+    def __init__(self, ctx: moderngl.Context) -> None:
+        self.ctx = ctx
+        self.prog = load_program(ctx, "splat.vert", "splat.frag")
+        self.resolve_prog = load_program(ctx, "screen.vert", "heatmap.frag")
+        self.sorter = DepthSorter()
+        self.gaussians: GaussianArrays | None = None
+        self.version = 0
+        self._param_tex: moderngl.Texture | None = None
+        self._flag_tex: moderngl.Texture | None = None
+        self._scalar_tex = ctx.texture((1, 1), 1, np.zeros(1, np.float32).tobytes(), dtype="f4")
+        self._order_buf: moderngl.Buffer | None = None
+        self._order_key: tuple | None = None
+        self._instances = 0
+        self._vao: moderngl.VertexArray | None = None
+        self._targets: tuple | None = None
+        self._display: tuple | None = None
+        self._empty_vao = ctx.vertex_array(self.resolve_prog, [])
+        self.stats = FrameStats()
+        self.last_camera: Camera | None = None
+
+    # ---- data ---------------------------------------------------------------------------------
+    def set_gaussians(self, g: GaussianArrays, selection: np.ndarray | None = None) -> None:
+        """Upload a new Gaussian set (and optionally a bool (N,) selection to highlight)."""
+        t0 = time.perf_counter()
+        tex = pack_params(g)
+        if self._param_tex is not None:
+            self._param_tex.release()
+        self._param_tex = self.ctx.texture((TEXTURE_WIDTH, tex.shape[0]), 4, tex.tobytes(), dtype="f4")
+        self._param_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.gaussians = g
+        self.version += 1
+        self._order_key = None
+        self._instances = 0
+        self.set_selection(selection)
+        self.stats.upload_ms = 1e3 * (time.perf_counter() - t0)
+
+    def set_selection(self, selection: np.ndarray | None) -> None:
+        n = 0 if self.gaussians is None else self.gaussians.n
+        flags = np.zeros(max(n, 1), np.float32)
+        if selection is not None and n:
+            flags[: n] = np.asarray(selection, bool)[:n]
+        rows = -(-flags.size // TEXTURE_WIDTH)
+        img = np.zeros(rows * TEXTURE_WIDTH, np.float32)
+        img[: flags.size] = flags
+        if self._flag_tex is not None:
+            self._flag_tex.release()
+        self._flag_tex = self.ctx.texture((TEXTURE_WIDTH, rows), 1, img.tobytes(), dtype="f4")
+        self._flag_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+
+    def set_scalar_map(self, values: np.ndarray) -> None:
+        """Upload an (H, W) float map (row 0 at the top) for the 'blur' resolve mode."""
+        v = np.ascontiguousarray(np.asarray(values, np.float32)[::-1])
+        self._scalar_tex.release()
+        self._scalar_tex = self.ctx.texture((v.shape[1], v.shape[0]), 1, v.tobytes(), dtype="f4")
+
+    # ---- targets ------------------------------------------------------------------------------
+    def _ensure_targets(self, width: int, height: int) -> None:
+        if self._targets is not None and self._targets[0].size == (width, height):
+            return
+        if self._targets is not None:
+            for obj in self._targets:
+                obj.release()
+        color = self.ctx.texture((width, height), 4, dtype="f4")
+        depth = self.ctx.texture((width, height), 4, dtype="f4")
+        fbo = self.ctx.framebuffer(color_attachments=[color, depth])
+        self._targets = (color, depth, fbo)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return (0, 0) if self._targets is None else self._targets[0].size
+
+    # ---- drawing ------------------------------------------------------------------------------
+    def _sort_key(self, camera: Camera, t: float) -> tuple:
+        return (self.version, np.round(camera.w2c[:3], 9).tobytes(), round(float(t), 9))
+
+    def render(self, camera: Camera, t: float, *, mode: str = "color", heat_scale: float = 1.0,
+               show_selection: bool = True, wait_sort: bool = False) -> FrameStats:
+        """Draw at ``camera`` (its own width x height) and time ``t`` into the float targets.
+
+        ``wait_sort``: block until the order for exactly this camera and time is ready (tests,
+        screenshots); otherwise the newest finished order of the same Gaussians is drawn.
+        """
+        self._ensure_targets(camera.width, camera.height)
+        color, depth, fbo = self._targets
+        self.last_camera = camera
+        fbo.use()
+        fbo.clear(0.0, 0.0, 0.0, 0.0)
+        g = self.gaussians
+        stats = FrameStats()
+        if g is None or g.n == 0:
+            self.stats = stats
+            return stats
+        key = self._sort_key(camera, t)
+        if key != self._order_key:
+            self.sorter.request(key, g, camera.w2c, t)
+            res = self.sorter.wait(key) if (wait_sort or self._instances == 0) else self.sorter.result()
+            if res is not None and res[0][0] == self.version and res[0] != self._order_key:
+                t0 = time.perf_counter()
+                self._upload_order(res[1])
+                self._order_key = res[0]
+                stats.upload_ms = 1e3 * (time.perf_counter() - t0)
+                stats.sort_ms = self.sorter.last_sort_ms
+        t0 = time.perf_counter()
+        p = self.prog
+        p["u_params"].value = 0
+        p["u_flags"].value = 1
+        self._param_tex.use(0)
+        self._flag_tex.use(1)
+        p["u_tex_width"].value = TEXTURE_WIDTH
+        p["u_w2c"].write(np.ascontiguousarray(camera.w2c.T, dtype=np.float32).tobytes())
+        p["u_intr"].value = (camera.fx, camera.fy, camera.cx, camera.cy)
+        p["u_size"].value = (float(camera.width), float(camera.height))
+        p["u_time"].value = float(t)
+        p["u_t_log_scale_min"].value = T_LOG_SCALE_MIN
+        p["u_near"].value = NEAR_PLANE
+        p["u_lowpass"].value = LOWPASS_2D
+        p["u_det_min"].value = DET_MIN
+        p["u_min_alpha"].value = ALPHA_MIN
+        p["u_max_alpha"].value = ALPHA_MAX
+        p["u_power_max"].value = POWER_MAX
+        p["u_sigma_extent"].value = SIGMA_EXTENT
+        p["u_fov_clamp"].value = TAN_FOV_MARGIN
+        p["u_mode"].value = SPLAT_MODES[mode]
+        p["u_heat_scale"].value = float(heat_scale)
+        p["u_show_selection"].value = int(show_selection)
+        self.ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        self.ctx.enable(moderngl.BLEND)
+        self.ctx.blend_func = (moderngl.ONE_MINUS_DST_ALPHA, moderngl.ONE)
+        self.ctx.blend_equation = moderngl.FUNC_ADD
+        if self._instances:
+            self._vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._instances)
+        self.ctx.finish()
+        self.ctx.disable(moderngl.BLEND)
+        stats.draw_ms = 1e3 * (time.perf_counter() - t0)
+        stats.instances = self._instances
+        self.stats = stats
+        return stats
+
+    def upload_order(self, order: np.ndarray, camera: Camera, t: float) -> None:
+        """Install a depth order computed elsewhere (``depth_order``) for ``camera`` at ``t``, so
+        the next ``render`` of that view draws it without sorting (benchmarks, scripts)."""
+        self._upload_order(order)
+        self._order_key = self._sort_key(camera, t)
+
+    def _upload_order(self, order: np.ndarray) -> None:
+        data = np.ascontiguousarray(order, np.uint32)
+        if self._order_buf is None or self._order_buf.size < max(data.nbytes, 4):
+            if self._vao is not None:
+                self._vao.release()
+            if self._order_buf is not None:
+                self._order_buf.release()
+            self._order_buf = self.ctx.buffer(reserve=max(data.nbytes, 4))
+            self._vao = self.ctx.vertex_array(self.prog, [(self._order_buf, "u4/i", "a_index")])
+        if data.nbytes:
+            self._order_buf.write(data.tobytes())
+        self._instances = int(data.size)
+
+    def resolve(self, background=(0.0, 0.0, 0.0), mode: str = "color", *, hole_alpha: float = 0.5,
+                depth_range: tuple[float, float] = (0.1, 10.0), scalar_max: float = 1.0) -> moderngl.Texture:
+        """Composite the targets over ``background`` (or a debug map) into an RGBA8 texture of the
+        render size, bottom row first (GL convention) and return it."""
+        color, depth, _ = self._targets
+        if self._display is None or self._display[0].size != color.size:
+            if self._display is not None:
+                for obj in self._display:
+                    obj.release()
+            tex = self.ctx.texture(color.size, 4)
+            self._display = (tex, self.ctx.framebuffer(color_attachments=[tex]))
+        tex, fbo = self._display
+        fbo.use()
+        p = self.resolve_prog
+        color.use(0)
+        depth.use(1)
+        self._scalar_tex.use(2)
+        p["u_color"].value, p["u_depth"].value, p["u_scalar"].value = 0, 1, 2
+        p["u_background"].value = tuple(float(x) for x in background)
+        p["u_mode"].value = RESOLVE_MODES[mode]
+        p["u_hole_alpha"].value = float(hole_alpha)
+        p["u_depth_range"].value = tuple(float(x) for x in depth_range)
+        p["u_scalar_max"].value = float(scalar_max)
+        self._empty_vao.render(moderngl.TRIANGLES, vertices=3)
+        return tex
+
+    @property
+    def display_texture(self) -> moderngl.Texture | None:
+        return None if self._display is None else self._display[0]
+
+    @property
+    def display_framebuffer(self) -> moderngl.Framebuffer | None:
+        return None if self._display is None else self._display[1]
+
+    # ---- read back (row 0 = image top) ----------------------------------------------------------
+    def _read(self, attachment: int) -> np.ndarray:
+        color, depth, fbo = self._targets
+        w, h = color.size
+        raw = np.frombuffer(fbo.read(components=4, attachment=attachment, dtype="f4"), np.float32)
+        return raw.reshape(h, w, 4)[::-1]
+
+    def read_rgb(self, background=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """(H, W, 3) float32 colour composited over ``background``."""
+        c = self._read(0)
+        return np.ascontiguousarray(c[..., :3] + (1.0 - c[..., 3:4]) * np.asarray(background, np.float32))
+
+    def read_alpha(self) -> np.ndarray:
+        """(H, W) accumulated opacity."""
+        return np.ascontiguousarray(self._read(0)[..., 3])
+
+    def read_depth(self) -> np.ndarray:
+        """(H, W) expected z-depth (0 where alpha ~ 0), like RenderOutput.depth."""
+        d = self._read(1)
+        a = d[..., 3]
+        # as fixer4d.render.api: every blended pixel has alpha >= ALPHA_MIN; empty ones stay 0
+        return (d[..., 0] / np.maximum(a, ALPHA_MIN)).astype(np.float32)
+
+    def read_display(self) -> np.ndarray:
+        """(H, W, 3) uint8 of the last ``resolve`` (row 0 at the top)."""
+        tex, fbo = self._display
+        w, h = tex.size
+        return np.frombuffer(fbo.read(components=3), np.uint8).reshape(h, w, 3)[::-1].copy()
+
+    def release(self) -> None:
+        self.sorter.close()
+        for obj in [self._param_tex, self._flag_tex, self._scalar_tex, self._order_buf, self._vao,
+                    *(self._targets or ()), *(self._display or ())]:
+            if obj is not None:
+                obj.release()

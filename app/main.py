@@ -1,0 +1,272 @@
+"""`fixer4d-view [RUN_DIR | SCENE]`: the desktop viewer/editor.
+
+    fixer4d-view                      the built-in demo scene, trained live in the background
+    fixer4d-view runs/demo            a run folder: model_final.ply (or model_stage1.ply), cache
+    fixer4d-view path/to/scene        any scene load_scene opens, trained live
+    fixer4d-view --screenshot out.png --frames 30 [SOURCE]
+                                      render 30 frames (after the first model arrives), save the
+                                      window image, exit (scripts, bug reports)
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.camera_control import ViewCamera, rig_up
+from app.session import RestoreQueue, TrainingSession
+from app.state import AppState
+from app.viewer import Viewer, ViewerSource
+from fixer4d.errors import Fixer4DError, InputError
+
+DEFAULT_SIZE = (1440, 900)
+# First view of a scene: from the rig, pulled back by this factor of its distance to the scene
+# centre and lifted by this fraction of the scene radius.
+START_PULLBACK = 1.15
+START_LIFT = 0.05
+# Above this condition number the cameras' optical axes are too close to parallel to intersect.
+PARALLEL_AXES_COND = 1e6
+# Longest a --screenshot run waits for the first model (live init + model build) before it
+# gives up with an error.
+SCREENSHOT_MODEL_TIMEOUT_S = 900.0
+# Live training from a scene: the default init method (dense MVS, the paper's) and how many
+# evenly spaced frames get an init cloud. Plane-sweep MVS costs ~25 s per frame of the demo on
+# 2 CPU cores, so a live preview starts from a few keyframes; the temporal opacity of the
+# Gaussians spans the gaps and training fills in the rest.
+LIVE_INIT_METHOD = "mvs"
+LIVE_INIT_FRAMES = 3
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="fixer4d-view", description=__doc__.splitlines()[0])
+    p.add_argument("source", nargs="?", default="demo",
+                   help="a run folder (with config.json), a scene (folder, spec .json, 'demo'); default: demo")
+    p.add_argument("--screenshot", metavar="FILE", help="render --frames frames, save the window image to FILE, exit")
+    p.add_argument("--frames", type=int, default=30, help="frames to render before --screenshot (default 30)")
+    p.add_argument("--size", default=f"{DEFAULT_SIZE[0]}x{DEFAULT_SIZE[1]}", help="window size WxH")
+    p.add_argument("--scale", type=float, default=1.0, help="image scale when opening a scene (0.5 = half)")
+    p.add_argument("--iterations", type=int, default=None, help="live training: stage-1 iterations")
+    p.add_argument("--init", choices=("mvs", "sparse"), default=LIVE_INIT_METHOD,
+                   help=f"live training: init method (default {LIVE_INIT_METHOD}; sparse starts in seconds)")
+    p.add_argument("--init-frames", type=int, default=LIVE_INIT_FRAMES,
+                   help=f"live training: evenly spaced frames with an init cloud (default {LIVE_INIT_FRAMES})")
+    p.add_argument("--no-session", action="store_true", help="neither restore nor save the viewer session")
+    return p
+
+
+def _config_dir() -> Path:
+    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+    return Path(base) / "fixer4d" / "view"
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_")[-80:] or "default"
+
+
+def open_source(source: str, *, scale: float = 1.0, iterations: int | None = None, init: str = LIVE_INIT_METHOD,
+                init_frames: int = LIVE_INIT_FRAMES) -> tuple[ViewerSource, Any, Path]:
+    """Resolve the command-line source. Returns (ViewerSource, initial GaussianArrays or None,
+    folder for the viewer's session files)."""
+    from fixer4d.scene import load_scene
+
+    path = Path(source)
+    if path.is_dir() and (path / "config.json").is_file():
+        return open_run(path)
+    scene = load_scene(source, scale=scale)
+    training = TrainingSession(lambda: live_trainer(scene, iterations, init, init_frames))
+    session_dir = _config_dir() / _slug(str(path.resolve()) if path.exists() else source)
+    cache, restore = make_restore(session_dir / "cache")
+    src = ViewerSource(scene=scene, label=f"{scene.name} (live training)", training=training, cache=cache,
+                       restore=restore)
+    return src, None, session_dir
+
+
+def open_run(run: Path) -> tuple[ViewerSource, Any, Path]:
+    """A run folder: its scene, latest model, restoration cache and a restorer for new jobs."""
+    from app.gaussians import GaussianArrays
+    from fixer4d.model.io import load_model
+    from fixer4d.scene import load_scene
+
+    try:
+        config = json.loads((run / "config.json").read_text())
+        scene_cfg = dict(config["scene"])
+    except (ValueError, KeyError) as exc:
+        raise InputError(f"{run / 'config.json'}: no 'scene' entry ({exc}); is this a fixer4d run folder?") from exc
+    if scene_cfg.get("frame_range") is not None:
+        scene_cfg["frame_range"] = tuple(scene_cfg["frame_range"])
+    scene = load_scene(**scene_cfg)
+    model_path = next((run / n for n in ("model_final.ply", "model_stage1.ply") if (run / n).is_file()), None)
+    if model_path is None:
+        raise InputError(f"{run}: no model_final.ply or model_stage1.ply yet; run `fixer4d reconstruct` first")
+    g = GaussianArrays.from_model(load_model(model_path))
+    cache, restore = make_restore(run / "cache")
+    src = ViewerSource(scene=scene, run_dir=run, label=f"{run.name}: {model_path.name}", cache=cache, restore=restore)
+    return src, g, run / "viewer"
+
+
+def make_restore(cache_dir: Path) -> tuple[Any, RestoreQueue]:
+    """The on-disk cache and a queue feeding the built-in CPU restorer."""
+    from fixer4d.restore.cache import RestoreCache
+    from fixer4d.restore.jobs import RestoreJobs
+    from fixer4d.restore.reference_warp import ReferenceWarpRestorer
+
+    cache = RestoreCache(cache_dir)
+    jobs = RestoreJobs(ReferenceWarpRestorer(), cache)
+    return cache, RestoreQueue(jobs, lambda: cache.latest_round() or 0)
+
+
+def live_trainer(scene: Any, iterations: int | None, method: str = LIVE_INIT_METHOD,
+                 init_frames: int = LIVE_INIT_FRAMES) -> Any:
+    """Init clouds (``method`` on ``init_frames`` evenly spaced frames) + model + stage-1
+    Trainer for a scene (runs on the training thread)."""
+    import tempfile
+
+    from fixer4d.init import run_init
+    from fixer4d.train.config import Stage1Config
+    from fixer4d.train.trainer import Trainer, model_from_clouds
+
+    config = Stage1Config(progress=False) if iterations is None else Stage1Config(progress=False, iterations=iterations)
+    count = int(np.clip(init_frames, 1, scene.num_frames))
+    frames = sorted(set(np.linspace(0, scene.num_frames - 1, count).round().astype(int).tolist()))
+    out = Path(tempfile.mkdtemp(prefix="fixer4d-view-init-"))
+    clouds, _ = run_init(scene, method, out, frames=frames, progress=False)
+    return Trainer(model_from_clouds(clouds, scene, config), scene, config)
+
+
+def initial_state(src: ViewerSource, gaussians: Any) -> AppState:
+    """State for a fresh session: the scene's timeline, a view from the first train camera's
+    side at the rig, the default trajectories."""
+    from app.trajectories import default_specs
+
+    st = AppState()
+    scene = src.scene
+    if scene is not None:
+        st.num_frames, st.fps = scene.num_frames, float(scene.fps)
+        cams = scene.train_cameras or scene.cameras
+        center = rig_focus(cams, scene.bounds())
+        radius = float(np.max(np.linalg.norm(np.stack([c.center for c in scene.cameras]) - center, axis=1)))
+        st.view = ViewCamera(up=rig_up(scene.cameras), fov_y=cams[0].fov_y)
+        rig = np.mean([c.center for c in cams], axis=0)
+        # from behind the rig, a little above it: the rig's frusta and the scene both in view
+        eye = center + START_PULLBACK * (rig - center) + START_LIFT * radius * st.view.up
+        st.view.look_from(eye, center, scene_radius=radius)
+        if len(scene.train_ids) >= 2:
+            st.trajectories = default_specs(scene.train_cameras, max(2, min(scene.num_frames, 16)))
+            st.selected_trajectory = 0
+    st.set_gaussians(gaussians)
+    return st
+
+
+def rig_focus(cameras: list[Any], bounds: Any) -> np.ndarray:
+    """The point the cameras look at: least-squares closest point to their optical axes; the
+    scene bounds' centre when the axes are (nearly) parallel."""
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for c in cameras:
+        P = np.eye(3) - np.outer(c.forward, c.forward)
+        A += P
+        b += P @ c.center
+    if np.linalg.cond(A) < PARALLEL_AXES_COND:
+        return np.linalg.solve(A, b)
+    if bounds is not None:
+        return (np.asarray(bounds.bbox_min, float) + np.asarray(bounds.bbox_max, float)) / 2.0
+    return np.mean([c.center + c.forward for c in cameras], axis=0)
+
+
+def run_window(args: argparse.Namespace) -> int:
+    import ctypes
+
+    import glfw
+    import moderngl
+    from imgui_bundle import imgui
+
+    src, gaussians, session_dir = open_source(args.source, scale=args.scale, iterations=args.iterations,
+                                              init=args.init, init_frames=args.init_frames)
+    state = initial_state(src, gaussians)
+    w, h = (int(v) for v in args.size.lower().split("x"))
+    if not glfw.init():
+        raise InputError("glfw could not initialize a display; set DISPLAY (or run under Xvfb)")
+    glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
+    glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
+    glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
+    glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
+    window = glfw.create_window(w, h, f"fixer4d-view - {src.label}", None, None)
+    if not window:
+        glfw.terminate()
+        raise InputError("could not open an OpenGL 3.3 window; check the GPU driver or Mesa")
+    glfw.make_context_current(window)
+    glfw.swap_interval(0 if args.screenshot else 1)
+    ctx = moderngl.create_context()
+    session_dir.mkdir(parents=True, exist_ok=True)
+    address = ctypes.cast(window, ctypes.c_void_p).value
+    viewer = Viewer(ctx, state, src, ini_path=None if args.no_session else session_dir / "imgui.ini",
+                    session_path=None if args.no_session else session_dir / "session.json",
+                    platform_init=lambda: imgui.backends.glfw_init_for_opengl(address, True))
+    if src.training is not None:
+        src.training.start()
+    status = 0
+    frames_with_model = 0
+    started = time.monotonic()
+    last = time.perf_counter()
+    try:
+        while not glfw.window_should_close(window):
+            glfw.poll_events()
+            now = time.perf_counter()
+            fbo = ctx.detect_framebuffer()
+            viewer.frame(now - last, fbo, platform_new_frame=imgui.backends.glfw_new_frame)
+            last = now
+            if args.screenshot:
+                frames_with_model += state.gaussians is not None
+                failed = src.training is not None and src.training.state == "failed"
+                if frames_with_model >= args.frames or failed or time.monotonic() - started > SCREENSHOT_MODEL_TIMEOUT_S:
+                    save_png(args.screenshot, viewer.screenshot(fbo))
+                    print(f"fixer4d-view: wrote {args.screenshot} after {frames_with_model} frames with a model")
+                    if state.gaussians is None:
+                        print("fixer4d-view: no model arrived in time: "
+                              f"{src.training.error if src.training else 'nothing to show'}", file=sys.stderr)
+                        status = 1
+                    break
+            glfw.swap_buffers(window)
+    finally:
+        viewer.close(platform_shutdown=imgui.backends.glfw_shutdown)
+        glfw.destroy_window(window)
+        glfw.terminate()
+    return status
+
+
+def save_png(path: str | Path, image: np.ndarray) -> None:
+    from PIL import Image
+
+    from fixer4d.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        Image.fromarray(image).save(tmp)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        status = run_window(args)
+    except Fixer4DError as exc:
+        print(f"fixer4d-view: error: {exc}", file=sys.stderr)
+        return 1
+    if threading.active_count() > 1:
+        # A background init (MVS, COLMAP) cannot be interrupted; letting the interpreter tear
+        # down under it aborts in C++ thread destructors. Session, layout and every output are
+        # already written (atomically), so leave at once.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())

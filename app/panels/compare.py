@@ -1,0 +1,124 @@
+"""Compare: for a trajectory frame of a cached restoration, the current render vs the cached
+pseudo-target (and the ground truth where the scene has one: a real camera, or any camera of a
+synthetic scene): side by side, split slider, A/B toggle, labels and per-frame PSNR."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from imgui_bundle import imgui
+
+from app.panels._layout import begin, show_error
+
+# Re-list the cache at most this often (seconds): listing reads meta.json files from disk.
+CACHE_POLL_S = 1.0
+MODES = ("side by side", "split", "A/B")
+
+
+def draw(viewer) -> None:
+    src = viewer.source
+    ui = viewer.__dict__.setdefault("_compare_ui", {"entries": [], "polled": -1e9, "entry": 0, "k": 0,
+                                                    "mode": 0, "split": 0.5, "show_b": False, "cache": {}})
+    if begin("Compare", 300, 605, 800, 290):
+        show_error(viewer, "compare")
+        if src.cache is None:
+            imgui.text_wrapped("No restoration cache (open a run folder or queue a restoration).")
+        else:
+            body(viewer, ui)
+    imgui.end()
+
+
+def refresh_entries(viewer, ui: dict) -> list:
+    now = time.monotonic()
+    if now - ui["polled"] > CACHE_POLL_S:
+        ui["entries"] = list(viewer.source.cache.entries())
+        ui["polled"] = now
+    return ui["entries"]
+
+
+def frame_images(viewer, ui: dict, entry, k: int) -> dict[str, np.ndarray]:
+    """{"render", "target", optionally "truth"} (H, W, 3) float32 for frame k of ``entry``
+    (cached per entry, frame and displayed model)."""
+    key = (entry.key, entry.round, k, viewer.state.gaussians_version)
+    cache = ui["cache"]
+    if key not in cache:
+        cam = entry.cameras[k]
+        out = {"render": viewer.model_render_fn()(cam, entry.time)["rgb"], "target": entry.rgb()[k]}
+        truth = ground_truth(viewer.source.scene, entry, cam)
+        if truth is not None:
+            out["truth"] = truth
+        cache.clear()
+        cache[key] = out
+    return cache[key]
+
+
+def ground_truth(scene, entry, cam) -> np.ndarray | None:
+    if scene is None:
+        return None
+    for i, c in enumerate(scene.cameras):
+        if c.width == cam.width and c.height == cam.height and np.allclose(c.c2w, cam.c2w, atol=1e-9) \
+                and np.allclose(c.K, cam.K, atol=1e-9):
+            return scene.frame(int(entry.frame), i)
+    if hasattr(scene, "render_gt"):
+        return scene.render_gt(cam, float(entry.time))[0]
+    return None
+
+
+def body(viewer, ui: dict) -> None:
+    from fixer4d.eval.metrics import psnr
+
+    entries = refresh_entries(viewer, ui)
+    if not entries:
+        imgui.text("the cache has no finished clips yet")
+        return
+    names = [f"round {e.round}  {e.key}" for e in entries]
+    ui["entry"] = min(ui["entry"], len(entries) - 1)
+    _, ui["entry"] = imgui.combo("clip", ui["entry"], names)
+    entry = entries[ui["entry"]]
+    n = len(entry.cameras)
+    ui["k"] = min(ui["k"], n - 1)
+    imgui.set_next_item_width(200)
+    _, ui["k"] = imgui.slider_int("frame in clip", ui["k"], 0, n - 1)
+    imgui.same_line()
+    imgui.set_next_item_width(140)
+    _, ui["mode"] = imgui.combo("mode", ui["mode"], list(MODES))
+    imgs = frame_images(viewer, ui, entry, ui["k"])
+    labels = [("render", "render (current model)"), ("target", "pseudo-target (cache)"), ("truth", "ground truth")]
+    scores = [f"PSNR render vs target {psnr(imgs['render'], imgs['target']):.2f} dB"]
+    if "truth" in imgs:
+        scores.append(f"render vs truth {psnr(imgs['render'], imgs['truth']):.2f} dB")
+        scores.append(f"target vs truth {psnr(imgs['target'], imgs['truth']):.2f} dB")
+    imgui.text("   ".join(scores))
+    avail = imgui.get_content_region_avail()
+    h, w = imgs["render"].shape[:2]
+    mode = MODES[ui["mode"]]
+    if mode == "side by side":
+        shown = [(k, lab) for k, lab in labels if k in imgs]
+        scale = min((avail.x - 8 * len(shown)) / (w * len(shown)), max(avail.y - 24, 32) / h)
+        for i, (k, lab) in enumerate(shown):
+            if i:
+                imgui.same_line()
+            imgui.begin_group()
+            imgui.text(lab)
+            tex = viewer.image_texture(f"compare_{k}", imgs[k])
+            imgui.image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(w * scale, h * scale))
+            imgui.end_group()
+    else:
+        if mode == "split":
+            imgui.set_next_item_width(200)
+            _, ui["split"] = imgui.slider_float("split", ui["split"], 0.0, 1.0)
+            cut = int(round(ui["split"] * w))
+            img = np.concatenate([imgs["render"][:, :cut], imgs["target"][:, cut:]], 1)
+            if 0 < cut < w:
+                img[:, cut] = (1.0, 1.0, 0.0)
+            caption = "left: render | right: pseudo-target"
+        else:
+            if imgui.button("A/B (B key)") or imgui.is_key_pressed(imgui.Key.b, False):
+                ui["show_b"] = not ui["show_b"]
+            img = imgs["target"] if ui["show_b"] else imgs["render"]
+            caption = "B: pseudo-target (cache)" if ui["show_b"] else "A: render (current model)"
+        imgui.same_line()
+        imgui.text(caption)
+        scale = min(avail.x / w, max(avail.y - 24, 32) / h)
+        tex = viewer.image_texture("compare_main", img)
+        imgui.image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(w * scale, h * scale))

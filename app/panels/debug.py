@@ -1,0 +1,78 @@
+"""Debug overlays: hole map (low accumulated alpha), blur map (missing detail against the
+nearest reference), depth, accumulated alpha, per-Gaussian heatmaps (speed, temporal opacity);
+frame timings; screenshot export."""
+from __future__ import annotations
+
+import numpy as np
+from imgui_bundle import imgui
+
+from app.panels._layout import begin, show_error
+
+RESOLVE = ("color", "holes", "depth", "alpha", "blur")
+SPLAT = ("color", "speed", "temporal_opacity")
+
+
+def draw(viewer) -> None:
+    st = viewer.state
+    ui = viewer.__dict__.setdefault("_debug_ui", {"shot": "screenshot.png", "ref": None})
+    if begin("Debug", 1105, 620, 330, 300):
+        show_error(viewer, "debug")
+        imgui.text("image")
+        for mode in RESOLVE:
+            if imgui.radio_button(mode, st.debug_mode == mode):
+                st.debug_mode = mode
+                if mode == "blur":
+                    compute_blur(viewer)
+            imgui.same_line()
+        imgui.new_line()
+        if st.debug_mode == "blur":
+            if imgui.button("recompute blur map"):
+                compute_blur(viewer)
+            if ui["ref"] is not None:
+                imgui.same_line()
+                imgui.text(f"vs {ui['ref']}")
+        imgui.text("Gaussians")
+        for mode in SPLAT:
+            if imgui.radio_button(mode + "##splat", st.splat_mode == mode):
+                st.splat_mode = mode
+            imgui.same_line()
+        imgui.new_line()
+        s = viewer.splats.stats
+        imgui.text(f"frame {viewer.frame_ms:.1f} ms   draw {s.draw_ms:.1f} ms   sort {s.sort_ms:.1f} ms")
+        imgui.text(f"upload {s.upload_ms:.1f} ms   instances {s.instances}")
+        _, ui["shot"] = imgui.input_text("file", ui["shot"])
+        if imgui.button("save screenshot (3D view)"):
+            save_view_png(viewer, ui["shot"])
+    imgui.end()
+
+
+def compute_blur(viewer) -> None:
+    """Blur map of the current view against the nearest train camera's real frame."""
+    from app.debug_maps import blur_map, nearest_camera
+
+    scene, cam = viewer.source.scene, viewer.splats.last_camera
+    ui = viewer.__dict__.setdefault("_debug_ui", {"shot": "screenshot.png", "ref": None})
+    if scene is None or cam is None:
+        viewer.state.status = "blur map needs a scene with real frames"
+        return
+    train = scene.train_cameras
+    j = nearest_camera(train, cam)
+    ref_idx = scene.train_ids[j]
+    m = blur_map(viewer.splats.read_rgb(viewer.state.background), viewer.splats.read_depth(),
+                 viewer.splats.read_alpha(), cam, scene.frame(viewer.state.frame, ref_idx), train[j])
+    viewer.splats.set_scalar_map(m)
+    viewer.blur_max = float(max(np.percentile(m, 99), 1e-6))
+    ui["ref"] = train[j].name or str(ref_idx)
+
+
+def save_view_png(viewer, path: str) -> None:
+    from PIL import Image
+
+    from fixer4d.atomic import atomic_path
+
+    if viewer.splats.display_texture is None:
+        viewer.state.status = "nothing rendered yet"
+        return
+    with atomic_path(path) as tmp:
+        Image.fromarray(viewer.splats.read_display()).save(tmp)
+    viewer.state.status = f"wrote {path}"

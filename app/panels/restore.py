@@ -1,0 +1,75 @@
+"""Restoration jobs: queue the selected trajectory x timestamps to the background worker;
+progress, cancel and failures shown; finished clips land in the cache (the compare panel
+reads them)."""
+from __future__ import annotations
+
+import re
+
+from imgui_bundle import imgui
+
+from app.panels._layout import begin, show_error
+
+
+def draw(viewer) -> None:
+    st = viewer.state
+    src = viewer.source
+    ui = viewer.__dict__.setdefault("_restore_ui", {"every": 0})
+    if begin("Restore", 1105, 365, 330, 250):
+        show_error(viewer, "restore")
+        if src.restore is None or src.scene is None:
+            imgui.text_wrapped("Restoration needs a scene and a restorer (open a run folder or a scene).")
+        else:
+            k = st.selected_trajectory
+            name = st.trajectories[k].name if 0 <= k < len(st.trajectories) else "(select a trajectory)"
+            imgui.text(f"trajectory: {name}")
+            imgui.set_next_item_width(120)
+            _, ui["every"] = imgui.input_int("every n-th frame (0 = current)", ui["every"])
+            ui["every"] = max(0, ui["every"])
+            queue = 0 <= k < len(st.trajectories) and imgui.button("queue")
+            viewer.record_item("queue")
+            if queue:
+                frames = [st.frame] if ui["every"] == 0 else list(range(0, st.num_frames, ui["every"]))
+                for f in frames:
+                    queue_restore(viewer, k, f)
+            imgui.separator()
+            for n, item in enumerate(reversed(src.restore.items)):
+                imgui.push_id(str(n))
+                imgui.text(f"{item.key}  {item.status}")
+                if item.status in ("rendering", "queued", "running", "submitted"):
+                    imgui.same_line()
+                    if imgui.small_button("cancel"):
+                        item.cancel()
+                imgui.progress_bar(item.progress, imgui.ImVec2(-1, 0))
+                err = item.error or (getattr(item.job, "error", None) if item.job is not None else None)
+                if err:
+                    imgui.text_colored(imgui.ImVec4(1.0, 0.35, 0.3, 1.0), str(err))
+                imgui.pop_id()
+    imgui.end()
+
+
+def queue_restore(viewer, k: int, frame: int):
+    """Queue trajectory ``k`` of the state at ``frame``; returns the ``QueuedRestore``."""
+    from app.session import restore_request
+    from app.trajectories import spec_meta
+
+    st, src = viewer.state, viewer.source
+    spec = st.trajectories[k]
+    cams = viewer.trajectory_cameras(spec)
+    scene = src.scene
+    if spec.pair is not None:
+        ref_ids = (scene.train_ids[spec.pair[0]], scene.train_ids[spec.pair[1]])
+        key = src.cache.key(frame, spec.pair[0], spec.pair[1], spec.arc_index)
+    else:
+        ref_ids = tuple(_nearest_train(scene, c) for c in (cams[0], cams[-1]))
+        key = f"t{frame:04d}_" + re.sub(r"[^A-Za-z0-9_-]+", "_", spec.name)
+    if spec.reverse:
+        ref_ids = ref_ids[::-1]
+    render_fn = viewer.model_render_fn()
+    meta = {"source": "viewer", "trajectory": spec_meta(spec)}
+    return src.restore.queue(key, spec.name, frame,
+                             lambda: restore_request(render_fn, scene, cams, frame, ref_ids, spec_meta(spec)), meta)
+
+
+def _nearest_train(scene, cam) -> int:
+    d = [float(((scene.cameras[i].center - cam.center) ** 2).sum()) for i in scene.train_ids]
+    return scene.train_ids[int(min(range(len(d)), key=d.__getitem__))]

@@ -1,0 +1,36 @@
+"""Timeline: play/pause/loop, scrub, frame step, fps. The time drives the render and every panel."""
+from __future__ import annotations
+
+from imgui_bundle import imgui
+
+from app.panels._layout import begin, show_error
+
+# Playback speeds offered (frames per second).
+FPS_RANGE = (1.0, 120.0)
+
+
+def draw(viewer) -> None:
+    st = viewer.state
+    if begin("Timeline", 300, 505, 800, 95):
+        show_error(viewer, "timeline")
+        if imgui.button("Pause" if st.playing else "Play"):
+            st.playing = not st.playing
+        imgui.same_line()
+        if imgui.arrow_button("##prev", imgui.Dir.left):
+            st.set_frame(st.frame - 1)
+        imgui.same_line()
+        if imgui.arrow_button("##next", imgui.Dir.right):
+            st.set_frame(st.frame + 1)
+        imgui.same_line()
+        _, st.loop = imgui.checkbox("loop", st.loop)
+        imgui.same_line()
+        imgui.set_next_item_width(120)
+        _, st.fps = imgui.slider_float("fps", st.fps, *FPS_RANGE, "%.0f")
+        imgui.same_line()
+        imgui.text(f"t = {st.time:.4f}")
+        imgui.set_next_item_width(-1)
+        changed, f = imgui.slider_int("##frame", st.frame, 0, max(st.num_frames - 1, 0), "frame %d")
+        viewer.record_item("frame_slider")
+        if changed:
+            st.set_frame(f)
+    imgui.end()

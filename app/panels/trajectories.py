@@ -1,0 +1,94 @@
+"""Trajectory editor: the 6 pairs and the diagonal arcs, select, tune A / frame count /
+direction, preview the render at any alpha, custom trajectories from keyframes (current view ->
+key), delete, export/import presets (fixer4d JSON) and nerfstudio camera paths. Every change is
+one undoable edit (sliders commit when released)."""
+from __future__ import annotations
+
+from imgui_bundle import imgui
+
+from app import trajectories as traj
+from app.panels._layout import begin, show_error
+from app.state import TrajectorySpec
+
+# Slider ranges: A in units of the rig radius, frame counts per clip.
+AMPLITUDE_RANGE = (0.0, 2.0)
+FRAMES_RANGE = (2, 120)
+
+
+def draw(viewer) -> None:
+    st = viewer.state
+    scene = viewer.source.scene
+    ui = viewer.__dict__.setdefault("_traj_ui", {"preset": "trajectories.json", "camera_path": "camera_path.json",
+                                                 "pending": {}})
+    train = [] if scene is None else scene.train_cameras
+    if begin("Trajectories", 5, 365, 290, 430):
+        show_error(viewer, "trajectories")
+        if scene is not None and imgui.button("add the 6 pairs + arcs"):
+            st.set_trajectories(st.trajectories + traj.default_specs(scene.train_cameras, max(2, scene.num_frames)),
+                                "add default trajectories", selected=len(st.trajectories))
+        imgui.same_line()
+        if imgui.button("new from view"):
+            cam = viewer.render_camera or st.view.camera(640, 480)
+            st.add_trajectory(TrajectorySpec(name=f"custom{len(st.trajectories)}", keyframes=(cam.to_dict(),)))
+        imgui.begin_child("list", imgui.ImVec2(0, 110), imgui.ChildFlags_.borders.value)
+        for k, spec in enumerate(st.trajectories):
+            label = f"{spec.name}  A={spec.amplitude:.2f}  {spec.n_frames}f{'  rev' if spec.reverse else ''}##{k}"
+            if imgui.selectable(label, k == st.selected_trajectory)[0]:
+                st.selected_trajectory = k
+        imgui.end_child()
+        k = st.selected_trajectory
+        if 0 <= k < len(st.trajectories):
+            _selected(viewer, k, ui["pending"])
+        imgui.separator()
+        _, ui["preset"] = imgui.input_text("preset", ui["preset"])
+        export = imgui.button("export preset")
+        viewer.record_item("export_preset")
+        if export:
+            st.status = f"wrote {traj.save_preset(ui['preset'], st.trajectories, train)}"
+        imgui.same_line()
+        if imgui.button("import preset"):
+            st.set_trajectories(traj.load_preset(ui["preset"]), f"import {ui['preset']}", selected=0)
+        _, ui["camera_path"] = imgui.input_text("camera_path", ui["camera_path"])
+        if 0 <= k < len(st.trajectories) and imgui.button("export camera_path"):
+            path = traj.save_camera_path(ui["camera_path"], st.trajectories[k], train, min(st.time, 0.999999), st.fps)
+            st.status = f"wrote {path}"
+        imgui.same_line()
+        if imgui.button("import camera_path"):
+            st.add_trajectory(traj.load_camera_path(ui["camera_path"]))
+    imgui.end()
+
+
+def _selected(viewer, k: int, pending: dict) -> None:
+    st = viewer.state
+    spec = st.trajectories[k]
+    if spec.pair is not None:
+        imgui.text(f"pair {spec.pair[0]} - {spec.pair[1]}" + (f", arc {spec.arc_index}" if spec.arc_index is not None else ""))
+        value = pending.get(("A", k), spec.amplitude)
+        changed, value = imgui.slider_float("A", value, *AMPLITUDE_RANGE)
+        if changed:
+            pending[("A", k)] = value
+        if imgui.is_item_deactivated_after_edit():
+            st.update_trajectory(k, f"A of {spec.name} = {value:.3f}", amplitude=float(pending.pop(("A", k), value)))
+    else:
+        imgui.text(f"custom: {len(spec.keyframes)} keyframes")
+        if imgui.button("add keyframe (current view)"):
+            st.add_keyframe(k, viewer.render_camera or st.view.camera(640, 480))
+    frames = pending.get(("F", k), spec.n_frames)
+    changed, frames = imgui.slider_int("frames", frames, *FRAMES_RANGE)
+    if changed:
+        pending[("F", k)] = frames
+    if imgui.is_item_deactivated_after_edit():
+        st.update_trajectory(k, f"frames of {spec.name} = {frames}", n_frames=int(pending.pop(("F", k), frames)))
+    changed, rev = imgui.checkbox("reverse", spec.reverse)
+    if changed:
+        st.update_trajectory(k, f"reverse {spec.name}", reverse=rev)
+    imgui.same_line()
+    changed, vis = imgui.checkbox("visible", spec.visible)
+    if changed:
+        st.update_trajectory(k, f"{'show' if vis else 'hide'} {spec.name}", visible=vis)
+    _, st.previewing = imgui.checkbox("preview", st.previewing)
+    imgui.same_line()
+    imgui.set_next_item_width(-1)
+    _, st.preview_alpha = imgui.slider_float("##alpha", st.preview_alpha, 0.0, 1.0, "alpha %.3f")
+    if imgui.button("delete trajectory"):
+        st.delete_trajectory(k)

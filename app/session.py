@@ -1,0 +1,278 @@
+"""Background work for the viewer: live training and restoration jobs, talking to the UI
+through mailboxes so the UI thread never blocks on them (DESIGN.md §5).
+
+- ``Mailbox``: a single-slot, latest-value-wins handoff (a newer model replaces an unread one).
+- ``TrainingSession``: runs ``Trainer.step()`` in a thread (after an optional setup function,
+  e.g. init + model construction), publishes the model's raw parameters every few steps and a
+  loss record every step, pauses/resumes, and yields to rendering: before each step it waits
+  until the UI is not drawing a frame.
+- ``RestoreQueue``: renders the request for (trajectory, frame) on a worker thread with an
+  injected render function, then submits it to ``fixer4d.restore.jobs.RestoreJobs``; finished
+  clips land in the cache through the jobs' own writer.
+"""
+from __future__ import annotations
+
+import threading
+import time
+import traceback
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from app.gaussians import GaussianArrays
+from fixer4d.geometry.camera import Camera
+
+# Publish the model to the viewer every this many steps: a full parameter copy costs about as
+# much as a step on small models, so every step would halve training speed.
+PUBLISH_EVERY = 10
+# Longest a training step waits for the UI to finish its frame before stepping anyway; bounds
+# how much a stuck UI can stall training.
+YIELD_TIMEOUT_S = 0.25
+# Loss records kept for the plot.
+MAX_HISTORY = 20000
+
+
+class Mailbox:
+    """Latest-value handoff between threads."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._value: Any = None
+        self._serial = 0
+
+    def put(self, value: Any) -> None:
+        with self._lock:
+            self._value = value
+            self._serial += 1
+
+    def take(self, seen: int) -> tuple[int, Any] | None:
+        """(serial, value) if something newer than serial ``seen`` was put, else None."""
+        with self._lock:
+            if self._serial == seen:
+                return None
+            return self._serial, self._value
+
+
+class TrainingSession:
+    """Trains in a background thread.
+
+    setup: called once in the thread, returns the ``Trainer`` (e.g. runs init, builds the model;
+      slow work stays off the UI thread). State goes idle -> setup -> running <-> paused -> done
+      (or failed, with ``error`` holding the message).
+    """
+
+    def __init__(self, setup: Callable[[], Any], publish_every: int = PUBLISH_EVERY) -> None:
+        self._setup = setup
+        self.publish_every = int(publish_every)
+        self.models = Mailbox()
+        self.state = "idle"
+        self.error: str | None = None
+        self.trainer: Any = None
+        self.history: list[dict[str, float]] = []
+        self._history_lock = threading.Lock()
+        self._run = threading.Event()
+        self._quit = threading.Event()
+        self._ui_idle = threading.Event()
+        self._ui_idle.set()
+        self._thread: threading.Thread | None = None
+        self.step_seconds = 0.0
+
+    # ---- control (UI thread) ------------------------------------------------------------------
+    def start(self) -> None:
+        if self._thread is None:
+            self._run.set()
+            self._thread = threading.Thread(target=self._loop, name="viewer-training", daemon=True)
+            self._thread.start()
+        else:
+            self.resume()
+
+    def pause(self) -> None:
+        self._run.clear()
+        if self.state == "running":
+            self.state = "paused"
+
+    def resume(self) -> None:
+        if self.state in ("paused", "running", "setup"):
+            self._run.set()
+            if self.state == "paused":
+                self.state = "running"
+
+    def stop(self, timeout: float = 10.0) -> None:
+        self._quit.set()
+        self._run.set()
+        self._ui_idle.set()
+        if self.trainer is not None and hasattr(self.trainer, "stop"):
+            self.trainer.stop()
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+    def frame_begin(self) -> None:
+        """The UI starts drawing: training waits (up to YIELD_TIMEOUT_S) before its next step."""
+        self._ui_idle.clear()
+
+    def frame_end(self) -> None:
+        self._ui_idle.set()
+
+    def set_stage2(self, **changes: Any) -> bool:
+        """Change stage-2 knobs (lambda_gen, refresh_every) of the running trainer; False when it
+        is not a stage-2 trainer."""
+        st2 = getattr(self.trainer, "stage2", None)
+        if st2 is None:
+            return False
+        for k, v in changes.items():
+            setattr(st2, k, v)
+        return True
+
+    def losses(self) -> list[dict[str, float]]:
+        with self._history_lock:
+            return list(self.history)
+
+    @property
+    def step(self) -> int:
+        return 0 if self.trainer is None else int(self.trainer.step_count)
+
+    # ---- the thread ---------------------------------------------------------------------------
+    def _loop(self) -> None:
+        try:
+            self.state = "setup"
+            self.trainer = self._setup()
+            self.models.put(GaussianArrays.from_model(self.trainer.model))
+            self.state = "running" if self._run.is_set() else "paused"
+            while not self._quit.is_set():
+                if not self._run.wait(0.1):
+                    continue
+                if self._quit.is_set():
+                    break
+                if self.trainer.done:
+                    self.state = "done"
+                    break
+                self.state = "running"
+                self._ui_idle.wait(YIELD_TIMEOUT_S)
+                tic = time.perf_counter()
+                rec = self.trainer.step()
+                self.step_seconds = time.perf_counter() - tic
+                with self._history_lock:
+                    self.history.append({k: float(v) for k, v in rec.items() if isinstance(v, (int, float))})
+                    del self.history[:-MAX_HISTORY]
+                if self.trainer.step_count % self.publish_every == 0 or self.trainer.done:
+                    self.models.put(GaussianArrays.from_model(self.trainer.model))
+        except Exception as exc:  # shown in the training panel; the UI keeps running
+            self.state = "failed"
+            self.error = f"{type(exc).__name__}: {exc}"
+            traceback.print_exc()
+
+
+# ---- restoration ------------------------------------------------------------------------------
+
+@dataclass
+class QueuedRestore:
+    """One (trajectory, frame) restoration as the UI sees it: first the render of its request
+    (phase "rendering"), then the ``RestoreJobs`` job."""
+
+    key: str
+    trajectory: str
+    frame: int
+    phase: str = "rendering"
+    job: Any = None
+    error: str | None = None
+    future: Future | None = field(default=None, repr=False)
+    cancelled: bool = False
+
+    @property
+    def status(self) -> str:
+        if self.error is not None:
+            return "failed"
+        if self.cancelled and self.job is None:
+            return "cancelled"
+        return self.phase if self.job is None else str(self.job.status)
+
+    @property
+    def progress(self) -> float:
+        return 0.0 if self.job is None else float(self.job.progress)
+
+    def cancel(self) -> None:
+        self.cancelled = True
+        if self.future is not None:
+            self.future.cancel()
+        if self.job is not None:
+            self.job.cancel()
+
+
+class RestoreQueue:
+    """Queue restorations: ``build_request()`` (renders, slow) runs on a worker thread, then the
+    request goes to ``jobs.submit(request, round, key, meta)``."""
+
+    def __init__(self, jobs: Any, round_index: Callable[[], int]) -> None:
+        self.jobs = jobs
+        self.round_index = round_index
+        self.items: list[QueuedRestore] = []
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="viewer-restore-render")
+
+    def queue(self, key: str, trajectory: str, frame: int, build_request: Callable[[], Any],
+              meta: dict[str, Any]) -> QueuedRestore:
+        item = QueuedRestore(key=key, trajectory=trajectory, frame=frame)
+
+        def work() -> None:
+            try:
+                if item.cancelled:
+                    return
+                request = build_request()
+                if item.cancelled:
+                    return
+                item.job = self.jobs.submit(request, self.round_index(), key, meta)
+                item.phase = "submitted"
+            except Exception as exc:
+                item.error = f"{type(exc).__name__}: {exc}"
+                traceback.print_exc()
+
+        item.future = self._pool.submit(work)
+        self.items.append(item)
+        return item
+
+    def wait_all(self, timeout: float = 600.0) -> bool:
+        """Block until every queued item finished (tests and scripts). True if all did."""
+        deadline = time.monotonic() + timeout
+        for item in list(self.items):
+            if item.future is not None:
+                try:
+                    item.future.result(max(deadline - time.monotonic(), 0.0))
+                except Exception:
+                    return False
+            if item.job is not None and not item.job.wait(max(deadline - time.monotonic(), 0.0)):
+                return False
+        return True
+
+    def shutdown(self) -> None:
+        for item in self.items:
+            if item.status in ("rendering", "queued"):
+                item.cancel()
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        self.jobs.shutdown()
+
+
+def restore_request(model_render: Callable[[Camera, float], dict[str, np.ndarray]], scene: Any,
+                    cameras: list[Camera], frame: int, ref_ids: tuple[int, int], trajectory_meta: dict[str, Any]
+                    ) -> Any:
+    """A ``fixer4d.restore.base.RestoreRequest`` for one trajectory clip at ``frame``.
+
+    model_render(camera, t) -> {"rgb" (H,W,3), "depth" (H,W), "alpha" (H,W)} renders the current
+    model; ref_ids are the scene camera indices of the two endpoint (real) views; the other
+    train views of that frame go in as extra references.
+    """
+    from fixer4d.restore.base import RestoreRequest
+
+    t = scene.time(frame)
+    clip = [model_render(c, t) for c in cameras]
+    refs = [scene.cameras[i] for i in ref_ids]
+    ref_renders = [model_render(c, t) for c in refs]
+    extra_ids = [i for i in scene.train_ids if i not in ref_ids]
+    extra_cams = [scene.cameras[i] for i in extra_ids]
+    return RestoreRequest(
+        rgb=np.stack([c["rgb"] for c in clip]), depth=np.stack([c["depth"] for c in clip]),
+        alpha=np.stack([c["alpha"] for c in clip]), cameras=list(cameras), time=t, frame=int(frame),
+        ref_images=[scene.frame(frame, i) for i in ref_ids], ref_cameras=refs,
+        ref_depths=[r["depth"] for r in ref_renders], ref_alphas=[r["alpha"] for r in ref_renders],
+        extra_images=[scene.frame(frame, i) for i in extra_ids], extra_cameras=extra_cams,
+        extra_depths=[model_render(c, t)["depth"] for c in extra_cams], trajectory=dict(trajectory_meta))

@@ -1,0 +1,453 @@
+"""The viewer core, independent of the window system: one ``Viewer.frame()`` builds the imgui UI
+(docked panels over a 3D viewport), draws the splats and overlays, and renders everything into
+a framebuffer. ``app.main`` drives it from a glfw window; tests drive it headless on an EGL
+context, feeding input through imgui's io.
+
+Models reach the viewer through a ``ViewerSource`` (a run folder's model, a live trainer's
+mailbox, a restoration cache); torch renders for compare/restore come from an injected render
+function built from the displayed Gaussians, so the UI never touches a model's internals.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import moderngl
+import numpy as np
+from imgui_bundle import imgui, implot
+
+from app.gl.overlays import OverlayRenderer
+from app.gl.splats import SplatRenderer
+from app.session import RestoreQueue, TrainingSession
+from app.state import AppState, TrajectorySpec
+from fixer4d.geometry.camera import Camera
+
+# Largest viewport render (pixels per side): keeps llvmpipe interactive on big windows.
+MAX_RENDER_SIDE = 1600
+# Brush radius for Gaussian selection, in viewport pixels.
+BRUSH_RADIUS = 25.0
+# Frustum drawing depth as a fraction of the scene radius.
+FRUSTUM_DEPTH_FRACTION = 0.06
+# Built trajectories kept (each a list of cameras); cleared whole when exceeded.
+TRAJECTORY_CACHE_SIZE = 256
+COLOR_TRAIN = (0.2, 0.9, 0.3, 1.0)
+COLOR_TEST = (1.0, 0.65, 0.1, 1.0)
+COLOR_TRAJECTORY = (0.3, 0.7, 1.0, 1.0)
+COLOR_SELECTED = (1.0, 0.2, 0.9, 1.0)
+COLOR_PREVIEW = (1.0, 1.0, 1.0, 1.0)
+
+
+@dataclass
+class ViewerSource:
+    """What the viewer shows and drives.
+
+    scene: the multi-view video (cameras, real frames), or None for a bare model.
+    run_dir: the run folder (edits are saved there), or None.
+    training: a live ``TrainingSession`` whose mailbox delivers models, or None.
+    cache: a ``fixer4d.restore.cache.RestoreCache`` (the compare panel reads it), or None.
+    restore: a ``RestoreQueue`` to queue restorations, or None.
+    render_backend: the torch rasterizer backend for compare/restore renders.
+    """
+
+    scene: Any = None
+    run_dir: Path | None = None
+    label: str = ""
+    training: TrainingSession | None = None
+    cache: Any = None
+    restore: RestoreQueue | None = None
+    render_backend: str = "auto"
+
+
+class Viewer:
+    """The application, minus the window. Call ``frame(dt, fbo)`` once per frame."""
+
+    def __init__(self, ctx: moderngl.Context, state: AppState, source: ViewerSource, *,
+                 ini_path: Path | None = None, session_path: Path | None = None,
+                 platform_init: Callable[[], None] | None = None) -> None:
+        self.ctx = ctx
+        self.state = state
+        self.source = source
+        self.session_path = session_path
+        self.imgui_ctx = imgui.create_context()
+        self.implot_ctx = implot.create_context()
+        io = imgui.get_io()
+        io.config_flags |= imgui.ConfigFlags_.docking_enable.value
+        self._ini_path = None if ini_path is None else str(ini_path)
+        io.set_ini_filename(self._ini_path)
+        if platform_init is not None:
+            platform_init()
+        imgui.backends.opengl3_init("#version 330")
+        self.splats = SplatRenderer(ctx)
+        self.overlays = OverlayRenderer(ctx)
+        self.tool = "navigate"  # navigate | box | brush
+        self._drag_start: tuple[float, float] | None = None
+        self._uploaded_version = -1
+        self._model_serial = 0
+        self._torch_model: tuple[int, Any] | None = None
+        self.viewport_rect = (0.0, 0.0, 1.0, 1.0)  # screen x, y, w, h of the 3D image
+        self.render_camera: Camera | None = None
+        self.frame_ms = 0.0
+        self.frame_times: list[float] = []
+        self.images: dict[str, moderngl.Texture] = {}
+        self.panel_errors: dict[str, str] = {}
+        self.blur_max = 1.0  # top of the blur map's colour scale (set by the debug panel)
+        # screen rectangles (x0, y0, x1, y1) of named widgets from the last frame, so scripts and
+        # tests can click them through imgui's io like a user
+        self.item_rects: dict[str, tuple[float, float, float, float]] = {}
+        self._trajectory_cache: dict[int, tuple[TrajectorySpec, list[Camera]]] = {}
+        from app.panels import PANELS  # the panels import the viewer's helpers
+
+        self.panels = PANELS
+        if session_path is not None:
+            try:
+                state.load_session(session_path)
+            except Exception as exc:  # a bad session must not stop the app; say so
+                state.status = str(exc)
+
+    # ---- per-frame ------------------------------------------------------------------------------
+    def frame(self, dt: float, fbo: moderngl.Framebuffer, platform_new_frame: Callable[[], None] | None = None) -> None:
+        """Advance playback by ``dt`` seconds, build the UI, draw everything into ``fbo``."""
+        tic = time.perf_counter()
+        training = self.source.training
+        if training is not None:
+            training.frame_begin()
+        try:
+            self._poll_models()
+            self.state.advance(dt)
+            io = imgui.get_io()
+            io.delta_time = max(float(dt), 1e-4)
+            if platform_new_frame is not None:
+                platform_new_frame()
+            else:
+                io.display_size = imgui.ImVec2(float(fbo.size[0]), float(fbo.size[1]))
+            imgui.backends.opengl3_new_frame()
+            imgui.new_frame()
+            imgui.dock_space_over_viewport(0, imgui.get_main_viewport(),
+                                           imgui.DockNodeFlags_.passthru_central_node.value)
+            self._menu()
+            self._viewport_window()
+            for name, draw in self.panels:
+                try:
+                    draw(self)
+                    self.panel_errors.pop(name, None)
+                except Exception as exc:  # a failing panel shows its error, the app keeps going
+                    self.panel_errors[name] = f"{type(exc).__name__}: {exc}"
+            self._shortcuts()
+            imgui.render()
+            fbo.use()
+            self.ctx.viewport = (0, 0, *fbo.size)
+            fbo.clear(0.08, 0.08, 0.09, 1.0)
+            imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
+        finally:
+            if training is not None:
+                training.frame_end()
+        self.frame_ms = 1e3 * (time.perf_counter() - tic)
+        self.frame_times.append(self.frame_ms)
+        del self.frame_times[:-240]
+
+    def _poll_models(self) -> None:
+        tr = self.source.training
+        if tr is not None:
+            got = tr.models.take(self._model_serial)
+            if got is not None:
+                self._model_serial, g = got
+                keep_selection = self.state.gaussians is not None and self.state.gaussians.n == g.n
+                sel = self.state.selection if keep_selection else None
+                self.state.set_gaussians(g)
+                if sel is not None:
+                    self.state.set_selection(sel)
+        if self.state.gaussians is not None and self.state.gaussians_version != self._uploaded_version:
+            self.splats.set_gaussians(self.state.gaussians, self.state.selection)
+            self._uploaded_version = self.state.gaussians_version
+
+    # ---- the 3D view ----------------------------------------------------------------------------
+    def view_camera(self, width: int, height: int) -> Camera:
+        """The camera the viewport shows: the trajectory preview camera while previewing, else
+        the interactive camera."""
+        st = self.state
+        if st.previewing and 0 <= st.selected_trajectory < len(st.trajectories):
+            cams = self.trajectory_cameras(st.trajectories[st.selected_trajectory])
+            if cams:
+                k = int(round(st.preview_alpha * (len(cams) - 1)))
+                return cams[k].resized(width, height) if (cams[k].width, cams[k].height) != (width, height) else cams[k]
+        return st.view.camera(width, height)
+
+    def render_view(self, width: int, height: int, *, wait_sort: bool = False) -> moderngl.Texture | None:
+        """Render splats + overlays at the current camera and time into the display texture."""
+        st = self.state
+        if st.gaussians is None:
+            return None
+        cam = self.view_camera(width, height)
+        self.render_camera = cam
+        heat = float(np.percentile(st.gaussians.speed_at(st.time), 99)) if st.splat_mode == "speed" and st.gaussians.n else 1.0
+        self.splats.render(cam, st.time, mode=st.splat_mode, heat_scale=heat, wait_sort=wait_sort)
+        depth_range = self._depth_range(cam)
+        tex = self.splats.resolve(st.background, st.debug_mode, depth_range=depth_range,
+                                  scalar_max=self.blur_max if st.debug_mode == "blur" else 1.0)
+        self.splats.display_framebuffer.use()
+        self.overlays.clear()
+        self._collect_overlays(cam)
+        self.overlays.draw(cam, st.view.scene_radius)
+        return tex
+
+    def _depth_range(self, cam: Camera) -> tuple[float, float]:
+        g = self.state.gaussians
+        if g is None or g.n == 0:
+            return (0.1, 10.0)
+        z = g.means_at(self.state.time) @ cam.w2c[2, :3].astype(np.float32) + np.float32(cam.w2c[2, 3])
+        z = z[z > 0]
+        return (float(np.percentile(z, 2)), float(np.percentile(z, 98))) if z.size else (0.1, 10.0)
+
+    def _collect_overlays(self, cam: Camera) -> None:
+        st, scene = self.state, self.source.scene
+        depth = FRUSTUM_DEPTH_FRACTION * st.view.scene_radius
+        if st.show_frusta and scene is not None:
+            for i, c in enumerate(scene.cameras):
+                if c.name == cam.name and np.allclose(c.c2w, cam.c2w):
+                    continue
+                self.overlays.add_frustum(c, depth, COLOR_TRAIN if i in scene.train_ids else COLOR_TEST)
+        if st.show_trajectories:
+            for k, spec in enumerate(st.trajectories):
+                if not spec.visible:
+                    continue
+                cams = self.trajectory_cameras(spec)
+                color = COLOR_SELECTED if k == st.selected_trajectory else COLOR_TRAJECTORY
+                self.overlays.add_path(cams, color)
+                if k == st.selected_trajectory and cams and not st.previewing:
+                    j = int(round(st.preview_alpha * (len(cams) - 1)))
+                    self.overlays.add_frustum(cams[j], depth, COLOR_PREVIEW)
+
+    def _viewport_window(self) -> None:
+        from app.panels._layout import place
+
+        place(300, 30, 800, 470)
+        imgui.begin("Viewport")
+        avail = imgui.get_content_region_avail()
+        w = int(min(max(avail.x, 16), MAX_RENDER_SIDE))
+        h = int(min(max(avail.y - 4, 16), MAX_RENDER_SIDE))
+        tex = self.render_view(w, h)
+        pos = imgui.get_cursor_screen_pos()
+        self.viewport_rect = (pos.x, pos.y, float(w), float(h))
+        if tex is not None:
+            imgui.image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(w, h), imgui.ImVec2(0, 1), imgui.ImVec2(1, 0))
+            # an invisible button over the image takes the mouse, so drags steer the camera or
+            # select instead of moving the window
+            imgui.set_cursor_screen_pos(pos)
+            buttons = imgui.ButtonFlags_.mouse_button_left.value | imgui.ButtonFlags_.mouse_button_right.value
+            imgui.invisible_button("viewport_input", imgui.ImVec2(w, h), buttons)
+            self._viewport_input(imgui.is_item_hovered(), imgui.is_item_active())
+        else:
+            imgui.text_wrapped(self._no_model_text())
+        imgui.end()
+
+    def _no_model_text(self) -> str:
+        tr = self.source.training
+        if tr is not None and tr.state == "failed":
+            return f"training failed: {tr.error}"
+        if tr is not None:
+            return f"preparing the model ({tr.state}) ..."
+        return "no model loaded"
+
+    def _viewport_input(self, hovered: bool, active: bool) -> None:
+        io = imgui.get_io()
+        st = self.state
+        x0, y0, w, h = self.viewport_rect
+        mx, my = io.mouse_pos.x - x0, io.mouse_pos.y - y0
+        if self.tool == "navigate":
+            if active and imgui.is_mouse_dragging(imgui.MouseButton_.left.value, 0.0):
+                st.view.rotate(io.mouse_delta.x, io.mouse_delta.y)
+            if active and imgui.is_mouse_dragging(imgui.MouseButton_.right.value, 0.0):
+                st.view.pan(io.mouse_delta.x, io.mouse_delta.y, int(h))
+            if hovered and io.mouse_wheel != 0.0:
+                st.view.zoom(io.mouse_wheel)
+            if hovered and st.view.mode == "fly":
+                step = 0.02 * st.view.scene_radius
+                keys = {imgui.Key.w: (step, 0, 0), imgui.Key.s: (-step, 0, 0), imgui.Key.d: (0, step, 0),
+                        imgui.Key.a: (0, -step, 0), imgui.Key.e: (0, 0, step), imgui.Key.q: (0, 0, -step)}
+                for key, mv in keys.items():
+                    if imgui.is_key_down(key):
+                        st.view.move(*mv)
+            return
+        draw = imgui.get_window_draw_list()
+        if self.tool == "box":
+            if hovered and imgui.is_mouse_clicked(imgui.MouseButton_.left.value):
+                self._drag_start = (mx, my)
+            if self._drag_start is not None:
+                sx, sy = self._drag_start
+                draw.add_rect(imgui.ImVec2(x0 + sx, y0 + sy), imgui.ImVec2(x0 + mx, y0 + my),
+                              imgui.get_color_u32(imgui.ImVec4(*COLOR_SELECTED)), 0.0, 1.5)
+                if imgui.is_mouse_released(imgui.MouseButton_.left.value):
+                    self.select_box(sx, sy, mx, my, add=io.key_shift)
+                    self._drag_start = None
+        elif self.tool == "brush" and hovered:
+            draw.add_circle(imgui.ImVec2(x0 + mx, y0 + my), BRUSH_RADIUS,
+                            imgui.get_color_u32(imgui.ImVec4(*COLOR_SELECTED)), 0, 1.5)
+            if imgui.is_mouse_down(imgui.MouseButton_.left.value):
+                self.select_brush(mx, my, BRUSH_RADIUS, add=True)
+
+    # ---- selection (screen space, at the current time) -----------------------------------------
+    def _screen_positions(self) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 2) pixel positions in the viewport image and (N,) bool 'visible now' mask."""
+        g, cam = self.state.gaussians, self.render_camera
+        if g is None or cam is None:
+            return np.zeros((0, 2)), np.zeros(0, bool)
+        t = self.state.time
+        uv, z = cam.project(g.means_at(t))
+        from fixer4d.render.constants import ALPHA_MIN, NEAR_PLANE
+
+        live = (z > NEAR_PLANE) & (g.opacity_at(t) >= ALPHA_MIN) & np.all(np.isfinite(uv), axis=1)
+        return uv, live
+
+    def select_box(self, x0: float, y0: float, x1: float, y1: float, add: bool = False) -> int:
+        """Select the Gaussians whose centre at the current time projects inside the box
+        (viewport pixels). Returns the selection size."""
+        uv, live = self._screen_positions()
+        lo, hi = np.minimum([x0, y0], [x1, y1]), np.maximum([x0, y0], [x1, y1])
+        with np.errstate(invalid="ignore"):
+            inside = live & np.all((uv >= lo) & (uv <= hi), axis=1)
+        return self._select(inside, add)
+
+    def select_brush(self, x: float, y: float, radius: float, add: bool = True) -> int:
+        uv, live = self._screen_positions()
+        with np.errstate(invalid="ignore"):
+            inside = live & (np.sum((uv - np.array([x, y])) ** 2, axis=1) <= radius * radius)
+        return self._select(inside, add)
+
+    def _select(self, mask: np.ndarray, add: bool) -> int:
+        st = self.state
+        if st.gaussians is None:
+            return 0
+        sel = mask if not add or st.selection is None else (st.selection | mask)
+        st.set_selection(sel)
+        return int(sel.sum())
+
+    def save_edited_model(self) -> Path | None:
+        """Save the displayed (edited) Gaussians as a new model version in the run folder:
+        RUN/model_edit_<k>.ply, k = 1 + the highest existing. Returns the path (None without a
+        run folder)."""
+        run, g = self.source.run_dir, self.state.gaussians
+        if run is None or g is None:
+            self.state.status = "no run folder: open a run to save edits"
+            return None
+        from fixer4d.model.io import save_ply
+
+        existing = [int(p.stem.rsplit("_", 1)[1]) for p in Path(run).glob("model_edit_*.ply")
+                    if p.stem.rsplit("_", 1)[1].isdigit()]
+        path = Path(run) / f"model_edit_{max(existing, default=0) + 1}.ply"
+        save_ply(g.to_model(), path)
+        self.state.status = f"saved {path.name} ({g.n} Gaussians)"
+        return path
+
+    # ---- trajectories and torch renders ----------------------------------------------------------
+    def trajectory_cameras(self, spec: TrajectorySpec) -> list[Camera]:
+        """The cameras of a trajectory spec (pair + A, or keyframes), reversed if asked."""
+        from app.trajectories import build_cameras
+
+        hit = self._trajectory_cache.get(id(spec))
+        if hit is None or hit[0] is not spec:
+            scene = self.source.scene
+            hit = (spec, build_cameras(spec, [] if scene is None else scene.train_cameras))
+            if len(self._trajectory_cache) > TRAJECTORY_CACHE_SIZE:
+                self._trajectory_cache.clear()
+            self._trajectory_cache[id(spec)] = hit  # specs are immutable: an edit makes a new one
+        return hit[1]
+
+    def torch_model(self) -> Any:
+        """A ``SpacetimeGaussians`` of the displayed Gaussians (cached per edit)."""
+        st = self.state
+        if self._torch_model is None or self._torch_model[0] != st.gaussians_version:
+            self._torch_model = (st.gaussians_version, None if st.gaussians is None else st.gaussians.to_model())
+        return self._torch_model[1]
+
+    def model_render_fn(self) -> Callable[[Camera, float], dict[str, np.ndarray]]:
+        """``fn(camera, t) -> {"rgb", "depth", "alpha"}`` with the torch rasterizer on the
+        displayed Gaussians (the same set the GL view shows, edits included)."""
+        import torch
+
+        from fixer4d.render.api import render
+
+        model = self.torch_model()
+        background = tuple(self.state.background)
+        backend = self.source.render_backend
+
+        def fn(camera: Camera, t: float) -> dict[str, np.ndarray]:
+            with torch.no_grad():
+                out = render(model.snapshot(t, camera.center), camera, background=background, backend=backend)
+            return {"rgb": out.rgb.clamp(0, 1).numpy().astype(np.float32), "depth": out.depth.numpy().astype(np.float32),
+                    "alpha": out.alpha.numpy().astype(np.float32)}
+        return fn
+
+    def image_texture(self, name: str, image: np.ndarray) -> moderngl.Texture:
+        """Upload an (H, W, 3) float [0,1] or uint8 image as a named texture for imgui.image
+        (row 0 at the top; show with uv0=(0,0), uv1=(1,1))."""
+        img = np.asarray(image)
+        if img.dtype != np.uint8:
+            img = (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+        img = np.ascontiguousarray(img[..., :3])
+        h, w = img.shape[:2]
+        tex = self.images.get(name)
+        if tex is None or tex.size != (w, h):
+            if tex is not None:
+                tex.release()
+            tex = self.ctx.texture((w, h), 3, alignment=1)
+            self.images[name] = tex
+        tex.write(img.tobytes())
+        return tex
+
+    def record_item(self, name: str) -> None:
+        """Remember the screen rectangle of the widget just submitted under ``name``."""
+        lo, hi = imgui.get_item_rect_min(), imgui.get_item_rect_max()
+        self.item_rects[name] = (lo.x, lo.y, hi.x, hi.y)
+
+    # ---- menu and keys ----------------------------------------------------------------------------
+    def _menu(self) -> None:
+        if not imgui.begin_main_menu_bar():
+            return
+        if imgui.begin_menu("Edit"):
+            if imgui.menu_item("Undo", "Ctrl+Z", False, bool(self.state.undo_stack))[0]:
+                self.state.undo()
+            if imgui.menu_item("Redo", "Ctrl+Y", False, bool(self.state.redo_stack))[0]:
+                self.state.redo()
+            imgui.end_menu()
+        imgui.text_disabled(f"  {self.source.label}   {self.frame_ms:.1f} ms/frame   {self.state.status}")
+        imgui.end_main_menu_bar()
+
+    def _shortcuts(self) -> None:
+        io = imgui.get_io()
+        if io.want_text_input:
+            return
+        if io.key_ctrl and imgui.is_key_pressed(imgui.Key.z, False):
+            self.state.undo()
+        if io.key_ctrl and imgui.is_key_pressed(imgui.Key.y, False):
+            self.state.redo()
+        if imgui.is_key_pressed(imgui.Key.space, False) and not io.key_ctrl:
+            self.state.playing = not self.state.playing
+
+    # ---- lifetime ---------------------------------------------------------------------------------
+    def screenshot(self, fbo: moderngl.Framebuffer) -> np.ndarray:
+        """(H, W, 3) uint8 of the whole window as last drawn into ``fbo``."""
+        w, h = fbo.size
+        return np.frombuffer(fbo.read(components=3, alignment=1), np.uint8).reshape(h, w, 3)[::-1].copy()
+
+    def close(self, platform_shutdown: Callable[[], None] | None = None) -> None:
+        """Save the session and the imgui layout, stop background work, free GL objects
+        (``platform_shutdown``: the window backend's, run before the imgui context goes)."""
+        if self.session_path is not None:
+            self.state.save_session(self.session_path)
+        if self._ini_path is not None:
+            imgui.save_ini_settings_to_disk(self._ini_path)
+        if self.source.training is not None:
+            self.source.training.stop()
+        if self.source.restore is not None:
+            self.source.restore.shutdown()
+        imgui.backends.opengl3_shutdown()
+        if platform_shutdown is not None:
+            platform_shutdown()
+        implot.destroy_context(self.implot_ctx)
+        imgui.destroy_context(self.imgui_ctx)
+        self.splats.release()
+        self.overlays.release()
+        for tex in self.images.values():
+            tex.release()

@@ -1,0 +1,130 @@
+"""`fixer4d bench train-step`: seconds per full training iteration (render, loss, backward,
+Adam step) on the real Panoptic basketball frame 0, to set beside OpenSplat's CPU backend.
+
+Conditions (issue 3, the same as OpenSplat's measurement): one image per iteration, cycling over
+the scene's cameras at frame 0; N random points uniform in a box; scales from the 3-NN distance;
+opacity 0.1; 30k and 100k Gaussians at 320x180 and 640x360. The repository has no triangulation
+of this scene yet, so the box is where the given cameras' views overlap: points of a grid over
+the camera centres' bounding box that project inside every image in front of every camera
+(written to the JSON as "bbox"). Fragments (Gaussian-pixel pairs blended) are reported so runs
+compare per fragment: OpenSplat spends 43-58 ns per fragment per iteration.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+DEFAULT_OUT = Path("benchmarks/results/train_step.json")
+DEFAULT_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "panoptic_basketball"
+COUNTS = (30_000, 100_000)
+SCALES = (0.5, 1.0)  # of 640x360: 320x180 and 640x360
+# OpenSplat CPU backend, same machine class (issue 3): seconds per iteration
+OPENSPLAT_S = {(30_000, 320, 180): 0.77, (30_000, 640, 360): 3.0, (100_000, 320, 180): 1.0, (100_000, 640, 360): 3.6}
+BOX_GRID = 64  # samples per axis when locating the cameras' common view
+# STGS-like Adam learning rates (position rates scaled by the rig's extent as in 3DGS)
+LRS = {"means": 1.6e-4, "log_scales": 5e-3, "quats": 1e-3, "opacity_logits": 5e-2, "colors": 2.5e-3,
+       "sh_rest": 1.25e-4, "t_center": 1e-4, "t_log_scale": 3e-3, "motion": 1e-4, "omega": 1e-4}
+
+
+def common_view_box(cameras) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned box of the grid points seen by every camera.
+
+    The grid spans the camera centres and their mirror images through the point nearest to all
+    optical axes (where the rig looks), so it covers the observed volume of an inward-facing rig.
+    """
+    centres = np.stack([c.center for c in cameras])
+    # least-squares point closest to every optical axis: sum (I - d d^T) (p - c) = 0
+    a, b = np.zeros((3, 3)), np.zeros(3)
+    for c in cameras:
+        proj = np.eye(3) - np.outer(c.forward, c.forward)
+        a += proj
+        b += proj @ c.center
+    focus = np.linalg.lstsq(a, b, rcond=None)[0]
+    span = np.concatenate([centres, 2.0 * focus - centres])
+    lo, hi = span.min(0), span.max(0)
+    axes = [np.linspace(lo[i], hi[i], BOX_GRID) for i in range(3)]
+    pts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    seen = np.ones(len(pts), bool)
+    for cam in cameras:
+        uv, z = cam.project(pts)
+        with np.errstate(invalid="ignore"):
+            seen &= (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+    if not seen.any():
+        raise RuntimeError("the cameras share no common view; cannot place random points")
+    return pts[seen].min(0), pts[seen].max(0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="fixer4d bench train-step", description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output file")
+    parser.add_argument("--data", type=Path, default=DEFAULT_DATA, help="Panoptic basketball folder")
+    parser.add_argument("--iters", type=int, default=4, help="timed iterations per row (after one warm-up)")
+    parser.add_argument("--backend", default="cpu", help="render backend")
+    parser.add_argument("--torch-threads", type=int, default=1,
+                        help="torch intra-op threads (the numba kernels use every core regardless)")
+    args = parser.parse_args(argv)
+
+    import torch
+    from tqdm import tqdm
+
+    from fixer4d.atomic import write_json
+    from fixer4d.bench.raster import machine_info
+    from fixer4d.errors import InputError
+    from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians
+    from fixer4d.render.api import render
+    from fixer4d.scene import load_scene
+
+    try:
+        from fixer4d.train.losses import stg_loss as loss_fn
+        loss_name = "stg_loss (0.8 L1 + 0.2 D-SSIM)"
+    except ImportError:
+        loss_fn, loss_name = (lambda a, b: (a - b).abs().mean()), "L1"
+    if not args.data.is_dir():
+        raise InputError(f"bench train-step: Panoptic data not found at {args.data}; pass --data DIR")
+    torch.set_num_threads(args.torch_threads)
+
+    rows = []
+    jobs = [(n, s) for s in SCALES for n in COUNTS]
+    for n, scale in tqdm(jobs, desc="bench train-step"):
+        scene = load_scene(args.data, scale=scale)
+        cams = list(scene.cameras)
+        lo, hi = common_view_box(cams)
+        rng = np.random.default_rng(0)
+        pts = rng.uniform(lo, hi, (n, 3))
+        model = SpacetimeGaussians.from_points(pts, rng.uniform(0, 1, (n, 3)), np.zeros(n), ModelConfig(),
+                                               opacity=0.1)
+        opt = torch.optim.Adam(model.param_groups(LRS), eps=1e-15)
+        targets = [torch.from_numpy(np.ascontiguousarray(scene.frame(0, i))) for i in range(len(cams))]
+        times, frags = [], []
+        for it in range(args.iters + 1):
+            i = it % len(cams)
+            t0 = time.perf_counter()
+            out = render(model.at(0.0), cams[i], backend=args.backend)
+            loss = loss_fn(out.rgb, targets[i])
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            if it > 0:  # the first iteration loads the JIT cache and warms allocators
+                times.append(time.perf_counter() - t0)
+                frags.append(out.n_fragments)
+        w, h = cams[0].width, cams[0].height
+        s_it = float(np.median(times))
+        fr = float(np.mean(frags))
+        ref = OPENSPLAT_S.get((n, w, h))
+        rows.append({"backend": args.backend, "n_gaussians": n, "width": w, "height": h,
+                     "s_per_iter": round(s_it, 4), "fragments_per_pixel": round(fr / (w * h), 1),
+                     "ns_per_fragment": round(s_it * 1e9 / max(fr, 1.0), 2),
+                     "opensplat_s_per_iter": ref, "speedup_vs_opensplat": round(ref / s_it, 2) if ref else None})
+    result = {"rows": rows, "loss": loss_name, "bbox": [lo.tolist(), hi.tolist()], "cameras": len(cams),
+              "data": str(args.data), "torch_threads": args.torch_threads, "machine": machine_info()}
+    write_json(args.out, result)
+    print(f"{'N':>7s} {'size':>8s} {'s/iter':>8s} {'frag/px':>8s} {'ns/frag':>8s} {'OpenSplat':>9s} {'speed-up':>8s}")
+    for r in rows:
+        print(f"{r['n_gaussians']:7d} {r['width']}x{r['height']:<4d} {r['s_per_iter']:8.3f} {r['fragments_per_pixel']:8.1f} "
+              f"{r['ns_per_fragment']:8.2f} {r['opensplat_s_per_iter'] or float('nan'):9.2f} "
+              f"{r['speedup_vs_opensplat'] or float('nan'):8.2f}")
+    print(f"wrote {args.out}")
+    return 0

@@ -1,0 +1,245 @@
+"""The evaluation protocol: render every held-out camera at every (or every S-th) frame and score it.
+
+``evaluate(render_fn, scene, out_dir, ...)`` writes into ``out_dir``:
+
+- ``metrics.json``: ``{"method", "mean": {psnr, dssim1, dssim2, lpips|null}, "per_view": {camera:
+  {...}}, "seconds": {"prep", "train", "eval"}, "lpips_unavailable_reason": str|null}`` (the
+  issue-5 contract) plus ``per_frame`` (one entry per rendered image), ``protocol`` (frames,
+  cameras, resolution, metric settings), ``timing`` and ``examples``;
+- ``metrics.md``: the paper's table layout (Method | PSNR | DSSIM1 | DSSIM2 | LPIPS | Prep. time);
+- ``example_<camera>_f<frame>.png``: render | ground truth | error heatmap, for a few frames.
+
+Every file is written atomically. Renders are clamped to [0, 1] before scoring (as STGS's test
+script does); PSNR is computed per image and averaged.
+"""
+from __future__ import annotations
+
+import math
+import re
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from fixer4d.atomic import atomic_path, write_json, write_text
+from fixer4d.errors import InputError, NumericalError
+from fixer4d.eval import metrics as M
+from fixer4d.geometry.camera import Camera
+
+METRIC_KEYS = ("psnr", "dssim1", "dssim2", "lpips")
+# Absolute error (per pixel, mean over RGB) that maps to the top of the heatmap's colour scale.
+# Fixed rather than per-image so heatmaps of different frames and methods are comparable; 0.25
+# keeps typical reconstruction errors (0.02-0.2) in the visible range.
+ERROR_VIS_MAX = 0.25
+ERROR_COLORMAP = "inferno"
+
+
+@dataclass
+class EvalConfig:
+    """Evaluation settings (the keyword arguments of :func:`evaluate`; echoed into metrics.json).
+
+    frame_stride: evaluate every S-th frame of ``frames`` (1 = every frame).
+    frames: explicit frame indices, or None for all frames of the scene.
+    save_examples: number of frames (evenly spaced) saved as side-by-side PNGs per held-out view.
+    """
+
+    frame_stride: int = 1
+    frames: list[int] | None = None
+    save_examples: int = 3
+
+
+def select_frames(num_frames: int, frame_stride: int = 1, frames: Sequence[int] | None = None) -> list[int]:
+    """The frames the protocol evaluates: ``(frames or range(num_frames))[::frame_stride]``."""
+    if int(frame_stride) < 1:
+        raise InputError(f"frame_stride must be >= 1, got {frame_stride}")
+    base = list(range(num_frames)) if frames is None else [int(f) for f in frames]
+    bad = [f for f in base if not 0 <= f < num_frames]
+    if bad:
+        raise InputError(f"frames {bad[:5]} are outside the scene's [0, {num_frames}) frame range")
+    chosen = base[::int(frame_stride)]
+    if not chosen:
+        raise InputError("no frames to evaluate (empty frame list)")
+    return chosen
+
+
+def _view_keys(scene, test_ids: Sequence[int]) -> list[str]:
+    """A unique, readable key per held-out camera (its name, else its index)."""
+    keys: list[str] = []
+    for i in test_ids:
+        name = scene.cameras[i].name or f"cam{i}"
+        keys.append(name if name not in keys else f"{name}#{i}")
+    return keys
+
+
+def _finite_or_none(x: float | None) -> float | None:
+    """JSON has no inf/NaN: an exact render (PSNR = inf) is written as null."""
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _mean(values: list[float | None]) -> float | None:
+    """Mean of the values, or None when any is None (LPIPS unavailable)."""
+    if not values or any(v is None for v in values):
+        return None
+    return float(np.mean(values))
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_") or "view"
+
+
+def error_heatmap(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float32 RGB heatmap of the per-pixel mean absolute error, 0..ERROR_VIS_MAX."""
+    from matplotlib import colormaps
+
+    err = np.abs(pred.astype(np.float32) - gt.astype(np.float32)).mean(axis=-1)
+    return colormaps[ERROR_COLORMAP](np.clip(err / ERROR_VIS_MAX, 0.0, 1.0))[..., :3].astype(np.float32)
+
+
+def side_by_side(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """(H, 3W, 3) uint8: render | ground truth | error heatmap."""
+    row = np.concatenate([pred, gt, error_heatmap(pred, gt)], axis=1)
+    return (np.clip(row, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def _save_png(path: Path, image_u8: np.ndarray) -> None:
+    from PIL import Image
+
+    with atomic_path(path) as tmp:
+        Image.fromarray(image_u8).save(tmp, format="PNG")
+
+
+def _format_seconds(s: float | None) -> str:
+    if s is None:
+        return "n/a"
+    if s < 60:
+        return f"{s:.1f} s"
+    if s < 3600:
+        return f"{s / 60:.1f} min"
+    return f"{s / 3600:.2f} h"
+
+
+def _format(value: float | None, digits: int) -> str:
+    return "n/a" if value is None else f"{value:.{digits}f}"
+
+
+def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
+    """The paper's table layout for evaluation results.
+
+    rows: dicts shaped like metrics.json (``method``, ``mean``, ``seconds``), e.g. the return
+    values of :func:`evaluate` or loaded metrics.json files. Returns markdown text, header
+    included, one line per row: Method | PSNR | DSSIM1 | DSSIM2 | LPIPS | Prep. time.
+    A missing value (LPIPS unavailable, exact render, unknown preparation time) reads "n/a".
+    """
+    lines = ["| Method | PSNR ↑ | DSSIM1 ↓ | DSSIM2 ↓ | LPIPS ↓ | Prep. time |",
+             "|---|---:|---:|---:|---:|---:|"]
+    for row in rows:
+        mean = row.get("mean", {})
+        prep = row.get("seconds", {}).get("prep")
+        lines.append(f"| {row.get('method', '?')} | {_format(mean.get('psnr'), 2)} | {_format(mean.get('dssim1'), 4)} | "
+                     f"{_format(mean.get('dssim2'), 4)} | {_format(mean.get('lpips'), 4)} | {_format_seconds(prep)} |")
+    return "\n".join(lines) + "\n"
+
+
+def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: str | Path, *,
+             frame_stride: int = 1, frames: Sequence[int] | None = None, method_name: str = "fixer4d",
+             seconds: dict[str, float] | None = None, save_examples: int = 3,
+             progress: bool = True) -> dict[str, Any]:
+    """Score ``render_fn`` on every held-out camera of ``scene`` and write the results to ``out_dir``.
+
+    render_fn(camera, t) -> (H, W, 3) float32 RGB for the camera at clip time t = f / T.
+    scene: a MultiViewVideo (its ``test_ids`` are the held-out cameras; ``frame(f, cam)`` the
+    ground truth). frames / frame_stride: see :func:`select_frames`. seconds: the run's
+    ``{"prep": s, "train": s}`` (unknown ones are written as null); ``eval`` is measured here.
+    save_examples: frames (evenly spaced among those evaluated) saved as PNGs per view.
+    Returns the metrics.json content. Raises InputError for a scene without held-out cameras
+    or a render of the wrong shape, NumericalError for a non-finite render.
+    """
+    from tqdm.auto import tqdm
+
+    t_start = time.perf_counter()
+    out_dir = Path(out_dir)
+    test_ids = [int(i) for i in scene.test_ids]
+    if not test_ids:
+        raise InputError(f"scene {scene.name!r} has no held-out cameras (test_ids is empty); "
+                         "load it with test_ids=[...] to evaluate")
+    chosen = select_frames(scene.num_frames, frame_stride, frames)
+    keys = _view_keys(scene, test_ids)
+    n_examples = max(0, min(int(save_examples), len(chosen)))
+    example_frames = ({chosen[int(round(k))] for k in np.linspace(0, len(chosen) - 1, n_examples)}
+                      if n_examples else set())
+
+    per_frame: list[dict[str, Any]] = []
+    examples: list[str] = []
+    render_s = 0.0
+    metric_s = 0.0
+    bar = tqdm(total=len(chosen) * len(test_ids), desc=f"eval {method_name}", unit="img", disable=not progress)
+    for cam_idx, key in zip(test_ids, keys):
+        camera = scene.cameras[cam_idx]
+        for f in chosen:
+            t = scene.time(f)
+            t0 = time.perf_counter()
+            pred = np.asarray(render_fn(camera, t))
+            render_s += time.perf_counter() - t0
+            gt = np.asarray(scene.frame(f, cam_idx), dtype=np.float32)
+            if pred.shape != gt.shape:
+                raise InputError(f"render of camera {key} at frame {f} has shape {pred.shape}, but the ground truth "
+                                 f"is {gt.shape}; render at the scene camera's resolution")
+            if not np.isfinite(pred).all():
+                raise NumericalError(f"render of camera {key} at frame {f} contains NaN/inf; the model is corrupt")
+            pred = np.clip(pred.astype(np.float32), 0.0, 1.0)
+            t0 = time.perf_counter()
+            m = M.image_metrics(pred, gt)
+            metric_s += time.perf_counter() - t0
+            per_frame.append({"camera": key, "camera_index": cam_idx, "frame": f, "time": t, **m})
+            if f in example_frames:
+                name = f"example_{_slug(key)}_f{f:04d}.png"
+                _save_png(out_dir / name, side_by_side(pred, gt))
+                examples.append(name)
+            bar.update(1)
+            bar.set_postfix(psnr=f"{m['psnr']:.2f}")
+    bar.close()
+
+    per_view: dict[str, dict[str, Any]] = {}
+    for cam_idx, key in zip(test_ids, keys):
+        rows = [r for r in per_frame if r["camera_index"] == cam_idx]
+        per_view[key] = {"camera_index": cam_idx, "frames": len(rows),
+                         **{k: _finite_or_none(_mean([r[k] for r in rows])) for k in METRIC_KEYS}}
+    mean = {k: _finite_or_none(_mean([r[k] for r in per_frame])) for k in METRIC_KEYS}
+    for r in per_frame:
+        for k in METRIC_KEYS:
+            r[k] = _finite_or_none(r[k])
+
+    seconds = dict(seconds or {})
+    cam0 = scene.cameras[test_ids[0]]
+    result: dict[str, Any] = {
+        "method": method_name,
+        "mean": mean,
+        "per_view": per_view,
+        "seconds": {"prep": _finite_or_none(seconds.get("prep")), "train": _finite_or_none(seconds.get("train")),
+                    "eval": None},
+        "lpips_unavailable_reason": M.lpips_unavailable_reason(),
+        "per_frame": per_frame,
+        "protocol": {
+            "scene": scene.name,
+            "test_cameras": keys,
+            "frames": chosen,
+            "frame_stride": int(frame_stride),
+            "num_frames": scene.num_frames,
+            "resolution": [cam0.width, cam0.height],
+            "images": len(per_frame),
+            "render_clamped_to_01": True,
+            "psnr": "per image, data range 1, averaged over images",
+            "ssim": {"implementation": "skimage.metrics.structural_similarity", "win_size": M.SSIM_WIN_SIZE,
+                     "gaussian_weights": False, "use_sample_covariance": True, "channel_axis": -1,
+                     "dssim1_data_range": M.DSSIM1_DATA_RANGE, "dssim2_data_range": M.DSSIM2_DATA_RANGE},
+            "lpips": {"net": "alex", "weights": M.lpips_weights_path()},
+        },
+        "timing": {"render_seconds": render_s, "metrics_seconds": metric_s},
+        "examples": examples,
+    }
+    result["seconds"]["eval"] = time.perf_counter() - t_start
+    write_json(out_dir / "metrics.json", result)
+    write_text(out_dir / "metrics.md", markdown_table([result]))
+    return result

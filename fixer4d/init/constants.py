@@ -1,0 +1,87 @@
+"""Every threshold of geometric initialization, with the reason it has its value."""
+from __future__ import annotations
+
+# ---- poses (SfM) ------------------------------------------------------------------------
+# A registration with fewer 3D points than this is too weak to trust for the rig's poses
+# (COLMAP's own default min_model_size is 10; 4 views of a textured scene give hundreds).
+SFM_MIN_POINTS = 20
+# Fewer verified inlier matches than this between all view pairs together means SIFT found
+# (almost) nothing in common: mapping would fail or be degenerate, so we stop early with advice.
+SFM_MIN_INLIER_MATCHES = 30
+# The similarity alignment (Umeyama) between estimated and given centres needs 3 non-collinear
+# cameras; below this spread (relative to the rig radius) the rotation is ill-defined.
+ALIGN_MIN_SPREAD = 1e-6
+
+# ---- sparse baseline --------------------------------------------------------------------
+# COLMAP's SIFT default keeps up to 8192 features; the 4-view sparse baseline keeps the default
+# so that it is the usual COLMAP cloud the paper compares against.
+SIFT_MAX_FEATURES = 8192
+
+# ---- plane-sweep MVS ----------------------------------------------------------------------
+# Hypotheses are uniform in inverse depth (disparity-like), the standard for plane sweeps:
+# equal image-space steps at every depth.
+MVS_DEFAULT_PLANES = 128
+# Window side (pixels) of the ZNCC patch: 7x7 is the usual compromise between texture
+# discrimination and edge fattening.
+MVS_DEFAULT_WINDOW = 7
+# Mean of the best-k source views per plane: robust to a source that is occluded at the pixel.
+MVS_DEFAULT_TOPK = 2
+# Box side of cost aggregation over the ZNCC volume (1 disables it); 3 smooths without
+# re-blurring edges much (the ZNCC window already aggregates).
+MVS_DEFAULT_AGGREGATION = 3
+# Planes per chunk of the sweep: bounds memory to chunk x V x H x W floats.
+MVS_DEFAULT_CHUNK = 16
+# A pixel whose reference patch has an intensity std below this (on [0, 1]) has no texture:
+# ZNCC is undefined there, so it is invalid (1/255 quantization noise is ~0.003).
+MVS_MIN_PATCH_STD = 0.01
+# ZNCC regularizer under the square root (variance units): avoids 0/0 on flat patches.
+MVS_ZNCC_EPS = 1e-6
+# Minimum aggregated ZNCC at the winning plane for a valid depth: below ~0.5 the match is
+# usually occlusion, repetition or noise (COLMAP's PatchMatch uses a similar NCC bound).
+MVS_MIN_SCORE = 0.5
+# Minimum peak distinctiveness: winning score minus the mean score over all planes. A flat
+# cost curve (ambiguous match) has a small gap.
+MVS_MIN_DISTINCT = 0.15
+# A warped patch with more than this share of its pixels outside the source image is unusable.
+MVS_MIN_INSIDE = 0.9
+# Geometric (left-right) consistency: forward-backward reprojection error (pixels) and relative
+# depth disagreement below which two views agree (MVSNet/COLMAP use ~1 px and 1%).
+MVS_GEO_PIXEL_TOL = 1.0
+MVS_GEO_DEPTH_TOL = 0.01
+# Views that must confirm a depth for it to stay valid after the consistency check.
+MVS_GEO_MIN_VIEWS = 1
+# Fallback depth range when neither SfM points nor scene bounds exist: around the point where
+# the optical axes converge, from a third to three times its distance.
+MVS_DEFAULT_RANGE_FACTOR = 3.0
+# Axes closer to parallel than this (sin of the angle) do not converge: use the rig extent instead.
+MVS_PARALLEL_AXES_SIN = 0.05
+# Forward-facing rigs with no bounds: scene depth from 1x to 100x the rig radius.
+MVS_PARALLEL_NEAR_EXTENT = 1.0
+MVS_PARALLEL_FAR_EXTENT = 100.0
+# Depth range from SfM points: percentiles of the points' depths, widened by this factor on
+# each side (points do not reach the scene's nearest and farthest surfaces).
+MVS_POINTS_PERCENTILES = (1.0, 99.0)
+MVS_POINTS_MARGIN = 1.25
+
+# ---- fusion (Eq. 2) ----------------------------------------------------------------------
+# Other views that must agree with a pixel's depth for its point to survive (paper: k).
+FUSION_MIN_VIEWS = 1
+# Relative depth tolerance of that agreement |z_proj - D_s| / D_s.
+FUSION_DEPTH_TOL = 0.01
+# Voxel size of the down-sampling, relative to the median depth of the fused points
+# (0.002 ~ one pixel footprint at 640 px width and a 60 degree field of view).
+FUSION_VOXEL_REL = 0.002
+# Statistical outlier removal (open3d): neighbours considered and the std-dev ratio beyond
+# which a point is dropped (Open3D tutorial values).
+FUSION_OUTLIER_NEIGHBORS = 20
+FUSION_OUTLIER_STD = 2.0
+
+# ---- quality against ground truth -----------------------------------------------------------
+# Completeness tolerance, relative to the median ground-truth depth (scene scale): a true
+# surface sample is covered when a cloud point lies within 1% of the viewing distance.
+QUALITY_COMPLETENESS_REL = 0.01
+# Surface samples kept for the quality metrics (random subset, fixed seed): enough for a
+# stable share, bounded k-d tree cost.
+QUALITY_MAX_SURFACE_SAMPLES = 200_000
+# Relative depth bands reported for MVS depth maps.
+QUALITY_DEPTH_BANDS = (0.01, 0.05)

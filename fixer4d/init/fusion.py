@@ -1,0 +1,161 @@
+"""Depth fusion (Eq. 1-2): per-view depth maps -> one coloured point cloud of a timestamp.
+
+Eq. 1: every valid pixel (u, v) of view i is lifted to x = T_w<-c [D K^-1 (u+0.5, v+0.5, 1)^T; 1]
+(``Camera.backproject_depth``), coloured by its pixel. Eq. 2: x is kept only when at least k
+other views agree: projected into view j it lands inside the image, in front of the camera, on
+a pixel whose depth D_j is valid and within a relative tolerance of x's depth in view j. The
+union is then voxel down-sampled (voxel relative to the scene scale) and cleaned by open3d's
+statistical outlier removal.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from fixer4d.errors import InputError
+from fixer4d.geometry.camera import Camera
+from fixer4d.init import constants as C
+
+
+@dataclass
+class FusionConfig:
+    """min_views: other views that must agree (k; 0 keeps every valid pixel). depth_tol: relative
+    depth agreement. voxel_rel: voxel size / median depth of the fused points (0 disables).
+    outlier_neighbors / outlier_std: statistical outlier removal (neighbors 0 disables)."""
+
+    min_views: int = C.FUSION_MIN_VIEWS
+    depth_tol: float = C.FUSION_DEPTH_TOL
+    voxel_rel: float = C.FUSION_VOXEL_REL
+    outlier_neighbors: int = C.FUSION_OUTLIER_NEIGHBORS
+    outlier_std: float = C.FUSION_OUTLIER_STD
+
+
+def _clean_depth(depth: np.ndarray, valid: np.ndarray | None) -> np.ndarray:
+    """Depth with every unusable pixel (zero, negative, NaN, inf, masked out) set to 0."""
+    d = np.asarray(depth, np.float64)
+    ok = np.isfinite(d) & (d > 0)
+    if valid is not None:
+        ok &= np.asarray(valid, bool)
+    return np.where(ok, d, 0.0)
+
+
+def consistent_points(images: Sequence[np.ndarray], depths: Sequence[np.ndarray], cameras: Sequence[Camera],
+                      valids: Sequence[np.ndarray] | None = None, *, min_views: int = C.FUSION_MIN_VIEWS,
+                      depth_tol: float = C.FUSION_DEPTH_TOL) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 1-2 without the final filtering.
+
+    images: V (H_i, W_i, 3) float RGB in [0, 1]; depths: V (H_i, W_i) z-depths (0/NaN/inf =
+    none); cameras: V cameras of those sizes; valids: optional V (H_i, W_i) bool masks.
+    Returns (points (N, 3) float64, colors (N, 3) float32); N may be 0, never NaN.
+    """
+    V = len(cameras)
+    if len(images) != V or len(depths) != V or (valids is not None and len(valids) != V):
+        raise InputError(f"fusion: {len(images)} images, {len(depths)} depth maps"
+                         f"{'' if valids is None else f', {len(valids)} masks'} for {V} cameras; pass one of each per view")
+    if V == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.float32)
+    if min_views > V - 1:
+        raise InputError(f"fusion: each point needs {min_views} other agreeing views but only {V} view(s) were given; "
+                         f"pass more views or lower min_views")
+    for i, cam in enumerate(cameras):
+        size = (cam.height, cam.width)
+        if np.asarray(depths[i]).shape != size:
+            raise InputError(f"fusion: depth map {i} is {np.asarray(depths[i]).shape}, camera {cam.name!r} is {size}")
+        if np.asarray(images[i]).shape[:2] != size:
+            raise InputError(f"fusion: image {i} is {np.asarray(images[i]).shape[:2]}, camera {cam.name!r} is {size}; "
+                             f"resize the image to the depth resolution")
+        if valids is not None and np.asarray(valids[i]).shape != size:
+            raise InputError(f"fusion: mask {i} is {np.asarray(valids[i]).shape}, camera {cam.name!r} is {size}")
+    clean = [_clean_depth(depths[i], None if valids is None else valids[i]) for i in range(V)]
+    pts_all, col_all = [], []
+    for i, cam in enumerate(cameras):
+        sel = clean[i] > 0
+        if not sel.any():
+            continue
+        X = cam.backproject_depth(clean[i])[sel]  # Eq. 1
+        colors = np.clip(np.nan_to_num(np.asarray(images[i], np.float32)[sel]), 0.0, 1.0)
+        agree = np.zeros(X.shape[0], np.int32)
+        for j, other in enumerate(cameras):
+            if j == i:
+                continue
+            uv, z = other.project(X)
+            with np.errstate(invalid="ignore"):
+                iu = np.floor(uv[:, 0])
+                iv = np.floor(uv[:, 1])
+                inside = (z > 0) & (iu >= 0) & (iu < other.width) & (iv >= 0) & (iv < other.height)
+            d_j = np.zeros(X.shape[0])
+            d_j[inside] = clean[j][iv[inside].astype(np.int64), iu[inside].astype(np.int64)]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ok = inside & (d_j > 0) & (np.abs(z - d_j) <= depth_tol * d_j)  # Eq. 2
+            agree += ok
+        keep = agree >= min_views
+        pts_all.append(X[keep])
+        col_all.append(colors[keep])
+    if not pts_all:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.float32)
+    points = np.concatenate(pts_all)
+    colors = np.concatenate(col_all).astype(np.float32)
+    finite = np.all(np.isfinite(points), 1)
+    return points[finite], colors[finite]
+
+
+def filter_cloud(points: np.ndarray, colors: np.ndarray, cameras: Sequence[Camera], *,
+                 voxel_rel: float = C.FUSION_VOXEL_REL, outlier_neighbors: int = C.FUSION_OUTLIER_NEIGHBORS,
+                 outlier_std: float = C.FUSION_OUTLIER_STD) -> tuple[np.ndarray, np.ndarray]:
+    """open3d voxel down-sampling (voxel = voxel_rel x median camera depth of the points) and
+    statistical outlier removal. Returns (points (M, 3) float32, colors (M, 3) float32)."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    colors = np.asarray(colors, np.float64).reshape(-1, 3)
+    if points.shape[0] == 0:
+        return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32)
+    import open3d as o3d
+
+    pcd = o3d.geometry.PointCloud()
+    pcd.points = o3d.utility.Vector3dVector(points)
+    pcd.colors = o3d.utility.Vector3dVector(colors)
+    if voxel_rel > 0:
+        scale = scene_scale(points, cameras)
+        pcd = pcd.voxel_down_sample(voxel_rel * scale)
+    if outlier_neighbors > 0 and len(pcd.points) > outlier_neighbors:
+        pcd, _ = pcd.remove_statistical_outlier(nb_neighbors=outlier_neighbors, std_ratio=outlier_std)
+    return np.asarray(pcd.points, np.float32), np.asarray(pcd.colors, np.float32)
+
+
+def scene_scale(points: np.ndarray, cameras: Sequence[Camera]) -> float:
+    """Median distance from the cameras' centres to the points: the viewing distance that voxel
+    sizes are relative to."""
+    centers = np.stack([c.center for c in cameras])
+    sample = points[:: max(1, points.shape[0] // 20000)]
+    d = np.linalg.norm(sample[:, None, :] - centers[None], axis=2).min(1)
+    return float(max(np.median(d), 1e-9))
+
+
+def fuse_depths(images: Sequence[np.ndarray], depths: Sequence[np.ndarray], cameras: Sequence[Camera],
+                valids: Sequence[np.ndarray] | None = None, config: FusionConfig | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 1-2 then voxel down-sampling and outlier removal -> (points (N,3) float32, colors
+    (N,3) float32 in [0,1]). See ``consistent_points`` for the inputs."""
+    config = config or FusionConfig()
+    pts, cols = consistent_points(images, depths, cameras, valids, min_views=config.min_views,
+                                  depth_tol=config.depth_tol)
+    return filter_cloud(pts, cols, cameras, voxel_rel=config.voxel_rel, outlier_neighbors=config.outlier_neighbors,
+                        outlier_std=config.outlier_std)
+
+
+def fuse_results(images: Sequence[np.ndarray], results, config: FusionConfig | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Fuse DepthResults (from any DepthEstimator): the images are resized to each result's
+    working resolution first."""
+    import cv2
+
+    if len(images) != len(results):
+        raise InputError(f"fusion: {len(images)} images for {len(results)} depth results; pass one image per view")
+    imgs = []
+    for img, res in zip(images, results):
+        img = np.asarray(img, np.float32)
+        if img.shape[:2] != res.depth.shape:
+            img = cv2.resize(img, (res.depth.shape[1], res.depth.shape[0]), interpolation=cv2.INTER_AREA)
+        imgs.append(img)
+    return fuse_depths(imgs, [r.depth for r in results], [r.camera for r in results], [r.valid for r in results], config)

@@ -1,0 +1,453 @@
+"""Spacetime Gaussians, STGS "lite" parameterization with switchable effects (DESIGN.md §4).
+
+At time t, with dt = t - t_center (per Gaussian):
+
+    mu(t)      = mu + m1 dt + m2 dt^2 + m3 dt^3          (up to ``motion_degree``)
+    q(t)       = q + omega dt                            (``rotation_velocity``; renderers normalize)
+    opacity(t) = sigmoid(o) * exp(-(dt / exp(s_t))^2)    (``temporal_opacity``)
+    scale      = exp(log_scales)                         (time-independent)
+    colour     = max(0.5 + SH(dir) . coeffs, 0)          (degree 0 = RGB, no view dependence)
+
+An effect that is switched off in the ``ModelConfig`` has no Parameter at all, so the optimizer
+and ``at(t)`` pay nothing for it. Per Gaussian, the bool buffer ``dynamic`` marks which
+Gaussians use the time terms: ``at(t)`` evaluates them only on the dynamic index set and
+scatters the results, so its cost grows with the dynamic count, not the total.
+
+q(t) is returned un-normalized, as in STGS: the Snapshot contract says renderers normalize, so
+normalize(q + omega dt) and q + omega dt are the same rotation, and a static Gaussian's
+quaternion passes through untouched.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from fixer4d.errors import InputError, NumericalError
+from fixer4d.model.snapshot import Snapshot
+
+# Real spherical-harmonics constants (the 3DGS / graphics convention), degree 0..3.
+SH_C0 = 0.28209479177387814
+SH_C1 = 0.4886025119029199
+SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
+         -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
+
+MAX_MOTION_DEGREE = 3  # cubic motion, as in STGS lite
+MAX_SH_DEGREE = 3  # the 3DGS maximum; higher bands overfit 4 views
+
+# exp(-s_t) overflows float32 for s_t < -88 and then 0 * inf poisons the gradient. A temporal
+# std of exp(-20) ~ 2e-9 is six orders of magnitude below one frame of a 1000-frame clip, so no
+# useful Gaussian lives there; clamping s_t below it only keeps values and gradients finite.
+T_LOG_SCALE_MIN = -20.0
+
+# Directions for view-dependent colour: a Gaussian at the camera centre has no direction; the
+# eps turns that 0/0 into a zero direction (DC colour only) instead of NaN.
+DIRECTION_EPS = 1e-12
+
+# 3DGS floors the squared mean 3-NN distance at 1e-7 so that duplicate points still get a
+# positive, trainable scale.
+KNN_DIST2_FLOOR = 1e-7
+# Number of neighbours whose distances set the initial scale (3DGS / the issue text).
+KNN_NEIGHBOURS = 3
+# A cloud of one point has no neighbour to measure; 0.01 is ~1% of a unit-scale scene.
+SINGLE_POINT_SCALE = 0.01
+
+# Initial temporal std in units of the init cloud spacing (the median gap between distinct point
+# times, i.e. one frame when every frame has a cloud, k frames when every k-th frame has one).
+# At 1 spacing a Gaussian keeps exp(-0.25) = 78% of its opacity halfway to the next cloud (so
+# consecutive clouds overlap and no instant between them is empty) and fades to exp(-4) < 2% two
+# clouds away (so a moving object leaves little ghosting before the optimizer adapts s_t).
+INIT_TEMPORAL_SPACINGS = 1.0
+# With points at a single time there is no spacing; the Gaussians should then cover the clip
+# (t in [0, 1)): a temporal std of 1 keeps >= exp(-1) = 37% opacity across it.
+SINGLE_TIME_TEMPORAL_STD = 1.0
+
+# Order of the Parameters (also the order of param_names() and of saved files).
+_ALL_PARAMS = ("means", "log_scales", "quats", "opacity_logits", "colors", "sh_rest",
+               "t_center", "t_log_scale", "motion", "omega")
+
+
+@dataclass
+class ModelConfig:
+    """Which spacetime effects a model has (one per scene; DESIGN.md §4).
+
+    motion_degree: 0..3, polynomial degree of the mean's motion (0 = no motion Parameter).
+    rotation_velocity: angular velocity omega (q + omega dt).
+    temporal_opacity: Gaussian RBF in time on the opacity (needs t_log_scale).
+    sh_degree: 0..3; 0 = plain RGB, no view dependence (no sh_rest Parameter).
+    """
+
+    motion_degree: int = 3
+    rotation_velocity: bool = True
+    temporal_opacity: bool = True
+    sh_degree: int = 0
+
+    def __post_init__(self) -> None:
+        if not (0 <= int(self.motion_degree) <= MAX_MOTION_DEGREE):
+            raise InputError(f"ModelConfig.motion_degree must be in 0..{MAX_MOTION_DEGREE}, got {self.motion_degree}")
+        if not (0 <= int(self.sh_degree) <= MAX_SH_DEGREE):
+            raise InputError(f"ModelConfig.sh_degree must be in 0..{MAX_SH_DEGREE}, got {self.sh_degree}")
+        self.motion_degree = int(self.motion_degree)
+        self.sh_degree = int(self.sh_degree)
+        self.rotation_velocity = bool(self.rotation_velocity)
+        self.temporal_opacity = bool(self.temporal_opacity)
+
+    @property
+    def has_time_terms(self) -> bool:
+        """True when at(t) depends on t at all."""
+        return self.motion_degree > 0 or self.rotation_velocity or self.temporal_opacity
+
+    @property
+    def num_sh_rest(self) -> int:
+        """Number of non-DC SH coefficients per channel: (d + 1)^2 - 1."""
+        return (self.sh_degree + 1) ** 2 - 1
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "ModelConfig":
+        known = {k: d[k] for k in ("motion_degree", "rotation_velocity", "temporal_opacity", "sh_degree") if k in d}
+        return cls(**known)
+
+    def param_shapes(self) -> dict[str, tuple[int, ...]]:
+        """Per-Gaussian trailing shape of every Parameter this config has, in canonical order."""
+        shapes: dict[str, tuple[int, ...]] = {
+            "means": (3,), "log_scales": (3,), "quats": (4,), "opacity_logits": (), "colors": (3,),
+        }
+        if self.sh_degree > 0:
+            shapes["sh_rest"] = (self.num_sh_rest, 3)
+        if self.has_time_terms:
+            shapes["t_center"] = ()
+        if self.temporal_opacity:
+            shapes["t_log_scale"] = ()
+        if self.motion_degree > 0:
+            shapes["motion"] = (3 * self.motion_degree,)
+        if self.rotation_velocity:
+            shapes["omega"] = (4,)
+        return {k: shapes[k] for k in _ALL_PARAMS if k in shapes}
+
+
+def rgb_to_sh_dc(rgb: torch.Tensor | np.ndarray) -> torch.Tensor | np.ndarray:
+    """RGB in [0, 1] -> SH DC coefficients (inverse of 0.5 + C0 * dc)."""
+    return (rgb - 0.5) / SH_C0
+
+
+def sh_basis(dirs: torch.Tensor, degree: int) -> torch.Tensor:
+    """Real SH basis without the DC term: (M, 3) unit directions -> (M, (degree+1)^2 - 1)."""
+    x, y, z = dirs.unbind(-1)
+    out = [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
+    if degree > 1:
+        xx, yy, zz = x * x, y * y, z * z
+        out += [SH_C2[0] * x * y, SH_C2[1] * y * z, SH_C2[2] * (2.0 * zz - xx - yy),
+                SH_C2[3] * x * z, SH_C2[4] * (xx - yy)]
+        if degree > 2:
+            out += [SH_C3[0] * y * (3.0 * xx - yy), SH_C3[1] * x * y * z, SH_C3[2] * y * (4.0 * zz - xx - yy),
+                    SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy), SH_C3[4] * x * (4.0 * zz - xx - yy),
+                    SH_C3[5] * z * (xx - yy), SH_C3[6] * x * (xx - 3.0 * yy)]
+    return torch.stack(out, -1)
+
+
+def knn_scales(points: np.ndarray) -> np.ndarray:
+    """Isotropic initial scales (N,) = sqrt(mean squared distance to the 3 nearest neighbours)."""
+    from scipy.spatial import cKDTree
+
+    n = points.shape[0]
+    if n == 0:
+        return np.zeros(0)
+    if n == 1:
+        return np.full(1, SINGLE_POINT_SCALE)
+    k = min(KNN_NEIGHBOURS, n - 1)
+    dist, _ = cKDTree(points).query(points, k=k + 1, workers=-1)
+    d2 = np.mean(np.asarray(dist).reshape(n, k + 1)[:, 1:] ** 2, axis=1)
+    return np.sqrt(np.maximum(d2, KNN_DIST2_FLOOR))
+
+
+def initial_temporal_std(times: np.ndarray) -> float:
+    """Initial temporal std from the point times' spacing (see INIT_TEMPORAL_SPACINGS)."""
+    uniq = np.unique(times)
+    if uniq.size < 2:
+        return SINGLE_TIME_TEMPORAL_STD
+    return float(INIT_TEMPORAL_SPACINGS * np.median(np.diff(uniq)))
+
+
+class SpacetimeGaussians(nn.Module):
+    """N spacetime Gaussians (see the module docstring for the equations).
+
+    Parameters (only those the config enables exist): means (N,3), log_scales (N,3),
+    quats (N,4) wxyz, opacity_logits (N,), colors (N,3) SH DC (RGB = 0.5 + C0*colors),
+    sh_rest (N,(d+1)^2-1,3), t_center (N,) in clip time, t_log_scale (N,) log temporal std,
+    motion (N, 3*motion_degree) = m1, m2, m3 as consecutive xyz triples (N,9 at degree 3),
+    omega (N,4). Buffer: dynamic (N,) bool.
+    """
+
+    def __init__(self, config: ModelConfig | None = None, num_gaussians: int = 0,
+                 dtype: torch.dtype = torch.float32, device: torch.device | str | None = None) -> None:
+        super().__init__()
+        self.config = ModelConfig() if config is None else config
+        n = int(num_gaussians)
+        for name, shape in self.config.param_shapes().items():
+            init = torch.zeros((n, *shape), dtype=dtype, device=device)
+            if name == "quats":
+                init[:, 0] = 1.0
+            self.register_parameter(name, nn.Parameter(init))
+        self.register_buffer("dynamic", torch.ones(n, dtype=torch.bool, device=device))
+        self._dyn_cache: tuple[Any, torch.Tensor] | None = None
+
+    # ---- construction -----------------------------------------------------------------
+    @classmethod
+    def from_points(cls, points: np.ndarray, colors: np.ndarray, times: np.ndarray,
+                    config: ModelConfig | None = None, *, opacity: float = 0.1,
+                    scales: np.ndarray | None = None, dynamic: np.ndarray | None = None,
+                    t_scale: float | None = None) -> "SpacetimeGaussians":
+        """Gaussians centred on points (N,3) with colours (N,3) in [0,1] born at times (N,).
+
+        Identity rotation, zero motion/omega, t_center = the point's time, opacity ``opacity``.
+        scales: (N,) isotropic or (N,3) std devs; default from 3-NN distances (``knn_scales``).
+        t_scale: initial temporal std (clip time units); default ``initial_temporal_std(times)``.
+        dynamic: (N,) bool; default all dynamic.
+        """
+        config = ModelConfig() if config is None else config
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        n = pts.shape[0]
+        cols = np.asarray(colors, dtype=np.float64).reshape(-1, 3)
+        tms = np.asarray(times, dtype=np.float64).reshape(-1)
+        if cols.shape[0] != n or tms.shape[0] != n:
+            raise InputError(f"from_points: {n} points but {cols.shape[0]} colours and {tms.shape[0]} times; "
+                             "pass one colour and one time per point")
+        for label, arr in (("points", pts), ("colors", cols), ("times", tms)):
+            if not np.all(np.isfinite(arr)):
+                raise InputError(f"from_points: non-finite values in {label}; filter the point cloud first")
+        if not (0.0 < opacity < 1.0):
+            raise InputError(f"from_points: opacity must be in (0, 1), got {opacity}")
+        if scales is None:
+            sc = np.repeat(knn_scales(pts)[:, None], 3, axis=1)
+        else:
+            sc = np.asarray(scales, dtype=np.float64)
+            sc = np.repeat(sc.reshape(-1, 1), 3, axis=1) if sc.ndim == 1 else sc.reshape(-1, 3)
+            if sc.shape[0] != n or not np.all(np.isfinite(sc)) or np.any(sc <= 0):
+                raise InputError(f"from_points: scales must be {n} positive finite values (or rows of 3)")
+        std_t = initial_temporal_std(tms) if t_scale is None else float(t_scale)
+        if not (std_t > 0 and math.isfinite(std_t)):
+            raise InputError(f"from_points: t_scale must be positive and finite, got {t_scale}")
+        model = cls(config, n)
+        with torch.no_grad():
+            model.means.copy_(torch.from_numpy(pts))
+            model.log_scales.copy_(torch.from_numpy(np.log(sc)))
+            model.opacity_logits.fill_(math.log(opacity / (1.0 - opacity)))
+            model.colors.copy_(torch.from_numpy(rgb_to_sh_dc(np.clip(cols, 0.0, 1.0))))
+            if "t_center" in model.param_names():
+                model.t_center.copy_(torch.from_numpy(tms))
+            if "t_log_scale" in model.param_names():
+                model.t_log_scale.fill_(math.log(std_t))
+        if dynamic is not None:
+            model.set_dynamic(torch.as_tensor(np.asarray(dynamic, dtype=bool)))
+        return model
+
+    @classmethod
+    def from_tensors(cls, config: ModelConfig, tensors: dict[str, torch.Tensor | np.ndarray],
+                     source: str = "tensors") -> "SpacetimeGaussians":
+        """Build a model from named arrays (every Parameter of ``config`` + optional ``dynamic``).
+
+        Validates shapes and finiteness; ``source`` names the origin (a file) in error messages.
+        """
+        shapes = config.param_shapes()
+        missing = [k for k in shapes if k not in tensors]
+        if missing:
+            raise InputError(f"{source}: missing model fields {missing} for config {config.to_dict()}")
+        n = int(np.asarray(tensors["means"]).shape[0])
+        model = cls(config, 0)
+        for name, shape in shapes.items():
+            src = tensors[name]
+            t = src if torch.is_tensor(src) else torch.from_numpy(np.array(src, copy=True, order="C"))
+            if tuple(t.shape) != (n, *shape):
+                raise InputError(f"{source}: field {name!r} has shape {tuple(t.shape)}, expected {(n, *shape)}")
+            if not t.is_floating_point():
+                t = t.float()
+            if not bool(torch.isfinite(t).all()):
+                bad = int((~torch.isfinite(t.reshape(n, -1))).any(1).sum()) if n else 0
+                raise NumericalError(f"{source}: field {name!r} has non-finite values in {bad} of {n} Gaussians; "
+                                     "the file is corrupt or the model diverged; re-export it from a good checkpoint")
+            setattr(model, name, nn.Parameter(t.detach().clone()))
+        dyn = tensors.get("dynamic")
+        dyn_t = (torch.ones(n, dtype=torch.bool) if dyn is None
+                 else torch.as_tensor(np.array(dyn, copy=True, order="C") if not torch.is_tensor(dyn) else dyn).to(torch.bool))
+        if tuple(dyn_t.shape) != (n,):
+            raise InputError(f"{source}: field 'dynamic' has shape {tuple(dyn_t.shape)}, expected {(n,)}")
+        model.dynamic = dyn_t.to(model.means.device)
+        return model
+
+    @classmethod
+    def from_state_dict(cls, state: dict[str, torch.Tensor], config: ModelConfig) -> "SpacetimeGaussians":
+        """Inverse of ``state_dict()`` for any N (nn.Module.load_state_dict needs matching N)."""
+        return cls.from_tensors(config, dict(state), source="state_dict")
+
+    # ---- bookkeeping ------------------------------------------------------------------
+    @property
+    def num_gaussians(self) -> int:
+        return int(self.means.shape[0])
+
+    def __len__(self) -> int:
+        return self.num_gaussians
+
+    @property
+    def num_dynamic(self) -> int:
+        return int(self._dynamic_index().numel())
+
+    def param_names(self) -> list[str]:
+        """Names of the Parameters this model has, in canonical order."""
+        return list(self.config.param_shapes())
+
+    def tensors(self) -> dict[str, torch.Tensor]:
+        """Every Parameter (detached) plus the ``dynamic`` buffer, by name."""
+        out = {name: getattr(self, name).detach() for name in self.param_names()}
+        out["dynamic"] = self.dynamic
+        return out
+
+    def param_groups(self, lr: dict[str, float]) -> list[dict[str, Any]]:
+        """One optimizer group per Parameter: {"params": [p], "lr": lr[name], "name": name}.
+
+        ``lr`` may name Parameters this model lacks (e.g. "motion" for a static config); every
+        Parameter the model has must have a rate.
+        """
+        missing = [k for k in self.param_names() if k not in lr]
+        if missing:
+            raise InputError(f"param_groups: no learning rate for {missing}; add them to the lr dict")
+        return [{"params": [getattr(self, k)], "lr": float(lr[k]), "name": k} for k in self.param_names()]
+
+    def set_dynamic(self, mask: torch.Tensor) -> None:
+        """Replace the per-Gaussian dynamic mask (N,) bool."""
+        mask = torch.as_tensor(mask).to(device=self.means.device, dtype=torch.bool)
+        if tuple(mask.shape) != (self.num_gaussians,):
+            raise InputError(f"dynamic mask has shape {tuple(mask.shape)}, expected ({self.num_gaussians},)")
+        self.dynamic = mask.clone()
+
+    def prune(self, keep: torch.Tensor) -> None:
+        """Keep only the Gaussians where ``keep`` (N,) bool is True; Parameters are replaced."""
+        keep = torch.as_tensor(keep).to(device=self.means.device)
+        if keep.dtype != torch.bool or tuple(keep.shape) != (self.num_gaussians,):
+            raise InputError(f"prune: keep must be a bool tensor of shape ({self.num_gaussians},), "
+                             f"got {keep.dtype} {tuple(keep.shape)}")
+        for name in self.param_names():
+            setattr(self, name, nn.Parameter(getattr(self, name).detach()[keep].clone()))
+        self.dynamic = self.dynamic[keep].clone()
+
+    def append(self, params: dict[str, torch.Tensor]) -> None:
+        """Append M Gaussians given as {name: (M, ...)} for every Parameter (+ optional
+        ``dynamic`` (M,) bool, default True); Parameters are replaced."""
+        missing = [k for k in self.param_names() if k not in params]
+        if missing:
+            raise InputError(f"append: missing fields {missing}")
+        m = int(params["means"].shape[0])
+        shapes = self.config.param_shapes()
+        new: dict[str, torch.Tensor] = {}
+        for name in self.param_names():
+            old = getattr(self, name)
+            t = torch.as_tensor(params[name]).to(device=old.device, dtype=old.dtype)
+            if tuple(t.shape) != (m, *shapes[name]):
+                raise InputError(f"append: {name!r} has shape {tuple(t.shape)}, expected {(m, *shapes[name])}")
+            new[name] = torch.cat([old.detach(), t.detach()])
+        dyn = params.get("dynamic")
+        dyn_t = (torch.ones(m, dtype=torch.bool) if dyn is None else torch.as_tensor(dyn).to(torch.bool))
+        if tuple(dyn_t.shape) != (m,):
+            raise InputError(f"append: 'dynamic' has shape {tuple(dyn_t.shape)}, expected ({m},)")
+        for name, t in new.items():
+            setattr(self, name, nn.Parameter(t))
+        self.dynamic = torch.cat([self.dynamic, dyn_t.to(self.dynamic.device)])
+
+    def check(self, source: str = "model") -> "SpacetimeGaussians":
+        """Raise NumericalError naming ``source`` and the field if any Parameter is non-finite."""
+        for name in self.param_names():
+            p = getattr(self, name)
+            if not bool(torch.isfinite(p).all()):
+                raise NumericalError(f"{source}: Parameter {name!r} has non-finite values; "
+                                     "lower the learning rate or restart from the last good checkpoint")
+        return self
+
+    def _dynamic_index(self) -> torch.Tensor:
+        """(D,) int64 indices of the dynamic Gaussians, cached until ``dynamic`` changes
+        (keyed on the tensor's identity and in-place version counter)."""
+        d = self.dynamic
+        key = (id(d), d._version, d.data_ptr(), d.device, d.shape[0])
+        if self._dyn_cache is None or self._dyn_cache[0] != key:
+            self._dyn_cache = (key, torch.nonzero(d, as_tuple=False).reshape(-1))
+        return self._dyn_cache[1]
+
+    # ---- evaluation -------------------------------------------------------------------
+    def at(self, t: float | torch.Tensor, camera_center: np.ndarray | None = None) -> Snapshot:
+        """The differentiable static Snapshot at clip time t.
+
+        camera_center: (3,) world position used for view-dependent colour (sh_degree > 0); when
+        None, or sh_degree == 0, colours are the view-independent DC term.
+        Static Gaussians (``dynamic`` False) and a config without time effects skip every time
+        term: their means/quats are the Parameters themselves and their opacity is sigmoid(o).
+        """
+        means, quats = self.means, self.quats
+        opacities = torch.sigmoid(self.opacity_logits)
+        if self.config.has_time_terms:
+            idx = self._dynamic_index()
+            if idx.numel() > 0:
+                means, quats, opacities = self._apply_time(t, idx, means, quats, opacities)
+        scales = torch.exp(self.log_scales)
+        colors = self._colors(means, camera_center)
+        return Snapshot(means=means, quats=quats, scales=scales, opacities=opacities, colors=colors)
+
+    def _apply_time(self, t: float | torch.Tensor, idx: torch.Tensor, means: torch.Tensor,
+                    quats: torch.Tensor, opacities: torch.Tensor
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Evaluate the time terms on the dynamic rows ``idx`` and scatter them back.
+
+        Means and quaternions get their offsets with an out-of-place index_add, whose gradient
+        with respect to the full tensor is the incoming gradient itself (no copy, no masking),
+        so the backward pass does no per-Gaussian work for static rows beyond the dense
+        gradients of the time Parameters.
+        """
+        cfg = self.config
+        everyone = idx.numel() == self.num_gaussians
+
+        def rows(x: torch.Tensor) -> torch.Tensor:
+            return x if everyone else x.index_select(0, idx)
+
+        def add(full: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
+            return full + offset if everyone else full.index_add(0, idx, offset)
+
+        dt = (t - rows(self.t_center)).unsqueeze(-1)  # (D, 1)
+        if cfg.motion_degree > 0:
+            coeff = rows(self.motion).view(-1, cfg.motion_degree, 3)
+            acc = coeff[:, -1]
+            for k in range(cfg.motion_degree - 2, -1, -1):  # Horner: ((m3 dt + m2) dt + m1) dt
+                acc = acc * dt + coeff[:, k]
+            means = add(means, acc * dt)
+        if cfg.rotation_velocity:
+            quats = add(quats, rows(self.omega) * dt)
+        if cfg.temporal_opacity:
+            inv_std = torch.exp(-rows(self.t_log_scale).clamp(min=T_LOG_SCALE_MIN))
+            x = dt.squeeze(-1) * inv_std
+            rbf = torch.exp(-x * x)
+            opacities = opacities * rbf if everyone else opacities.index_copy(0, idx, rows(opacities) * rbf)
+        return means, quats, opacities
+
+    def _colors(self, means: torch.Tensor, camera_center: np.ndarray | None) -> torch.Tensor:
+        rgb = SH_C0 * self.colors
+        if self.config.sh_degree > 0 and camera_center is not None:
+            c = torch.as_tensor(np.asarray(camera_center, dtype=np.float64).reshape(3),
+                                dtype=means.dtype, device=means.device)
+            d = means - c
+            d = d / torch.sqrt((d * d).sum(-1, keepdim=True) + DIRECTION_EPS)
+            basis = sh_basis(d, self.config.sh_degree)  # (N, K)
+            rgb = rgb + torch.einsum("nk,nkc->nc", basis, self.sh_rest)
+        return torch.clamp_min(rgb + 0.5, 0.0)
+
+    @torch.no_grad()
+    def snapshot(self, t: float, camera_center: np.ndarray | None = None) -> Snapshot:
+        """``at(t)`` without autograd history (for viewers, exports, evaluation)."""
+        return self.at(t, camera_center).detach()
+
+    def extra_repr(self) -> str:
+        return f"n={self.num_gaussians}, dynamic={self.num_dynamic}, config={json.dumps(self.config.to_dict())}"

@@ -1,0 +1,112 @@
+"""``render()``: one entry point for every rasterizer backend.
+
+    out = render(snapshot, camera, background=(0, 0, 0), backend="auto")
+    out.rgb (H, W, 3), out.alpha (H, W), out.depth (H, W), out.radii (N,), out.means2d (N, 2)
+
+Backends: "reference" (pure torch oracle, fixer4d/render/reference.py), "cpu" (numba kernel with
+a hand-written backward, fixer4d/render/cpu.py), "gsplat" (CUDA, optional) and "auto" (gsplat for
+CUDA tensors when it is installed, else cpu, else reference).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from fixer4d.errors import BackendUnavailable, InputError
+from fixer4d.geometry.camera import Camera
+from fixer4d.model.snapshot import Snapshot
+from fixer4d.render.constants import ALPHA_MIN
+from fixer4d.render.project import project_gaussians
+
+BACKENDS = ("auto", "reference", "cpu", "gsplat")
+
+
+@dataclass
+class RenderOutput:
+    """One rendered view. Tensors live on the snapshot's device.
+
+    rgb: (H, W, 3) colour composited over the background. alpha: (H, W) accumulated opacity.
+    depth: (H, W) expected camera z-depth = sum_i w_i z_i / alpha, 0 where nothing was blended.
+    radii: (N,) int32 splat radius in pixels, 0 = not drawn. means2d: (N, 2) projected centres
+    in pixels; after backward its ``.grad`` holds dL/dmeans2d (densification statistics).
+    n_fragments: number of (Gaussian, pixel) pairs blended (-1 when the backend cannot count).
+    backend: the backend that actually rendered.
+    """
+
+    rgb: torch.Tensor
+    alpha: torch.Tensor
+    depth: torch.Tensor
+    radii: torch.Tensor
+    means2d: torch.Tensor
+    n_fragments: int
+    backend: str
+
+
+def resolve_backend(backend: str, device: torch.device) -> str:
+    """Map "auto" to a concrete backend for tensors on ``device``; validate the others."""
+    if backend not in BACKENDS:
+        raise InputError(f"unknown render backend {backend!r}; choose one of {', '.join(BACKENDS)}")
+    if backend != "auto":
+        return backend
+    if device.type == "cuda":
+        from fixer4d.render import gsplat_backend
+
+        if gsplat_backend.unavailable_reason() is None:
+            return "gsplat"
+        raise BackendUnavailable(f"no CUDA rasterizer for CUDA tensors ({gsplat_backend.unavailable_reason()}); "
+                                 "move the snapshot to the CPU or install gsplat")
+    from fixer4d.render import cpu
+
+    return "cpu" if cpu.unavailable_reason() is None else "reference"
+
+
+def _background(background, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    if background is None:
+        return torch.zeros(3, dtype=dtype, device=device)
+    bg = torch.as_tensor(background, dtype=dtype, device=device).reshape(-1)
+    if bg.numel() != 3:
+        raise InputError(f"render background must have 3 values (RGB), got {bg.numel()}")
+    return bg
+
+
+def render(snapshot: Snapshot, camera: Camera, background: torch.Tensor | tuple | None = None,
+           backend: str = "auto") -> RenderOutput:
+    """Rasterize ``snapshot`` from ``camera``; differentiable w.r.t. every snapshot field.
+
+    Raises NumericalError for non-finite Gaussian parameters (never renders a NaN image),
+    InputError for an unknown backend or a malformed background, BackendUnavailable when an
+    explicitly requested backend cannot run here. The reference backend computes in the
+    snapshot's dtype (float64 for gradient checks); the others in float32.
+    """
+    snapshot.check()
+    device = snapshot.means.device
+    name = resolve_backend(backend, device)
+    if name == "gsplat":
+        from fixer4d.render import gsplat_backend
+
+        return gsplat_backend.render(snapshot, camera, _background(background, torch.float32, device))
+    if device.type != "cpu":
+        raise BackendUnavailable(f"render backend {name!r} runs on CPU tensors; the snapshot is on {device}")
+    if name == "cpu" or snapshot.means.dtype not in (torch.float32, torch.float64):
+        snapshot = snapshot.to(dtype=torch.float32)
+    dtype = snapshot.means.dtype
+    proj = project_gaussians(snapshot, camera)
+    if proj.means2d.requires_grad:
+        proj.means2d.retain_grad()
+    if name == "reference":
+        from fixer4d.render.reference import rasterize_reference
+
+        color_acc, trans, depth_acc, n_fragments = rasterize_reference(proj, camera.width, camera.height)
+    else:
+        from fixer4d.render.cpu import rasterize_cpu
+
+        color_acc, trans, depth_acc, n_fragments = rasterize_cpu(proj, camera.width, camera.height)
+    bg = _background(background, dtype, device)
+    alpha = 1.0 - trans
+    rgb = color_acc + trans[..., None] * bg
+    # every blended pixel has alpha >= ALPHA_MIN, so the clamp only guards empty pixels
+    # (depth_acc = 0 there) and keeps the division's gradient finite
+    depth = depth_acc / torch.clamp(alpha, min=ALPHA_MIN)
+    return RenderOutput(rgb=rgb, alpha=alpha, depth=depth, radii=proj.radii, means2d=proj.means2d,
+                        n_fragments=int(n_fragments), backend=name)

@@ -1,0 +1,173 @@
+"""The restorer protocol: a rendered clip along a trajectory in, a restored clip out.
+
+Restorers never render (DESIGN.md §2): the request carries the rendered clip (rgb, depth,
+alpha) at every trajectory camera, the timestamp, the two real endpoint frames with their
+cameras, and the model's depth and alpha rendered at those reference cameras. Optionally it also
+carries the other real views of the same timestamp ("extra" views).
+
+Arrays are numpy float32 at this boundary (torch tensors are accepted and converted); images are
+RGB in [0, 1], depths are camera z-depths in world units (0, NaN or inf = unknown).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Protocol, runtime_checkable
+
+import numpy as np
+
+from fixer4d.errors import InputError
+from fixer4d.geometry.camera import Camera
+
+ProgressFn = Callable[[float], None]
+
+
+class RestoreCancelled(Exception):
+    """Raised from a progress callback to stop a restorer between frames (see jobs.py)."""
+
+
+def _as_array(value: Any, name: str) -> np.ndarray:
+    """numpy float32 copy-free view of a numpy array or a (detached, CPU) torch tensor."""
+    if hasattr(value, "detach"):
+        value = value.detach().cpu().numpy()
+    try:
+        return np.asarray(value, dtype=np.float32)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"restore request: {name} is not a numeric array ({exc})") from exc
+
+
+def _check_shape(arr: np.ndarray, shape: tuple[int, ...], name: str) -> None:
+    if arr.shape != shape:
+        raise InputError(f"restore request: {name} has shape {arr.shape}, expected {shape}; "
+                         "render every array at the camera it belongs to")
+
+
+@dataclass
+class RestoreRequest:
+    """One clip to restore.
+
+    rgb: (F, H, W, 3) rendered colours. depth: (F, H, W) rendered expected z-depth (0 where
+    nothing was rendered). alpha: (F, H, W) accumulated opacity in [0, 1]. cameras: F cameras of
+    the trajectory (each H x W). time: the clip's timestamp t = f / T. frame: its frame index f.
+    ref_images: 2 real frames (H_r, W_r, 3) at ref_cameras (the trajectory's endpoints).
+    ref_depths / ref_alphas: 2 maps (H_r, W_r): the MODEL's depth and alpha rendered at the
+    references (used for the occlusion test). extra_images / extra_cameras / extra_depths: the
+    other real views of the same timestamp with the model's depth there, or None.
+    trajectory: metadata (name, pair, amplitude, arc index, ...), JSON-serializable.
+    """
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    alpha: np.ndarray
+    cameras: list[Camera]
+    time: float
+    frame: int
+    ref_images: list[np.ndarray]
+    ref_cameras: list[Camera]
+    ref_depths: list[np.ndarray]
+    ref_alphas: list[np.ndarray]
+    extra_images: list[np.ndarray] | None = None
+    extra_cameras: list[Camera] | None = None
+    extra_depths: list[np.ndarray] | None = None
+    trajectory: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.rgb = _as_array(self.rgb, "rgb")
+        if self.rgb.ndim != 4 or self.rgb.shape[-1] != 3 or self.rgb.shape[0] < 1:
+            raise InputError(f"restore request: rgb must be (F, H, W, 3) with F >= 1, got {self.rgb.shape}")
+        F, H, W, _ = self.rgb.shape
+        self.depth = _as_array(self.depth, "depth")
+        self.alpha = _as_array(self.alpha, "alpha")
+        _check_shape(self.depth, (F, H, W), "depth")
+        _check_shape(self.alpha, (F, H, W), "alpha")
+        self.cameras = list(self.cameras)
+        if len(self.cameras) != F:
+            raise InputError(f"restore request: {len(self.cameras)} cameras for {F} frames; pass one camera per frame")
+        for k, cam in enumerate(self.cameras):
+            if (cam.height, cam.width) != (H, W):
+                raise InputError(f"restore request: camera {k} ({cam.name!r}) is {cam.width}x{cam.height}, "
+                                 f"the clip is {W}x{H}")
+        self.time = float(self.time)
+        self.frame = int(self.frame)
+        if len(self.ref_cameras) != 2 or len(self.ref_images) != 2 or len(self.ref_depths) != 2 \
+                or len(self.ref_alphas) != 2:
+            raise InputError("restore request: exactly 2 references (images, cameras, depths, alphas) are needed, "
+                             f"got {len(self.ref_images)} images, {len(self.ref_cameras)} cameras, "
+                             f"{len(self.ref_depths)} depths, {len(self.ref_alphas)} alphas")
+        self.ref_cameras = list(self.ref_cameras)
+        self.ref_images = [_as_array(im, f"ref_images[{r}]") for r, im in enumerate(self.ref_images)]
+        self.ref_depths = [_as_array(d, f"ref_depths[{r}]") for r, d in enumerate(self.ref_depths)]
+        self.ref_alphas = [_as_array(a, f"ref_alphas[{r}]") for r, a in enumerate(self.ref_alphas)]
+        for r, cam in enumerate(self.ref_cameras):
+            _check_shape(self.ref_images[r], (cam.height, cam.width, 3), f"ref_images[{r}]")
+            _check_shape(self.ref_depths[r], (cam.height, cam.width), f"ref_depths[{r}]")
+            _check_shape(self.ref_alphas[r], (cam.height, cam.width), f"ref_alphas[{r}]")
+        extras = (self.extra_images, self.extra_cameras, self.extra_depths)
+        if any(e is not None for e in extras):
+            if any(e is None for e in extras) or not (len(extras[0]) == len(extras[1]) == len(extras[2])):
+                raise InputError("restore request: extra_images, extra_cameras and extra_depths must be given "
+                                 "together with one entry per extra view")
+            self.extra_cameras = list(self.extra_cameras)
+            self.extra_images = [_as_array(im, f"extra_images[{e}]") for e, im in enumerate(self.extra_images)]
+            self.extra_depths = [_as_array(d, f"extra_depths[{e}]") for e, d in enumerate(self.extra_depths)]
+            for e, cam in enumerate(self.extra_cameras):
+                _check_shape(self.extra_images[e], (cam.height, cam.width, 3), f"extra_images[{e}]")
+                _check_shape(self.extra_depths[e], (cam.height, cam.width), f"extra_depths[{e}]")
+        self.trajectory = dict(self.trajectory)
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.rgb.shape[0])
+
+    @property
+    def height(self) -> int:
+        return int(self.rgb.shape[1])
+
+    @property
+    def width(self) -> int:
+        return int(self.rgb.shape[2])
+
+    @property
+    def num_extra(self) -> int:
+        return 0 if self.extra_cameras is None else len(self.extra_cameras)
+
+
+@dataclass
+class RestoreResult:
+    """A restored clip.
+
+    rgb: (F, H, W, 3) float32 in [0, 1]. confidence: (F, H, W) float32 in [0, 1], how much each
+    pixel is supported by real observations (0 = guessed). frame_confidence: (F,) float32, a
+    per-frame summary (the mean of ``confidence``).
+    """
+
+    rgb: np.ndarray
+    confidence: np.ndarray
+    frame_confidence: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.rgb = _as_array(self.rgb, "result rgb")
+        self.confidence = _as_array(self.confidence, "result confidence")
+        self.frame_confidence = _as_array(self.frame_confidence, "result frame_confidence").reshape(-1)
+        if self.rgb.ndim != 4 or self.rgb.shape[-1] != 3:
+            raise InputError(f"restore result: rgb must be (F, H, W, 3), got {self.rgb.shape}")
+        _check_shape(self.confidence, self.rgb.shape[:3], "result confidence")
+        _check_shape(self.frame_confidence, self.rgb.shape[:1], "result frame_confidence")
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.rgb.shape[0])
+
+
+@runtime_checkable
+class Restorer(Protocol):
+    """What every restorer offers. ``settings()`` is JSON-serializable (echoed into the cache).
+
+    ``restore`` calls ``progress(fraction)`` with a fraction in [0, 1] between frames when given;
+    a progress callback may raise ``RestoreCancelled`` to stop the restorer (job cancellation).
+    """
+
+    name: str
+
+    def settings(self) -> dict[str, Any]: ...
+
+    def restore(self, request: RestoreRequest, progress: ProgressFn | None = None) -> RestoreResult: ...

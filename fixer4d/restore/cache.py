@@ -1,0 +1,230 @@
+"""The on-disk restoration cache: restored clips that stage 2 uses as pseudo-targets.
+
+Layout under the run folder (DESIGN.md §4)::
+
+    cache/round_<r>/t<frame:04d>_<i>-<j>[_arc<k>]/
+        frame_0000.png ...   restored frames, 8-bit RGB
+        confidence.npz       confidence (F, H, W) float16, frame_confidence (F,) float32
+        meta.json            model step, restorer name + settings, trajectory (name, pair,
+                             amplitude, cameras as Camera.to_dict()), time, frame, scores
+
+Every entry is written with ``fixer4d.atomic.atomic_dir``: the files go to a hidden temporary
+sibling which replaces the entry whole once complete, so a killed write leaves the previous
+entry (or none), never half of one, and a refreshed entry never mixes old and new frames.
+Readers skip hidden/temporary directories and entries without a complete meta.json.
+"""
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from fixer4d.atomic import atomic_dir, write_json
+from fixer4d.errors import InputError
+from fixer4d.geometry.camera import Camera
+from fixer4d.restore.base import RestoreRequest, RestoreResult
+
+META_FILE = "meta.json"
+CONFIDENCE_FILE = "confidence.npz"
+FRAME_FILE = "frame_{:04d}.png"
+ROUND_DIR = "round_{}"
+_ROUND_RE = re.compile(r"^round_(\d+)$")
+# Version of the entry layout written into meta.json, bumped when the files change meaning.
+CACHE_FORMAT = 1
+# Render alpha below this counts as a hole when scoring how much an entry repaired
+# (the same threshold as the restorer's trusted-depth alpha).
+SCORE_HOLE_ALPHA = 0.5
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return float(10.0 * np.log10(1.0 / max(mse, 1e-12)))
+
+
+@dataclass
+class CacheEntry:
+    """A complete cache entry on disk. ``rgb()`` and ``confidence()`` read the files on demand."""
+
+    path: Path
+    key: str
+    round: int
+    meta: dict[str, Any]
+    cameras: list[Camera] = field(repr=False)
+    time: float
+    frame: int
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.cameras)
+
+    def rgb(self) -> np.ndarray:
+        """(F, H, W, 3) float32 in [0, 1]: the restored clip."""
+        frames = []
+        for k in range(self.num_frames):
+            img = cv2.imread(str(self.path / FRAME_FILE.format(k)), cv2.IMREAD_COLOR)
+            if img is None:
+                raise InputError(f"cache entry {self.path}: {FRAME_FILE.format(k)} is missing or unreadable; "
+                                 "delete the entry so that it is restored again")
+            frames.append(img[..., ::-1].astype(np.float32) / 255.0)
+        return np.stack(frames)
+
+    def confidence(self) -> np.ndarray:
+        """(F, H, W) float32 in [0, 1]: per-pixel confidence of the restored clip."""
+        with np.load(self.path / CONFIDENCE_FILE) as data:
+            return data["confidence"].astype(np.float32)
+
+    def frame_confidence(self) -> np.ndarray:
+        """(F,) float32 per-frame confidence."""
+        with np.load(self.path / CONFIDENCE_FILE) as data:
+            return data["frame_confidence"].astype(np.float32)
+
+
+class RestoreCache:
+    """Restored clips by round and key under ``root`` (``runs/<name>/cache``)."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+
+    # ---- naming ------------------------------------------------------------------------
+    @staticmethod
+    def key(frame: int, i: int, j: int, arc: int | None = None) -> str:
+        """Entry name of the clip at frame ``frame`` on the trajectory of pair (i, j) [arc k]."""
+        base = f"t{int(frame):04d}_{int(i)}-{int(j)}"
+        return base if arc is None else f"{base}_arc{int(arc)}"
+
+    def round_dir(self, round: int) -> Path:
+        return self.root / ROUND_DIR.format(int(round))
+
+    def entry_dir(self, round: int, key: str) -> Path:
+        if not key or "/" in key or "\\" in key or key.startswith(".") or key in ("..",):
+            raise InputError(f"restore cache: {key!r} is not a valid entry key; use RestoreCache.key(frame, i, j, arc)")
+        return self.round_dir(round) / key
+
+    # ---- writing -----------------------------------------------------------------------
+    def write(self, round: int, key: str, request: RestoreRequest, result: RestoreResult,
+              meta: dict[str, Any]) -> CacheEntry:
+        """Write (or replace) entry ``key`` of round ``round`` atomically; returns it.
+
+        meta.json = ``meta`` (model step, restorer name and settings, ...) plus the layout's own
+        fields: key, round, frame, time, trajectory (request.trajectory + cameras), size, scores.
+        """
+        if result.rgb.shape[:3] != request.rgb.shape[:3]:
+            raise InputError(f"restore cache {key}: result shape {result.rgb.shape} does not match the request "
+                             f"{request.rgb.shape}")
+        path = self.entry_dir(round, key)
+        F, H, W = result.rgb.shape[:3]
+        rgb8 = np.round(np.clip(np.nan_to_num(result.rgb, nan=0.0), 0.0, 1.0) * 255.0).astype(np.uint8)
+        scores = dict(meta.get("scores", {}))
+        scores.update(self._scores(request, result))
+        record = dict(meta)
+        record.update({
+            "format": CACHE_FORMAT, "key": key, "round": int(round), "frame": request.frame, "time": request.time,
+            "num_frames": F, "width": W, "height": H,
+            "trajectory": {**request.trajectory, "cameras": [c.to_dict() for c in request.cameras]},
+            "scores": scores,
+        })
+        with atomic_dir(path) as tmp:
+            for k in range(F):
+                _write_png(tmp / FRAME_FILE.format(k), rgb8[k])
+            np.savez_compressed(tmp / CONFIDENCE_FILE,
+                                confidence=np.clip(result.confidence, 0.0, 1.0).astype(np.float16),
+                                frame_confidence=result.frame_confidence.astype(np.float32))
+            # meta.json last: an entry directory without it is never treated as complete
+            write_json(tmp / META_FILE, record)
+        return self._load(path, int(round))
+
+    @staticmethod
+    def _scores(request: RestoreRequest, result: RestoreResult) -> dict[str, Any]:
+        hole = np.nan_to_num(request.alpha, nan=0.0) < SCORE_HOLE_ALPHA
+        return {
+            "mean_confidence": float(result.confidence.mean()),
+            "frame_confidence": [float(c) for c in result.frame_confidence],
+            "render_hole_fraction": float(hole.mean()),
+            "psnr_restored_vs_render": _psnr(result.rgb, np.clip(np.nan_to_num(request.rgb, nan=0.0), 0, 1)),
+        }
+
+    # ---- reading -----------------------------------------------------------------------
+    def has(self, round: int, key: str) -> bool:
+        """Whether a complete entry ``key`` exists in round ``round`` (reuse it on resume)."""
+        return self._load(self.entry_dir(round, key), int(round)) is not None
+
+    def get(self, round: int, key: str) -> CacheEntry | None:
+        """The complete entry ``key`` of round ``round``, or None."""
+        return self._load(self.entry_dir(round, key), int(round))
+
+    def rounds(self) -> list[int]:
+        """Rounds holding at least one complete entry, ascending."""
+        if not self.root.is_dir():
+            return []
+        found = []
+        for d in self.root.iterdir():
+            m = _ROUND_RE.match(d.name)
+            if m and d.is_dir() and any(self._load(e, int(m.group(1))) is not None for e in self._entry_dirs(d)):
+                found.append(int(m.group(1)))
+        return sorted(found)
+
+    def latest_round(self) -> int | None:
+        """The highest round with a complete entry, or None when the cache is empty."""
+        rounds = self.rounds()
+        return rounds[-1] if rounds else None
+
+    def entries(self, round: int | None = None) -> list[CacheEntry]:
+        """Complete entries of ``round`` sorted by key (None = the latest round)."""
+        if round is None:
+            round = self.latest_round()
+            if round is None:
+                return []
+        out = []
+        for d in self._entry_dirs(self.round_dir(round)):
+            entry = self._load(d, int(round))
+            if entry is not None:
+                out.append(entry)
+        return out
+
+    def clean_temporary(self) -> int:
+        """Delete temporary directories left by killed writes; returns how many were removed."""
+        removed = 0
+        if not self.root.is_dir():
+            return 0
+        for rd in self.root.iterdir():
+            if not (_ROUND_RE.match(rd.name) and rd.is_dir()):
+                continue
+            for d in rd.iterdir():
+                if d.is_dir() and d.name.startswith(".") and (".tmp." in d.name or ".old." in d.name):
+                    shutil.rmtree(d, ignore_errors=True)
+                    removed += 1
+        return removed
+
+    @staticmethod
+    def _entry_dirs(round_dir: Path) -> list[Path]:
+        if not round_dir.is_dir():
+            return []
+        return sorted(d for d in round_dir.iterdir() if d.is_dir() and not d.name.startswith("."))
+
+    @staticmethod
+    def _load(path: Path, round: int) -> CacheEntry | None:
+        """The entry at ``path`` if it is complete (meta.json parses, every file present), else None."""
+        try:
+            meta = json.loads((path / META_FILE).read_text())
+            cameras = [Camera.from_dict(c) for c in meta["trajectory"]["cameras"]]
+            if len(cameras) != int(meta["num_frames"]):
+                return None
+        except (OSError, ValueError, KeyError, TypeError, InputError):
+            return None
+        if not (path / CONFIDENCE_FILE).is_file():
+            return None
+        if not all((path / FRAME_FILE.format(k)).is_file() for k in range(len(cameras))):
+            return None
+        return CacheEntry(path, path.name, round, meta, cameras, float(meta["time"]), int(meta["frame"]))
+
+
+def _write_png(path: Path, rgb8: np.ndarray) -> None:
+    """Write one (H, W, 3) uint8 RGB frame as PNG."""
+    if not cv2.imwrite(str(path), np.ascontiguousarray(rgb8[..., ::-1])):
+        raise OSError(f"could not write {path}")

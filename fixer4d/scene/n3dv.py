@@ -1,0 +1,287 @@
+"""The Neural3DV layout: camXX.mp4 per camera + poses_bounds.npy (LLFF), optional scene.json.
+
+poses_bounds.npy holds one row of 17 numbers per camera: a 3x5 matrix [R | t | hwf] row-major
+(R's columns are the camera's down, right and backward axes in world, t its centre, hwf =
+image height, width and focal length in pixels) then the near and far scene depths. Rows
+follow the sorted camXX.mp4 files unless scene.json lists ``pose_cameras``.
+
+A folder written by ``fixer4d make-scene`` also has scene.json (train/test ids, fps, scene box)
+and depth/camXX.npz (ground-truth z-depth, float32 (T, H, W), inf where nothing is hit).
+"""
+from __future__ import annotations
+
+import json
+import re
+import threading
+from collections import OrderedDict
+from pathlib import Path
+
+import numpy as np
+
+from fixer4d.errors import InputError
+from fixer4d.geometry.camera import Camera
+from fixer4d.scene.base import MultiViewVideo, SceneBounds
+from fixer4d.scene.synthetic import centre_camera, most_separated
+from fixer4d.scene.video import VideoReader, probe_video
+
+# The Neural3DV sparse-view protocol (4 train views of the 21-camera rig; cam00, the centre
+# camera, and all others held out).
+N3DV_FULL_RIG = 21
+N3DV_DEFAULT_TRAIN = (1, 10, 13, 20)
+# LLFF stores one focal length and a centred principal point; intrinsics that differ from that by
+# more than this (pixels, or relative for fx vs fy) cannot be written without loss.
+LLFF_PRINCIPAL_TOL_PX = 1e-6
+LLFF_FOCAL_RTOL = 1e-9
+# A video whose aspect ratio differs from poses_bounds' hwf by more than this is not the same
+# camera resized.
+ASPECT_RTOL = 0.01
+# Ground-truth depth arrays kept in memory (whole camera clips, (T, H, W) float32 each).
+DEPTH_CACHE_CAMERAS = 4
+_CAM_RE = re.compile(r"^cam(\d+)\.mp4$")
+
+
+# ---------------------------------------------------------------------------- LLFF <-> OpenCV
+def llff_to_cameras(poses_bounds: np.ndarray, names: list[str] | None = None,
+                    source: str = "poses_bounds.npy") -> tuple[list[Camera], np.ndarray]:
+    """(N, 17) LLFF rows -> (cameras at the hwf resolution, near/far (N, 2))."""
+    pb = np.asarray(poses_bounds, dtype=np.float64)
+    if pb.ndim != 2 or pb.shape[1] != 17:
+        raise InputError(f"{source}: expected an (N, 17) array (3x5 pose + near, far per camera), got shape "
+                         f"{pb.shape}; regenerate it with LLFF's imgs2poses or `fixer4d make-scene`")
+    bad = np.nonzero(~np.all(np.isfinite(pb), axis=1))[0]
+    if bad.size:
+        raise InputError(f"{source}: non-finite values (NaN/inf) in rows {bad.tolist()}; "
+                         f"recompute those camera poses (e.g. rerun COLMAP/imgs2poses)")
+    cams = []
+    for i, row in enumerate(pb):
+        m = row[:15].reshape(3, 5)
+        h, w, f = m[:, 4]
+        if h <= 0 or w <= 0 or f <= 0:
+            raise InputError(f"{source}: row {i} has a non-positive image size or focal (h, w, f = {h}, {w}, {f})")
+        c2w = np.eye(4)
+        c2w[:3, 0] = m[:, 1]   # right
+        c2w[:3, 1] = m[:, 0]   # down
+        c2w[:3, 2] = -m[:, 2]  # forward = -backward
+        c2w[:3, 3] = m[:, 3]
+        K = np.array([[f, 0.0, w / 2.0], [0.0, f, h / 2.0], [0.0, 0.0, 1.0]])
+        name = names[i] if names is not None else f"cam{i:02d}"
+        cams.append(Camera(K, c2w, int(round(w)), int(round(h)), name))
+    return cams, pb[:, 15:17].copy()
+
+
+def cameras_to_llff(cameras: list[Camera], near_far: np.ndarray) -> np.ndarray:
+    """Cameras (square pixels, centred principal point) + near/far ((2,) or (N, 2)) -> (N, 17)."""
+    nf = np.broadcast_to(np.asarray(near_far, np.float64), (len(cameras), 2))
+    rows = []
+    for cam in cameras:
+        if (abs(cam.fx - cam.fy) > LLFF_FOCAL_RTOL * cam.fx or abs(cam.cx - cam.width / 2) > LLFF_PRINCIPAL_TOL_PX
+                or abs(cam.cy - cam.height / 2) > LLFF_PRINCIPAL_TOL_PX or abs(cam.K[0, 1]) > 0):
+            raise InputError(f"camera {cam.name}: LLFF poses_bounds stores one focal and a centred principal point; "
+                             f"this camera has fx={cam.fx}, fy={cam.fy}, cx={cam.cx}, cy={cam.cy}: "
+                             f"undistort/crop the images to a centred square-pixel camera first")
+        m = np.empty((3, 5))
+        m[:, 0] = cam.c2w[:3, 1]
+        m[:, 1] = cam.c2w[:3, 0]
+        m[:, 2] = -cam.c2w[:3, 2]
+        m[:, 3] = cam.c2w[:3, 3]
+        m[:, 4] = [cam.height, cam.width, cam.fx]
+        rows.append(m.reshape(-1))
+    return np.concatenate([np.stack(rows), nf], 1)
+
+
+def read_poses_bounds(path: str | Path) -> np.ndarray:
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: file not found; a Neural3DV scene needs poses_bounds.npy next to its camXX.mp4")
+    try:
+        return np.load(path, allow_pickle=False)
+    except (ValueError, OSError) as exc:
+        raise InputError(f"{path}: not a readable .npy array ({exc}); regenerate poses_bounds.npy") from None
+
+
+# ---------------------------------------------------------------------------- the scene
+class Neural3DVScene(MultiViewVideo):
+    """A Neural3DV scene folder, decoded lazily with bounded memory.
+
+    Args:
+      root: folder with camXX.mp4 and poses_bounds.npy (and optionally scene.json, depth/).
+      scale: image scale (0.5 = half resolution).
+      frame_range: (a, b) half-open range of video frames to use.
+      train_ids / test_ids: camera ids (XX of camXX). Only the named cameras are loaded when
+        either is given; defaults: scene.json's split, else 1,10,13,20 vs. the rest for the full
+        21-camera rig, else the 4 most separated cameras (the centre one held out).
+    """
+
+    def __init__(self, root: str | Path, scale: float = 1.0, frame_range: tuple[int, int] | None = None,
+                 train_ids: list[int] | None = None, test_ids: list[int] | None = None,
+                 cache_frames: int = 64) -> None:
+        super().__init__(cache_frames)
+        self.root = Path(root)
+        self.name = self.root.name
+        if scale <= 0 or not np.isfinite(scale):
+            raise InputError(f"{self.root}: scale must be > 0, got {scale}")
+        meta = self._read_meta()
+        videos = {int(m.group(1)): self.root / p.name for p in sorted(self.root.iterdir())
+                  if (m := _CAM_RE.match(p.name))}
+        if not videos:
+            raise InputError(f"{self.root}: no camXX.mp4 videos found; a Neural3DV folder holds cam00.mp4, cam01.mp4, ...")
+        pb_path = self.root / "poses_bounds.npy"
+        pb = read_poses_bounds(pb_path)
+        row_ids = [int(i) for i in meta.get("pose_cameras", sorted(videos))]
+        if pb.ndim == 2 and pb.shape[0] != len(row_ids):
+            if "pose_cameras" in meta:
+                raise InputError(f"{pb_path}: {pb.shape[0]} rows but scene.json lists {len(row_ids)} pose_cameras; "
+                                 f"make them agree")
+            missing = sorted(videos)[pb.shape[0]:]
+            raise InputError(f"{pb_path}: {pb.shape[0]} pose rows for {len(videos)} camera videos, so "
+                             f"{', '.join(f'cam{i:02d}.mp4' for i in missing) or 'some rows'} cannot be matched to a pose: "
+                             f"add the missing rows (one per camXX.mp4, sorted) or remove the extra videos")
+        all_cams, near_far = llff_to_cameras(pb, [f"cam{i:02d}" for i in row_ids], str(pb_path))
+        by_id = dict(zip(row_ids, range(len(row_ids))))
+        for vid in videos:
+            if vid not in by_id:
+                raise InputError(f"{videos[vid]}: camera id {vid} is absent from {pb_path} "
+                                 f"(scene.json pose_cameras = {row_ids}); add its pose or remove the video")
+
+        if train_ids is not None or test_ids is not None:
+            want = sorted(set(train_ids or []) | set(test_ids or []))
+        else:
+            want = sorted(videos)
+        absent = [i for i in want if i not in videos]
+        if absent:
+            raise InputError(f"{self.root}: camera ids {absent} requested but there is no "
+                             f"{', '.join(f'cam{i:02d}.mp4' for i in absent)}; available ids: {sorted(videos)}")
+        self.camera_ids = want
+        infos = [probe_video(videos[i]) for i in want]
+        counts = [inf.num_frames for inf in infos]
+        total = min(counts)
+        if frame_range is None:
+            if len(set(counts)) > 1:
+                short = want[int(np.argmin(counts))]
+                raise InputError(f"{videos[short]}: {min(counts)} frames, but other cameras have up to {max(counts)} "
+                                 f"({dict(zip((f'cam{i:02d}' for i in want), counts))}); trim the videos to the same "
+                                 f"length or pass frame_range=(a, b) with b <= {min(counts)}")
+            frame_range = (0, total)
+        a, b = int(frame_range[0]), int(frame_range[1])
+        if not 0 <= a < b <= total:
+            raise InputError(f"{self.root}: frame_range {frame_range} must satisfy 0 <= a < b <= {total} "
+                             f"(the shortest video's frame count)")
+        self.frame_offset = a
+        self.num_frames = b - a
+        self.fps = float(meta.get("fps", infos[0].fps))
+
+        self.cameras = []
+        for i, inf in zip(want, infos):
+            cam = all_cams[by_id[i]]
+            if abs(inf.width / inf.height - cam.width / cam.height) > ASPECT_RTOL * cam.width / cam.height:
+                raise InputError(f"{videos[i]}: video is {inf.width}x{inf.height} but {pb_path} says "
+                                 f"{cam.width}x{cam.height} (different aspect ratio); use the matching poses_bounds.npy")
+            if (inf.width, inf.height) != (cam.width, cam.height):
+                cam = cam.resized(inf.width, inf.height)
+            self.cameras.append(cam.scaled(scale) if scale != 1.0 else cam)
+        self.scale = float(scale)
+        self._near_far = near_far[[by_id[i] for i in want]]
+        self._videos = [videos[i] for i in want]
+        self._readers: dict[int, VideoReader] = {}
+        self._readers_lock = threading.Lock()
+
+        index_of = {cid: k for k, cid in enumerate(want)}
+        if train_ids is not None:
+            tr = [int(i) for i in train_ids]
+        elif "train_ids" in meta:
+            tr = [int(i) for i in meta["train_ids"]]
+        elif want == list(range(N3DV_FULL_RIG)):
+            tr = list(N3DV_DEFAULT_TRAIN)
+        else:
+            tr = [want[k] for k in most_separated(self.cameras, 4, exclude=(centre_camera(self.cameras),))]
+        if test_ids is not None:
+            te = [int(i) for i in test_ids]
+        elif "test_ids" in meta and train_ids is None:
+            te = [int(i) for i in meta["test_ids"]]
+        else:
+            te = [i for i in want if i not in tr]
+        for i in tr + te:
+            if i not in index_of:
+                raise InputError(f"{self.root}: camera id {i} (scene.json or arguments) has no loaded camXX.mp4; "
+                                 f"loaded ids: {want}")
+        self.train_ids = [index_of[i] for i in tr]
+        self.test_ids = [index_of[i] for i in te if i not in tr]
+
+        self._depth_dir = self.root / meta["depth"] if meta.get("depth") else None
+        self._depth_cache: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._depth_lock = threading.Lock()
+        self._meta = meta
+
+    def _read_meta(self) -> dict:
+        p = self.root / "scene.json"
+        if not p.is_file():
+            return {}
+        try:
+            meta = json.loads(p.read_text())
+        except json.JSONDecodeError as exc:
+            raise InputError(f"{p}: not valid JSON ({exc}); fix or delete it") from None
+        if not isinstance(meta, dict):
+            raise InputError(f"{p}: the top level must be a JSON object")
+        return meta
+
+    def _reader(self, cam: int) -> VideoReader:
+        with self._readers_lock:
+            if cam not in self._readers:
+                self._readers[cam] = VideoReader(self._videos[cam])
+            return self._readers[cam]
+
+    def _load_frame(self, frame: int, cam: int) -> np.ndarray:
+        img = self._reader(cam).frame(self.frame_offset + frame).astype(np.float32) / 255.0
+        c = self.cameras[cam]
+        if img.shape[:2] != (c.height, c.width):
+            import cv2
+
+            img = cv2.resize(img, (c.width, c.height), interpolation=cv2.INTER_AREA)
+        return img
+
+    @property
+    def has_depth(self) -> bool:
+        return self._depth_dir is not None
+
+    def _load_depth(self, frame: int, cam: int) -> np.ndarray | None:
+        if self._depth_dir is None:
+            return None
+        with self._depth_lock:
+            if cam not in self._depth_cache:
+                path = self._depth_dir / f"{self.cameras[cam].name}.npz"
+                if not path.is_file():
+                    raise InputError(f"{path}: ground-truth depth listed in scene.json is missing; "
+                                     f"rewrite the scene with `fixer4d make-scene` or remove 'depth' from scene.json")
+                with np.load(path) as z:
+                    self._depth_cache[cam] = z["depth"]
+                while len(self._depth_cache) > DEPTH_CACHE_CAMERAS:
+                    self._depth_cache.popitem(last=False)
+            arr = self._depth_cache[cam]
+        f = self.frame_offset + frame
+        if f >= arr.shape[0]:
+            raise InputError(f"{self._depth_dir}: depth of {self.cameras[cam].name} has {arr.shape[0]} frames, "
+                             f"frame {f} requested; rewrite the scene")
+        d = arr[f].astype(np.float32)
+        c = self.cameras[cam]
+        if d.shape != (c.height, c.width):
+            import cv2
+
+            # Nearest neighbour: averaging depths across an occlusion edge invents surfaces.
+            d = cv2.resize(d, (c.width, c.height), interpolation=cv2.INTER_NEAREST)
+        return d
+
+    def bounds(self) -> SceneBounds:
+        """near/far from poses_bounds; the box from scene.json, else the union of the camera
+        frusta between near and far (loose but safe)."""
+        near = float(self._near_far[:, 0].min())
+        far = float(self._near_far[:, 1].max())
+        if "bbox_min" in self._meta and "bbox_max" in self._meta:
+            return SceneBounds(near, far, np.asarray(self._meta["bbox_min"], np.float64),
+                               np.asarray(self._meta["bbox_max"], np.float64))
+        pts = []
+        for c in self.cameras:
+            corners = np.array([[0, 0], [c.width, 0], [0, c.height], [c.width, c.height]], np.float64)
+            for z in (near, far):
+                pts.append(c.backproject(corners, np.full(4, z)))
+        pts = np.concatenate(pts)
+        return SceneBounds(near, far, pts.min(0), pts.max(0))

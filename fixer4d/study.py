@@ -1,0 +1,275 @@
+"""Accuracy vs time: sweep the pipeline's knobs, time every stage, draw the Pareto front.
+
+A study is a list of variants, each a set of overrides of the pipeline configuration
+(dotted keys such as ``"stage1.iterations"``). Every variant runs the real pipeline in its own
+run folder (so an interrupted study resumes: finished variants are read back, half-finished
+ones resume stage by stage), is evaluated on the held-out cameras, and lands in
+``study.json``, a markdown table sorted by time, and three plots:
+
+- ``psnr_vs_time.png`` / ``lpips_vs_time.png``: quality against wall-clock seconds, the Pareto
+  front highlighted and labelled;
+- ``stage_seconds.png``: seconds per stage as stacked bars.
+
+A budget (minutes) bounds the sweep: variants run in the order given (the default sweep puts
+the base configuration first) and the study starts no new variant once the budget is spent.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from fixer4d import atomic
+
+# Variants of the default sweep: one knob at a time away from the base configuration, plus the
+# cheap and the expensive corners, so each knob's price and gain can be read off directly.
+DEFAULT_SWEEP: list[dict[str, Any]] = [
+    {"name": "base"},
+    {"name": "sparse-init", "init.method": "sparse"},
+    {"name": "no-restoration", "stage2.rounds": 0},
+    {"name": "res-0.5", "scene.scale": 0.5},
+    {"name": "iters-0.5x", "stage1.iterations": 0.5},
+    {"name": "iters-2x", "stage1.iterations": 2.0},
+    {"name": "cap-0.25x", "stage1.max_gaussians": 0.25},
+    {"name": "planes-0.5x", "init.mvs.planes": 0.5},
+    {"name": "mvs-res-0.5x", "init.mvs.scale": 0.5},
+    {"name": "rounds-1", "stage2.rounds": 1},
+    {"name": "rounds-3", "stage2.rounds": 3},
+    {"name": "K-0.5x", "stage2.refresh_every": 0.5},
+    {"name": "restorer-refs-only", "restorer.use_extra_views": False},
+]
+
+# Knobs whose override is a multiplier of the base value rather than an absolute value, so one
+# sweep file serves every scene size.
+RELATIVE_KNOBS = {"stage1.iterations", "stage1.max_gaussians", "init.mvs.planes", "init.mvs.scale",
+                  "stage2.refresh_every", "stage2.iterations"}
+
+
+@dataclass
+class StudyResult:
+    """One finished variant: its overrides, its metrics and its per-stage seconds."""
+
+    name: str
+    overrides: dict[str, Any]
+    psnr: float
+    dssim1: float
+    dssim2: float
+    lpips: float | None
+    seconds: dict[str, float]
+    run_dir: str
+    pareto_psnr: bool = False
+    pareto_lpips: bool = False
+
+    @property
+    def total_seconds(self) -> float:
+        return float(self.seconds.get("total", sum(v for k, v in self.seconds.items() if k != "total")))
+
+
+# ---------------------------------------------------------------------------------------------
+# Pareto front
+# ---------------------------------------------------------------------------------------------
+def pareto_front(costs: list[float], scores: list[float | None], higher_is_better: bool = True) -> list[int]:
+    """Indices of the non-dominated points, sorted by cost.
+
+    A point is dominated when another costs no more and scores at least as well, and is
+    strictly better in one of the two. Points with a missing or non-finite score are never on
+    the front.
+    """
+    idx = [i for i, s in enumerate(scores) if s is not None and math.isfinite(s) and math.isfinite(costs[i])]
+    sign = 1.0 if higher_is_better else -1.0
+    front = []
+    for i in idx:
+        dominated = False
+        for j in idx:
+            if j == i:
+                continue
+            no_worse = costs[j] <= costs[i] and sign * scores[j] >= sign * scores[i]
+            better = costs[j] < costs[i] or sign * scores[j] > sign * scores[i]
+            if no_worse and better:
+                dominated = True
+                break
+        if not dominated:
+            front.append(i)
+    return sorted(front, key=lambda i: (costs[i], -sign * scores[i]))
+
+
+def mark_fronts(results: list[StudyResult]) -> None:
+    costs = [r.total_seconds for r in results]
+    for r in results:
+        r.pareto_psnr = r.pareto_lpips = False
+    for i in pareto_front(costs, [r.psnr for r in results], higher_is_better=True):
+        results[i].pareto_psnr = True
+    for i in pareto_front(costs, [r.lpips for r in results], higher_is_better=False):
+        results[i].pareto_lpips = True
+
+
+def fastest_within(results: list[StudyResult], db: float = 0.5) -> StudyResult | None:
+    """The fastest variant whose PSNR is within ``db`` of the best one."""
+    if not results:
+        return None
+    best = max(r.psnr for r in results)
+    ok = [r for r in results if r.psnr >= best - db]
+    return min(ok, key=lambda r: r.total_seconds)
+
+
+# ---------------------------------------------------------------------------------------------
+# Reports
+# ---------------------------------------------------------------------------------------------
+def markdown_table(results: list[StudyResult]) -> str:
+    rows = sorted(results, key=lambda r: r.total_seconds)
+    stages = sorted({k for r in rows for k in r.seconds if k != "total"})
+    head = "| Variant | PSNR | DSSIM1 | DSSIM2 | LPIPS | Total s | " + " | ".join(f"{s} s" for s in stages) + " | Pareto |"
+    sep = "|" + "---|" * (6 + len(stages) + 1)
+    lines = [head, sep]
+    for r in rows:
+        lp = "n/a" if r.lpips is None else f"{r.lpips:.4f}"
+        per = " | ".join(f"{r.seconds.get(s, 0.0):.1f}" for s in stages)
+        mark = ", ".join(m for m, on in (("PSNR", r.pareto_psnr), ("LPIPS", r.pareto_lpips)) if on)
+        lines.append(f"| {r.name} | {r.psnr:.2f} | {r.dssim1:.4f} | {r.dssim2:.4f} | {lp} | {r.total_seconds:.1f} | {per} | {mark} |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_study(results: list[StudyResult], out_dir: Path) -> list[Path]:
+    """Write the three PNG plots; returns their paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir = Path(out_dir)
+    written = []
+    for metric, better, fname, label in (("psnr", True, "psnr_vs_time.png", "PSNR (dB, higher is better)"),
+                                         ("lpips", False, "lpips_vs_time.png", "LPIPS-alex (lower is better)")):
+        pts = [r for r in results if getattr(r, metric) is not None]
+        fig, ax = plt.subplots(figsize=(7.5, 4.8), dpi=110)
+        if pts:
+            xs = [r.total_seconds for r in pts]
+            ys = [getattr(r, metric) for r in pts]
+            ax.scatter(xs, ys, c="#9aa5b1", s=28, label="variant", zorder=2)
+            front = [pts[i] for i in pareto_front(xs, ys, higher_is_better=better)]
+            ax.plot([r.total_seconds for r in front], [getattr(r, metric) for r in front], "-o", c="#d1495b",
+                    lw=1.8, ms=6, label="Pareto front", zorder=3)
+            for r in pts:
+                on = r in front
+                ax.annotate(r.name, (r.total_seconds, getattr(r, metric)), textcoords="offset points", xytext=(4, 4),
+                            fontsize=7 if not on else 8, color="#d1495b" if on else "#52606d")
+        else:
+            ax.text(0.5, 0.5, f"{metric.upper()} unavailable", ha="center", va="center", transform=ax.transAxes)
+        ax.set_xlabel("wall-clock seconds (all stages)")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+        ax.legend(loc="best", fontsize=8)
+        fig.tight_layout()
+        with atomic.atomic_path(out_dir / fname) as tmp:
+            fig.savefig(tmp)
+        plt.close(fig)
+        written.append(out_dir / fname)
+
+    rows = sorted(results, key=lambda r: r.total_seconds)
+    stages = sorted({k for r in rows for k in r.seconds if k != "total"})
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.6 * len(rows) + 2), 4.8), dpi=110)
+    bottom = [0.0] * len(rows)
+    cmap = plt.get_cmap("tab10")
+    for k, s in enumerate(stages):
+        vals = [r.seconds.get(s, 0.0) for r in rows]
+        ax.bar(range(len(rows)), vals, bottom=bottom, label=s, color=cmap(k % 10))
+        bottom = [b + v for b, v in zip(bottom, vals)]
+    ax.set_xticks(range(len(rows)))
+    ax.set_xticklabels([r.name for r in rows], rotation=40, ha="right", fontsize=8)
+    ax.set_ylabel("seconds")
+    ax.set_title("seconds per stage")
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    with atomic.atomic_path(out_dir / "stage_seconds.png") as tmp:
+        fig.savefig(tmp)
+    plt.close(fig)
+    written.append(out_dir / "stage_seconds.png")
+    return written
+
+
+# ---------------------------------------------------------------------------------------------
+# The sweep
+# ---------------------------------------------------------------------------------------------
+RunVariant = Callable[[dict[str, Any], Path], dict[str, Any]]
+"""(overrides, run_dir) -> {"psnr", "dssim1", "dssim2", "lpips", "seconds": {stage: s, "total": s}}"""
+
+
+@dataclass
+class StudyConfig:
+    """What to sweep and how long it may take."""
+
+    source: str = "demo"
+    budget_minutes: float | None = None
+    variants: list[dict[str, Any]] = field(default_factory=lambda: [dict(v) for v in DEFAULT_SWEEP])
+    base: dict[str, Any] = field(default_factory=dict)  # overrides applied to every variant
+
+
+def _slug(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "-" for c in name)
+
+
+def run_study(config: StudyConfig, out_dir: str | Path, run_variant: RunVariant | None = None,
+              progress: bool = True) -> list[StudyResult]:
+    """Run (or resume) every variant within the budget; write study.json, study.md and the plots."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if run_variant is None:
+        from fixer4d.pipeline import run_variant as default_runner
+
+        def run_variant(overrides: dict[str, Any], run_dir: Path) -> dict[str, Any]:
+            return default_runner(config.source, overrides, run_dir, progress=progress)
+
+    atomic.write_json(out_dir / "study_config.json", {"source": config.source, "budget_minutes": config.budget_minutes,
+                                                      "variants": config.variants, "base": config.base})
+    budget_s = None if config.budget_minutes is None else 60.0 * config.budget_minutes
+    started = time.perf_counter()
+    results: list[StudyResult] = []
+    skipped: list[str] = []
+    ran_any = False
+    for variant in config.variants:
+        name = variant["name"]
+        overrides = {**config.base, **{k: v for k, v in variant.items() if k != "name"}}
+        run_dir = out_dir / "runs" / _slug(name)
+        done_file = run_dir / "study_result.json"
+        if done_file.exists():
+            res = json.loads(done_file.read_text())
+        else:
+            # the budget is checked before starting a variant; the first one always runs
+            if budget_s is not None and ran_any and time.perf_counter() - started > budget_s:
+                skipped.append(name)
+                continue
+            if progress:
+                print(f"[study] variant {name}: {overrides}", flush=True)
+            res = run_variant(overrides, run_dir)
+            ran_any = True
+            atomic.write_json(done_file, res)
+        results.append(StudyResult(name=name, overrides=overrides, psnr=float(res["psnr"]), dssim1=float(res["dssim1"]),
+                                   dssim2=float(res["dssim2"]), lpips=res.get("lpips"),
+                                   seconds={k: float(v) for k, v in res["seconds"].items()}, run_dir=str(run_dir)))
+        _write_outputs(results, skipped, out_dir)
+    _write_outputs(results, skipped, out_dir)
+    return results
+
+
+def _write_outputs(results: list[StudyResult], skipped: list[str], out_dir: Path) -> None:
+    mark_fronts(results)
+    best = fastest_within(results, 0.5)
+    payload = {
+        "results": [{**r.__dict__, "total_seconds": r.total_seconds} for r in results],
+        "pareto_psnr": [r.name for r in sorted(results, key=lambda r: r.total_seconds) if r.pareto_psnr],
+        "pareto_lpips": [r.name for r in sorted(results, key=lambda r: r.total_seconds) if r.pareto_lpips],
+        "fastest_within_0.5db": None if best is None else best.name,
+        "skipped_over_budget": skipped,
+    }
+    atomic.write_json(out_dir / "study.json", payload)
+    text = "# Study: accuracy vs time\n\n" + markdown_table(results)
+    if best is not None:
+        text += f"\nFastest variant within 0.5 dB of the best PSNR: **{best.name}** ({best.total_seconds:.1f} s, {best.psnr:.2f} dB).\n"
+    if skipped:
+        text += f"\nNot run (budget spent): {', '.join(skipped)}.\n"
+    atomic.write_text(out_dir / "study.md", text)
+    if results:
+        plot_study(results, out_dir)

@@ -1,0 +1,200 @@
+"""Configuration of stage 1 (STGS on the observed views) and stage 2 (restoration-guided refinement).
+
+One dataclass per stage, JSON-serializable with ``dataclasses.asdict`` and echoed into the run
+folder's config.json. Learning rates follow STGS/3DGS (values per Adam step; "x extent" means the
+value is multiplied by the scene extent, so a scene in metres and the same scene in millimetres
+train identically).
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from fixer4d.errors import InputError
+
+# 3DGS trains 30k iterations and densifies from 500 to 15k every 100, resetting opacities every
+# 3000; ``Stage1Config.for_iterations`` scales that schedule to shorter runs.
+_REFERENCE_ITERATIONS = 30_000
+_REFERENCE_DENSIFY_FROM = 500
+# Densify no more often than every 10 steps (the gradient statistics need a few views per
+# Gaussian) and no less often than every 100 (the 3DGS interval).
+_MIN_DENSIFY_EVERY = 10
+_MAX_DENSIFY_EVERY = 100
+# Densification needs about 30 rounds over a run to grow a model from a sparse init.
+_DENSIFY_ROUNDS = 30
+# An opacity reset drops every opacity to 0.01; climbing back to ~0.9 takes ~130 Adam steps at
+# lr_opacity 0.05 (logit -4.6 -> +2.2), and a reset must leave time for densification after it,
+# so resets are never closer than this (3DGS: every 3000 of 30k). Short runs get none.
+_MIN_RESET_INTERVAL = 500
+
+
+@dataclass
+class Stage1Config:
+    """Stage 1: spacetime Gaussians optimized on the observed (train) views.
+
+    Each iteration draws one frame and ``views_per_step`` distinct train views and sums their
+    L_STG = 0.8 L1 + 0.2 D-SSIM losses.
+    """
+
+    iterations: int = 2000
+    seed: int = 0
+    backend: str = "auto"
+    views_per_step: int = 2
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    # -- initialization -------------------------------------------------------------------
+    # Cap on the points taken from all per-frame clouds (seeded uniform subsample); CPU
+    # rendering cost grows with the Gaussian count.
+    init_max_points: int = 60_000
+    init_opacity: float = 0.1
+    # Hard cap on the model size during densification.
+    max_gaussians: int = 150_000
+
+    # -- learning rates (STGS "lite" values) ------------------------------------------------
+    # positions: 1.6e-4 -> 1.6e-6 x extent, exponential decay over the run (3DGS/STGS).
+    lr_means_init: float = 1.6e-4
+    lr_means_final: float = 1.6e-6
+    # log-scales and quaternions: 3DGS values (5e-3, 1e-3).
+    lr_scales: float = 5e-3
+    lr_quats: float = 1e-3
+    # opacity logits: 3DGS 5e-2 (opacity must move fast from the 0.1 init).
+    lr_opacity: float = 5e-2
+    # SH DC colour: 3DGS feature lr 2.5e-3; the higher SH bands use 1/20 of it (3DGS).
+    lr_colors: float = 2.5e-3
+    lr_sh_rest: float = 1.25e-4
+    # temporal centre (t in [0, 1)): STGS trbfc_lr 1e-4 keeps a Gaussian at its frame;
+    # temporal log-scale: STGS trbfs_lr 3e-2 lets lifetimes grow or shrink quickly.
+    lr_t_center: float = 1e-4
+    lr_t_log_scale: float = 3e-2
+    # polynomial motion: STGS uses 0.5 * movelr(3.5) * position lr = 1.75 x the position rate
+    # (x extent), decayed with it; motion coefficients multiply dt <= 1 so they need the larger
+    # step to follow a moving object.
+    lr_motion_factor: float = 1.75
+    # angular velocity of the quaternion: STGS omega_lr 1e-4.
+    lr_omega: float = 1e-4
+
+    # -- densification (3DGS, with every size relative to the scene extent) -----------------
+    densify_from: int = 100
+    densify_until: int = 1000
+    densify_every: int = 66
+    # accumulated view-space gradient (NDC units, as 3DGS) above which a Gaussian is cloned/split
+    densify_grad_threshold: float = 2e-4
+    # max scale <= percent_dense x extent: clone; larger: split into 2 children with scale / 1.6
+    percent_dense: float = 0.01
+    split_children: int = 2
+    split_scale_divisor: float = 1.6
+    # prune: base opacity below this (3DGS 0.005) ...
+    prune_opacity: float = 0.005
+    # ... or a world-space max scale above this fraction of the extent (3DGS 0.1) ...
+    prune_world_scale: float = 0.1
+    # ... or (after the first opacity reset) a screen radius above this fraction of the image's
+    # larger side (3DGS: 20 px of ~1000 px images = 2%; 10% tolerates our low-resolution views).
+    prune_screen_fraction: float = 0.1
+    opacity_reset_every: int = 500
+    # opacities are clamped to at most this at a reset (3DGS 0.01)
+    opacity_reset_value: float = 0.01
+
+    # -- bookkeeping ------------------------------------------------------------------------
+    checkpoint_every: int = 500
+    keep_checkpoints: int = 2
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        self.background = tuple(float(x) for x in self.background)  # type: ignore[assignment]
+        if self.iterations < 0:
+            raise InputError(f"Stage1Config.iterations must be >= 0, got {self.iterations}")
+        if self.views_per_step < 1:
+            raise InputError(f"Stage1Config.views_per_step must be >= 1, got {self.views_per_step}")
+        if self.densify_every < 1 or self.checkpoint_every < 1 or self.opacity_reset_every < 1:
+            raise InputError("Stage1Config: densify_every, checkpoint_every and opacity_reset_every must be >= 1")
+        if self.max_gaussians < 1 or self.init_max_points < 1:
+            raise InputError("Stage1Config: max_gaussians and init_max_points must be >= 1")
+
+    @classmethod
+    def for_iterations(cls, iterations: int, **overrides: Any) -> "Stage1Config":
+        """A config whose densification/reset schedule is the 3DGS 30k schedule scaled to
+        ``iterations`` (densify from ~1/60 to 1/2 of the run, ~30 rounds, one opacity reset at a
+        quarter when the run is long enough to recover from it); explicit ``overrides`` win."""
+        n = max(int(iterations), 1)
+        every = min(max(n // _DENSIFY_ROUNDS, _MIN_DENSIFY_EVERY), _MAX_DENSIFY_EVERY)
+        sched = dict(
+            iterations=int(iterations),
+            densify_every=every,
+            densify_from=max(every, n * _REFERENCE_DENSIFY_FROM // _REFERENCE_ITERATIONS),
+            densify_until=n // 2,
+            opacity_reset_every=max(n // 4, _MIN_RESET_INTERVAL),
+            checkpoint_every=max(min(500, n // 4), 1),
+        )
+        sched.update(overrides)
+        return cls(**sched)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["background"] = list(self.background)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Stage1Config":
+        return cls(**_known(cls, d))
+
+
+@dataclass
+class Stage2Config:
+    """Stage 2: L = L_STG(observed views) + lambda_gen * L1(render at a pseudo-view, cached target).
+
+    The cache is refreshed (the pipeline renders the trajectories with the current model and
+    restores them) at step 0 and every ``refresh_every`` steps, ``rounds`` times in all; after the
+    last round training continues on the last cache until ``iterations`` (default: rounds x
+    refresh_every).
+    """
+
+    lambda_gen: float = 0.5
+    refresh_every: int = 500
+    rounds: int = 2
+    iterations: int | None = None
+    # cached frames per iteration (each one a pseudo-view render + L1)
+    batch_pseudo: int = 1
+    # weight the pseudo L1 per pixel by the restorer's confidence (masked L1)
+    confidence_weighting: bool = True
+    # positions continue from near the end of stage 1's decay: the geometry is mostly settled
+    # and the pseudo-targets are less reliable than real views.
+    lr_means_init: float = 1.6e-5
+    lr_means_final: float = 1.6e-6
+    # densification keeps running in stage 2 (pseudo-views expose holes) until this fraction
+    # of the stage-2 iterations; 0 disables it.
+    densify_until_fraction: float = 0.5
+    # restored clips held decoded in memory (each is F frames of H x W x 3 float32)
+    max_cached_clips: int = 8
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.refresh_every < 1 or self.rounds < 1 or self.batch_pseudo < 0:
+            raise InputError("Stage2Config: refresh_every and rounds must be >= 1, batch_pseudo >= 0")
+        if self.lambda_gen < 0:
+            raise InputError(f"Stage2Config.lambda_gen must be >= 0, got {self.lambda_gen}")
+
+    @property
+    def total_iterations(self) -> int:
+        return int(self.iterations) if self.iterations is not None else self.rounds * self.refresh_every
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Stage2Config":
+        return cls(**_known(cls, d))
+
+
+def _known(cls: type, d: dict[str, Any]) -> dict[str, Any]:
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(d) - names)
+    if unknown:
+        raise InputError(f"{cls.__name__}: unknown keys {unknown} in the config; remove them or update fixer4d")
+    out = dict(d)
+    if "background" in out:
+        out["background"] = tuple(out["background"])
+    return out
+
+
+__all__ = ["Stage1Config", "Stage2Config"]

@@ -1,0 +1,580 @@
+"""Stage 1 (STGS on the observed views) and stage 2 (restoration-guided refinement).
+
+    model = model_from_clouds(clouds, scene, Stage1Config())
+    trainer = Trainer(model, scene, Stage1Config(), run_dir="runs/demo")
+    trainer.train()                      # or trainer.step() in a loop, e.g. from a viewer thread
+    trainer.snapshot(t)                  # a detached Snapshot, safe to read between steps
+
+Stage 2 is the same trainer with a ``Stage2Config``, a restoration cache and (optionally) a
+refresh callback: L = L_STG(observed views) + lambda_gen * L1(render at a cached pseudo-view,
+its restored frame), the pseudo-view rendered at its clip's time.
+
+Everything random draws from the trainer's own generators (numpy for frames/views/pseudo
+batches, a torch.Generator for split sampling) whose states live in the checkpoints, so a run
+killed and resumed from its last checkpoint reproduces the uninterrupted run exactly.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import re
+import threading
+import time
+from collections import OrderedDict
+from pathlib import Path
+from typing import Any, Callable, Protocol, Sequence
+
+import numpy as np
+import torch
+
+from fixer4d.atomic import atomic_path
+from fixer4d.errors import InputError, NumericalError
+from fixer4d.geometry.camera import Camera, rig_extent
+from fixer4d.model.densify import DensifyStats, densify_and_prune, reset_parameter
+from fixer4d.model.snapshot import Snapshot
+from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians, knn_scales
+from fixer4d.render.api import RenderOutput, render
+from fixer4d.scene.base import MultiViewVideo
+from fixer4d.train.config import Stage1Config, Stage2Config
+from fixer4d.train.losses import masked_l1, psnr_torch, stg_loss
+from fixer4d.train.schedule import exponential_lr
+
+log = logging.getLogger("fixer4d.train")
+
+CHECKPOINT_FORMAT = 1
+_CKPT_NAME = re.compile(r"^stage(\d)_(\d{7})\.pt$")
+# 3DGS's scene radius is 1.1 x the largest camera distance from the rig centre.
+EXTENT_MARGIN = 1.1
+# A rig whose cameras (nearly) coincide has no extent; the init cloud's spread stands in.
+_DEGENERATE_RIG = 1e-6
+# Percentile of point distances from the cloud median used as the cloud's radius (robust to
+# the stray far points MVS and SfM leave).
+_CLOUD_RADIUS_PERCENTILE = 90.0
+# Fewer points than this cannot give a 3-NN scale; such an init is topped up with random points.
+MIN_INIT_POINTS = 4
+# Random points used when an init is degenerate (empty or < MIN_INIT_POINTS points): enough to
+# cover a small scene coarsely; densification refines from there.
+FALLBACK_POINTS = 2000
+# Colour of fallback points: mid grey, the least-biased guess.
+FALLBACK_COLOR = 0.5
+# Adam epsilon of 3DGS: position gradients are tiny and the default 1e-8 would damp them.
+ADAM_EPS = 1e-15
+
+
+class PseudoEntry(Protocol):
+    """What stage 2 reads from a restoration cache entry (fixer4d.restore.cache.CacheEntry)."""
+
+    key: str
+    cameras: list[Camera]
+    time: float
+
+    def rgb(self) -> np.ndarray: ...
+
+    def confidence(self) -> np.ndarray: ...
+
+
+class PseudoCache(Protocol):
+    def entries(self, round: int | None = None) -> list[PseudoEntry]: ...
+
+    def latest_round(self) -> int | None: ...
+
+
+RefreshFn = Callable[[SpacetimeGaussians, int], None]
+
+
+# ---- initialization ------------------------------------------------------------------------
+
+def model_from_clouds(clouds: Sequence[Any], scene: MultiViewVideo, config: Stage1Config,
+                      model_config: ModelConfig | None = None) -> SpacetimeGaussians:
+    """Spacetime Gaussians from per-frame clouds (fixer4d.init.cloud.FrameCloud: frame, time,
+    points (N,3), colors (N,3)).
+
+    Each point becomes a Gaussian with time centre = its frame's time, isotropic scale = the RMS
+    distance to its 3 nearest neighbours *within its frame* (points of different frames
+    coincide on static content and would give degenerate scales), opacity ``config.init_opacity``.
+    At most ``config.init_max_points`` points are kept (seeded uniform subsample). An empty or
+    nearly empty init (< MIN_INIT_POINTS points) is topped up with FALLBACK_POINTS random points
+    inside the scene bounds (logged); without known bounds it raises InputError.
+    """
+    pts_l, col_l, t_l, fid_l = [], [], [], []
+    for i, c in enumerate(clouds):
+        p = np.asarray(c.points, dtype=np.float64).reshape(-1, 3)
+        ok = np.all(np.isfinite(p), axis=1)
+        pts_l.append(p[ok])
+        col_l.append(np.clip(np.asarray(c.colors, dtype=np.float64).reshape(-1, 3)[ok], 0.0, 1.0))
+        t_l.append(np.full(int(ok.sum()), float(c.time)))
+        fid_l.append(np.full(int(ok.sum()), i))
+    points = np.concatenate(pts_l) if pts_l else np.zeros((0, 3))
+    colors = np.concatenate(col_l) if col_l else np.zeros((0, 3))
+    times = np.concatenate(t_l) if t_l else np.zeros(0)
+    group = np.concatenate(fid_l) if fid_l else np.zeros(0, np.int64)
+    rng = np.random.default_rng(config.seed)
+
+    if points.shape[0] > config.init_max_points:
+        keep = np.sort(rng.choice(points.shape[0], size=config.init_max_points, replace=False))
+        points, colors, times, group = points[keep], colors[keep], times[keep], group[keep]
+
+    scales = np.zeros(points.shape[0])
+    for g in np.unique(group):
+        sel = group == g
+        scales[sel] = knn_scales(points[sel]) if sel.sum() >= 2 else np.nan
+    if points.shape[0] < MIN_INIT_POINTS:
+        fb_points, fb_times = _fallback_points(scene, rng)
+        log.warning("init has %d point(s) (< %d): adding %d random points inside the scene bounds; "
+                    "the reconstruction will rely on densification", points.shape[0], MIN_INIT_POINTS, len(fb_points))
+        points = np.concatenate([points, fb_points])
+        colors = np.concatenate([colors, np.full_like(fb_points, FALLBACK_COLOR)])
+        times = np.concatenate([times, fb_times])
+        # every scale is recomputed over the whole set: a lone point has no neighbour in its frame
+        scales = knn_scales(points)
+    return SpacetimeGaussians.from_points(points, colors, times, model_config,
+                                          opacity=config.init_opacity, scales=scales)
+
+
+def _fallback_points(scene: MultiViewVideo, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    bounds = scene.bounds()
+    if bounds is None:
+        raise InputError(f"{scene.name}: the init point clouds are empty and the scene has no known bounds to "
+                         "place random points in; re-run `fixer4d init` with the other method (--init mvs|sparse) "
+                         "or check the cameras")
+    lo = np.asarray(bounds.bbox_min, np.float64)
+    hi = np.asarray(bounds.bbox_max, np.float64)
+    pts = lo + rng.random((FALLBACK_POINTS, 3)) * (hi - lo)
+    frames = rng.integers(0, scene.num_frames, FALLBACK_POINTS)
+    return pts, frames / float(scene.num_frames)
+
+
+def scene_extent(cameras: Sequence[Camera], means: torch.Tensor) -> float:
+    """The length every size threshold and the position learning rate scale with:
+    EXTENT_MARGIN x the rig radius (3DGS), or the init cloud's radius for a degenerate rig."""
+    r = rig_extent(list(cameras))
+    if r > _DEGENERATE_RIG:
+        return EXTENT_MARGIN * r
+    pts = means.detach().cpu().double().numpy()
+    if pts.shape[0] == 0:
+        return 1.0
+    radius = float(np.percentile(np.linalg.norm(pts - np.median(pts, 0), axis=1), _CLOUD_RADIUS_PERCENTILE))
+    return EXTENT_MARGIN * max(radius, _DEGENERATE_RIG)
+
+
+# ---- the trainer ---------------------------------------------------------------------------
+
+class Trainer:
+    """Optimizes a SpacetimeGaussians model on a scene (stage 1, or stage 2 with ``stage2``).
+
+    model: the model to train (replaced on ``load_checkpoint``; read ``trainer.model``).
+    scene: the multi-view video; its ``train_ids`` are the observed views.
+    config: Stage1Config (learning rates, densification, backend, seed; also used in stage 2).
+    run_dir: where checkpoints go (RUN/checkpoints/stage{1,2}_STEP.pt); None = no checkpoints.
+    stage2: a Stage2Config to run stage 2 (then ``cache`` is required).
+    cache: the restoration cache (``entries(round)``, ``latest_round()``).
+    refresh_cache: ``refresh_cache(model, round)`` re-renders and restores the trajectories into
+      cache round ``round`` with the current model; None = use the cache as it is.
+
+    ``step()`` runs one iteration and returns scalars; ``train(n)`` runs up to ``n`` more (default:
+    to the end) with a progress bar and checkpoints; ``stop()`` ends ``train`` after the current
+    step; ``snapshot(t)`` reads the model at time t between steps (thread-safe).
+    """
+
+    def __init__(self, model: SpacetimeGaussians, scene: MultiViewVideo, config: Stage1Config, *,
+                 run_dir: str | Path | None = None, stage2: Stage2Config | None = None,
+                 cache: PseudoCache | None = None, refresh_cache: RefreshFn | None = None) -> None:
+        if len(scene.train_ids) < 1:
+            raise InputError(f"{scene.name}: no train cameras to optimize on")
+        if stage2 is not None and cache is None:
+            raise InputError("stage 2 needs a restoration cache (RUN/cache); run the pipeline or `fixer4d run` first")
+        if model.num_gaussians == 0:
+            raise InputError("the model has no Gaussians; initialize it with model_from_clouds")
+        self.model = model.check("initial model")
+        self.scene = scene
+        self.config = config
+        self.stage2 = stage2
+        self.cache = cache
+        self.refresh_cache = refresh_cache
+        self.run_dir = Path(run_dir) if run_dir is not None else None
+        self.stage = 2 if stage2 is not None else 1
+        self.train_ids = list(scene.train_ids)
+        self.extent = scene_extent(scene.train_cameras, model.means)
+        self.background = torch.tensor(config.background, dtype=torch.float32)
+        seed = config.seed if stage2 is None else stage2.seed
+        self.rng = np.random.default_rng(seed)
+        self.generator = torch.Generator().manual_seed(seed)
+        if model.means.device.type == "cuda":
+            # CUDA scatter kernels are nondeterministic by default; CPU ones are deterministic.
+            torch.use_deterministic_algorithms(True, warn_only=True)
+        self.step_count = 0
+        self.round = -1  # stage 2: index of the cache round in use (-1 = none loaded yet)
+        self.optimizer = self._make_optimizer()
+        self.stats = DensifyStats.zeros(model.num_gaussians, model.means.device)
+        self.history: list[dict[str, float]] = []
+        self.train_seconds = 0.0  # wall time spent in train(), summed over resumed sessions
+        self._entries: list[PseudoEntry] = []
+        self._entry_offsets = np.zeros(1, np.int64)
+        self._clips: OrderedDict[str, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+
+    # -- configuration ------------------------------------------------------------------------
+    @property
+    def total_iterations(self) -> int:
+        return self.stage2.total_iterations if self.stage2 is not None else self.config.iterations
+
+    def learning_rates(self, step: int) -> dict[str, float]:
+        """Per-parameter learning rates at ``step`` (positions and motion decay; the rest are constant)."""
+        c = self.config
+        if self.stage2 is None:
+            pos = exponential_lr(step, c.lr_means_init, c.lr_means_final, c.iterations)
+        else:
+            pos = exponential_lr(step, self.stage2.lr_means_init, self.stage2.lr_means_final, self.total_iterations)
+        pos *= self.extent
+        return {"means": pos, "motion": pos * c.lr_motion_factor, "log_scales": c.lr_scales, "quats": c.lr_quats,
+                "opacity_logits": c.lr_opacity, "colors": c.lr_colors, "sh_rest": c.lr_sh_rest,
+                "t_center": c.lr_t_center, "t_log_scale": c.lr_t_log_scale, "omega": c.lr_omega}
+
+    def _make_optimizer(self) -> torch.optim.Adam:
+        return torch.optim.Adam(self.model.param_groups(self.learning_rates(self.step_count)), lr=0.0,
+                                eps=ADAM_EPS)
+
+    def _set_learning_rates(self) -> None:
+        lrs = self.learning_rates(self.step_count)
+        for group in self.optimizer.param_groups:
+            group["lr"] = lrs[group["name"]]
+
+    def _densify_window(self) -> tuple[int, int]:
+        """[from, until) steps of this stage during which densification statistics are gathered."""
+        if self.stage2 is None:
+            return self.config.densify_from, self.config.densify_until
+        until = int(self.stage2.densify_until_fraction * self.total_iterations)
+        return min(self.config.densify_every, until), until
+
+    # -- one iteration ------------------------------------------------------------------------
+    def step(self) -> dict[str, float]:
+        """One optimization step. Returns loss, loss_stg, loss_gen (stage 2), psnr (train views),
+        num_gaussians, step, lr_means and the seconds spent in each part (t_at, t_render, t_loss,
+        t_backward, t_optim, t_densify, t_refresh)."""
+        with self._lock:
+            return self._step()
+
+    def _step(self) -> dict[str, float]:
+        cfg = self.config
+        timing = dict.fromkeys(("t_at", "t_render", "t_loss", "t_backward", "t_optim", "t_densify", "t_refresh"), 0.0)
+        if self.stage2 is not None:
+            tic = time.perf_counter()
+            self._maybe_refresh()
+            timing["t_refresh"] = time.perf_counter() - tic
+        self._set_learning_rates()
+        T = self.scene.num_frames
+        frame = int(self.rng.integers(0, T))
+        k = min(cfg.views_per_step, len(self.train_ids))
+        views = self.rng.choice(len(self.train_ids), size=k, replace=False)
+        t = self.scene.time(frame)
+        shared = self.model.config.sh_degree == 0  # colours do not depend on the camera
+
+        outputs: list[tuple[RenderOutput, Camera]] = []
+        loss_stg = torch.zeros(())
+        psnrs = []
+        snap = None
+        for v in views:
+            cam_id = self.train_ids[int(v)]
+            cam = self.scene.cameras[cam_id]
+            tic = time.perf_counter()
+            if snap is None or not shared:
+                snap = self.model.at(t, camera_center=None if shared else cam.center)
+            timing["t_at"] += time.perf_counter() - tic
+            out, dt = self._render(snap, cam)
+            timing["t_render"] += dt
+            tic = time.perf_counter()
+            target = torch.from_numpy(np.ascontiguousarray(self.scene.frame(frame, cam_id)))
+            loss_stg = loss_stg + stg_loss(out.rgb, target)
+            psnrs.append(psnr_torch(out.rgb, target))
+            timing["t_loss"] += time.perf_counter() - tic
+            outputs.append((out, cam))
+
+        loss_gen = torch.zeros(())
+        if self.stage2 is not None and self.stage2.lambda_gen > 0 and self.stage2.batch_pseudo > 0:
+            loss_gen = self._pseudo_loss(outputs, timing)
+            loss = loss_stg + self.stage2.lambda_gen * loss_gen
+        else:
+            loss = loss_stg
+        if not bool(torch.isfinite(loss)):
+            raise NumericalError(f"stage {self.stage} step {self.step_count}: the loss is {float(loss)}; "
+                                 "lower the learning rates or resume from the last checkpoint")
+        tic = time.perf_counter()
+        loss.backward()
+        timing["t_backward"] = time.perf_counter() - tic
+
+        tic = time.perf_counter()
+        d_from, d_until = self._densify_window()
+        if self.step_count < d_until:
+            for out, cam in outputs:
+                if out.means2d.grad is not None:
+                    self.stats.update(out.means2d.grad, out.radii, cam.width, cam.height)
+        timing["t_densify"] = time.perf_counter() - tic
+
+        tic = time.perf_counter()
+        self.optimizer.step()
+        self.optimizer.zero_grad(set_to_none=True)
+        timing["t_optim"] = time.perf_counter() - tic
+        self.step_count += 1
+
+        tic = time.perf_counter()
+        counts = self._density_control(d_from, d_until)
+        timing["t_densify"] += time.perf_counter() - tic
+        self.model.check(f"stage {self.stage} step {self.step_count}")
+
+        rec = {"step": float(self.step_count), "loss": float(loss.detach()), "loss_stg": float(loss_stg.detach()),
+               "loss_gen": float(loss_gen.detach()), "psnr": float(np.mean(psnrs)),
+               "num_gaussians": float(self.model.num_gaussians),
+               "lr_means": self.optimizer.param_groups[0]["lr"], **timing,
+               **{f"densify_{k}": float(v) for k, v in counts.items()}}
+        self.history.append({k: rec[k] for k in ("step", "loss", "psnr", "num_gaussians")})
+        return rec
+
+    def _render(self, snap: Snapshot, cam: Camera) -> tuple[RenderOutput, float]:
+        tic = time.perf_counter()
+        out = render(snap, cam, background=self.background, backend=self.config.backend)
+        return out, time.perf_counter() - tic
+
+    @torch.no_grad()
+    def _density_control(self, d_from: int, d_until: int) -> dict[str, int]:
+        """Densify/prune and reset opacities on the schedule (``step_count`` is 1-based here, as 3DGS)."""
+        cfg = self.config
+        s = self.step_count
+        counts: dict[str, int] = {}
+        if d_from < s < d_until and s % cfg.densify_every == 0:
+            first_reset_done = self.stage2 is not None or s > cfg.opacity_reset_every
+            counts = densify_and_prune(
+                self.model, self.optimizer, self.stats, extent=self.extent,
+                grad_threshold=cfg.densify_grad_threshold, percent_dense=cfg.percent_dense,
+                max_gaussians=cfg.max_gaussians, prune_opacity=cfg.prune_opacity,
+                prune_world_scale=cfg.prune_world_scale if first_reset_done else None,
+                prune_screen_fraction=cfg.prune_screen_fraction if first_reset_done else None,
+                generator=self.generator, split_children=cfg.split_children,
+                split_scale_divisor=cfg.split_scale_divisor)
+            self.stats = DensifyStats.zeros(self.model.num_gaussians, self.model.means.device)
+        if self.stage2 is None and s < d_until and s % cfg.opacity_reset_every == 0:
+            cap = math.log(cfg.opacity_reset_value / (1.0 - cfg.opacity_reset_value))
+            reset_parameter(self.model, self.optimizer, "opacity_logits",
+                            self.model.opacity_logits.clamp(max=cap))
+            counts["opacity_reset"] = 1
+        return counts
+
+    # -- stage 2: pseudo-views ----------------------------------------------------------------
+    def _maybe_refresh(self) -> None:
+        """At step 0 and every refresh_every steps (until ``rounds`` rounds), refresh the cache with
+        the current model and load that round's entries; after a resume, reload the round in use."""
+        s2 = self.stage2
+        assert s2 is not None and self.cache is not None
+        due = self.step_count % s2.refresh_every == 0 and self.step_count // s2.refresh_every < s2.rounds
+        if due:
+            r = self.step_count // s2.refresh_every
+            if self.refresh_cache is not None:
+                with torch.no_grad():
+                    self.refresh_cache(self.model, r)
+                self._load_round(r)
+            elif self.round < 0:
+                self._load_round(self.cache.latest_round())
+        elif not self._entries:
+            self._load_round(self.round if self.round >= 0 else self.cache.latest_round())
+
+    def _load_round(self, r: int | None) -> None:
+        entries = [] if r is None else [e for e in self.cache.entries(r) if len(e.cameras) > 0]
+        if not entries:
+            raise InputError(f"stage 2: the restoration cache has no entries for round {r}; run the restore step "
+                             "(`fixer4d run`, or a refresh callback) before refining")
+        self.round = int(r)
+        self._entries = entries
+        self._entry_offsets = np.concatenate([[0], np.cumsum([len(e.cameras) for e in entries])]).astype(np.int64)
+        self._clips.clear()
+
+    def _clip(self, entry: PseudoEntry) -> tuple[torch.Tensor, torch.Tensor]:
+        """(F,H,W,3) restored frames and (F,H,W) confidence of an entry, decoded on first use and
+        kept in a small LRU (``max_cached_clips``)."""
+        key = entry.key
+        if key in self._clips:
+            self._clips.move_to_end(key)
+            return self._clips[key]
+        rgb = torch.from_numpy(np.ascontiguousarray(entry.rgb(), dtype=np.float32))
+        conf = torch.from_numpy(np.ascontiguousarray(entry.confidence(), dtype=np.float32))
+        self._clips[key] = (rgb, conf)
+        assert self.stage2 is not None
+        while len(self._clips) > max(self.stage2.max_cached_clips, 1):
+            self._clips.popitem(last=False)
+        return rgb, conf
+
+    def _pseudo_loss(self, outputs: list[tuple[RenderOutput, Camera]], timing: dict[str, float]) -> torch.Tensor:
+        """Mean over ``batch_pseudo`` cached frames of the (confidence-weighted) L1 between the model
+        rendered at the frame's camera *and its clip's time* and the restored frame."""
+        s2 = self.stage2
+        assert s2 is not None
+        total = int(self._entry_offsets[-1])
+        picks = self.rng.integers(0, total, size=s2.batch_pseudo)
+        loss = torch.zeros(())
+        for flat in picks:
+            e_idx = int(np.searchsorted(self._entry_offsets, flat, side="right") - 1)
+            entry = self._entries[e_idx]
+            f = int(flat - self._entry_offsets[e_idx])
+            cam = entry.cameras[f]
+            tic = time.perf_counter()
+            snap = self.model.at(float(entry.time), camera_center=cam.center)
+            timing["t_at"] += time.perf_counter() - tic
+            out, dt = self._render(snap, cam)
+            timing["t_render"] += dt
+            tic = time.perf_counter()
+            rgb, conf = self._clip(entry)
+            target = rgb[f]
+            if tuple(target.shape[:2]) != (cam.height, cam.width):
+                raise InputError(f"cache entry {entry.key}: frame {f} is {tuple(target.shape[:2])} but its camera is "
+                                 f"{cam.height}x{cam.width}; the cache is stale, refresh it")
+            weight = conf[f] if s2.confidence_weighting else None
+            loss = loss + masked_l1(out.rgb, target, weight)
+            timing["t_loss"] += time.perf_counter() - tic
+            outputs.append((out, cam))
+        return loss / max(len(picks), 1)
+
+    # -- loops and reading --------------------------------------------------------------------
+    def stop(self) -> None:
+        """Ask ``train`` to return after the current step (thread-safe)."""
+        self._stop.set()
+
+    @property
+    def done(self) -> bool:
+        return self.step_count >= self.total_iterations
+
+    def train(self, n: int | None = None, progress: bool | None = None) -> dict[str, float]:
+        """Run up to ``n`` more steps (default: until ``total_iterations``), checkpointing every
+        ``checkpoint_every`` steps and at the end. Returns the last step's scalars plus seconds."""
+        self._stop.clear()
+        end = self.total_iterations if n is None else min(self.step_count + int(n), self.total_iterations)
+        show = self.config.progress if progress is None else progress
+        from tqdm import tqdm
+
+        bar = tqdm(total=self.total_iterations, initial=self.step_count, disable=not show,
+                   desc=f"stage {self.stage}", unit="it", dynamic_ncols=True)
+        rec: dict[str, float] = {}
+        tic = time.perf_counter()
+        try:
+            while self.step_count < end and not self._stop.is_set():
+                rec = self.step()
+                bar.update(1)
+                if self.step_count % 10 == 0 or self.step_count == end:
+                    bar.set_postfix(loss=f"{rec['loss']:.4f}", psnr=f"{rec['psnr']:.2f}",
+                                    n=int(rec["num_gaussians"]), refresh=False)
+                if self.run_dir is not None and self.step_count % self.config.checkpoint_every == 0:
+                    self.save_checkpoint()
+        finally:
+            bar.close()
+            self.train_seconds += time.perf_counter() - tic
+        if self.run_dir is not None and rec and self.step_count % self.config.checkpoint_every != 0:
+            self.save_checkpoint()
+        rec = dict(rec)
+        rec["seconds"] = time.perf_counter() - tic
+        return rec
+
+    def snapshot(self, t: float, camera_center: np.ndarray | None = None) -> Snapshot:
+        """The model at time t, detached (safe to hand to another thread)."""
+        with self._lock, torch.no_grad():
+            return self.model.at(float(t), camera_center).detach()
+
+    def render_fn(self) -> Callable[[Camera, float], np.ndarray]:
+        """``fn(camera, t) -> (H, W, 3) float32`` rendering the current model (for evaluation)."""
+        def fn(camera: Camera, t: float) -> np.ndarray:
+            with torch.no_grad():
+                snap = self.snapshot(t, camera.center)
+                out = render(snap, camera, background=self.background, backend=self.config.backend)
+            return out.rgb.clamp(0.0, 1.0).cpu().numpy().astype(np.float32)
+        return fn
+
+    # -- checkpoints --------------------------------------------------------------------------
+    @property
+    def checkpoint_dir(self) -> Path | None:
+        return None if self.run_dir is None else self.run_dir / "checkpoints"
+
+    def state_dict(self) -> dict[str, Any]:
+        with self._lock:
+            return {
+                "format": CHECKPOINT_FORMAT, "stage": self.stage, "step": self.step_count, "round": self.round,
+                "extent": self.extent,
+                "model_config": self.model.config.to_dict(),
+                "model": {k: v.detach().clone() for k, v in self.model.state_dict().items()},
+                "optimizer": self.optimizer.state_dict(),
+                "stats": self.stats.state_dict(),
+                "numpy_rng": self.rng.bit_generator.state,
+                "torch_generator": self.generator.get_state(),
+                "config": _comparable(self.config.to_dict()),
+                "stage2": None if self.stage2 is None else self.stage2.to_dict(),
+                "history": list(self.history),
+                "train_seconds": self.train_seconds,
+            }
+
+    def load_state_dict(self, state: dict[str, Any], source: str = "checkpoint") -> None:
+        """Restore a ``state_dict()`` (model, optimizer, statistics, RNG states, step)."""
+        if state.get("format") != CHECKPOINT_FORMAT or state.get("stage") != self.stage:
+            raise InputError(f"{source}: not a stage-{self.stage} checkpoint of this fixer4d version; delete it "
+                             "or train into a new run folder")
+        mine = (_comparable(self.config.to_dict()), None if self.stage2 is None else self.stage2.to_dict())
+        if (state["config"], state["stage2"]) != mine:
+            raise InputError(f"{source}: written with another training config; resume with the same options, "
+                             "or delete RUN/checkpoints to start over")
+        with self._lock:
+            model = SpacetimeGaussians.from_state_dict(state["model"], ModelConfig.from_dict(state["model_config"]))
+            self.model = model.to(self.model.means.device)
+            self.step_count = int(state["step"])
+            self.round = int(state["round"])
+            self.extent = float(state["extent"])
+            self.optimizer = self._make_optimizer()
+            self.optimizer.load_state_dict(state["optimizer"])
+            self.stats = DensifyStats.from_state_dict(state["stats"])
+            self.rng.bit_generator.state = state["numpy_rng"]
+            self.generator.set_state(state["torch_generator"])
+            self.history = list(state.get("history", []))
+            self.train_seconds = float(state.get("train_seconds", 0.0))
+            self._entries = []
+            self._clips.clear()
+
+    def save_checkpoint(self) -> Path:
+        """Write RUN/checkpoints/stage{S}_{STEP}.pt atomically; keep the newest ``keep_checkpoints``."""
+        if self.checkpoint_dir is None:
+            raise InputError("save_checkpoint: this trainer has no run_dir")
+        path = self.checkpoint_dir / f"stage{self.stage}_{self.step_count:07d}.pt"
+        state = self.state_dict()
+        with atomic_path(path) as tmp:
+            torch.save(state, tmp)
+        for old in self.list_checkpoints(self.run_dir, self.stage)[:-max(self.config.keep_checkpoints, 1)]:
+            old.unlink(missing_ok=True)
+        return path
+
+    @staticmethod
+    def list_checkpoints(run_dir: str | Path, stage: int) -> list[Path]:
+        """Complete checkpoints of ``stage`` in RUN/checkpoints, oldest first."""
+        d = Path(run_dir) / "checkpoints"
+        if not d.is_dir():
+            return []
+        found = [(int(m.group(2)), p) for p in d.iterdir()
+                 if (m := _CKPT_NAME.match(p.name)) and int(m.group(1)) == stage]
+        return [p for _, p in sorted(found)]
+
+    def load_checkpoint(self, path: str | Path) -> None:
+        path = Path(path)
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=False)
+        except Exception as exc:  # a truncated or foreign file: say which and what to do
+            raise InputError(f"{path}: unreadable checkpoint ({exc}); delete it to resume from an older one") from exc
+        self.load_state_dict(state, source=str(path))
+
+    def resume(self) -> bool:
+        """Load the newest checkpoint of this stage from ``run_dir`` if there is one."""
+        if self.run_dir is None:
+            return False
+        found = self.list_checkpoints(self.run_dir, self.stage)
+        if not found:
+            return False
+        self.load_checkpoint(found[-1])
+        log.info("resumed stage %d from %s (step %d)", self.stage, found[-1], self.step_count)
+        return True
+
+
+def _comparable(cfg: dict[str, Any]) -> dict[str, Any]:
+    """A stage config without the fields that do not change the result (progress display,
+    checkpoint cadence)."""
+    return {k: v for k, v in cfg.items() if k not in ("progress", "checkpoint_every", "keep_checkpoints")}

@@ -1,0 +1,74 @@
+"""The study machinery: Pareto fronts, tables, plots, budget and resume."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from fixer4d.study import StudyConfig, StudyResult, fastest_within, markdown_table, pareto_front, run_study
+
+
+def test_pareto_front_known_points():
+    costs = [1.0, 2.0, 3.0, 4.0, 2.5]
+    psnr = [20.0, 22.0, 21.0, 25.0, 22.0]
+    # (3, 21) is dominated by (2, 22); (2.5, 22) is dominated by (2, 22) (same score, more time).
+    assert pareto_front(costs, psnr, higher_is_better=True) == [0, 1, 3]
+    lp = [0.30, 0.20, 0.25, 0.10, None]
+    assert pareto_front(costs, lp, higher_is_better=False) == [0, 1, 3]
+
+
+def test_pareto_front_ties_and_nan():
+    assert pareto_front([1.0, 1.0], [5.0, 5.0]) == [0, 1]  # identical points do not dominate each other
+    assert pareto_front([1.0, 2.0], [float("nan"), 3.0]) == [1]
+    assert pareto_front([], []) == []
+
+
+def _res(name, secs, psnr, lp=0.2):
+    return StudyResult(name=name, overrides={}, psnr=psnr, dssim1=0.1, dssim2=0.05, lpips=lp,
+                       seconds={"init": secs / 2, "stage1": secs / 2, "total": secs}, run_dir="x")
+
+
+def test_fastest_within_and_table():
+    rs = [_res("a", 10, 20.0), _res("b", 20, 24.7), _res("c", 40, 25.0)]
+    assert fastest_within(rs, 0.5).name == "b"
+    table = markdown_table(rs)
+    assert table.splitlines()[2].startswith("| a |")  # sorted by time
+
+
+def _fake_runner(calls):
+    table = {"fast": (10.0, 21.0, 0.3), "slow": (30.0, 24.0, 0.2), "worse": (40.0, 22.0, 0.25)}
+
+    def run(overrides, run_dir):
+        calls.append(overrides["tag"])
+        secs, psnr, lp = table[overrides["tag"]]
+        return {"psnr": psnr, "dssim1": 0.1, "dssim2": 0.05, "lpips": lp,
+                "seconds": {"init": secs * 0.2, "stage1": secs * 0.8, "total": secs}}
+
+    return run
+
+
+def test_run_study_writes_outputs_and_resumes(tmp_path):
+    variants = [{"name": n, "tag": n} for n in ("fast", "slow", "worse")]
+    calls: list[str] = []
+    results = run_study(StudyConfig(source="demo", variants=variants), tmp_path, run_variant=_fake_runner(calls),
+                        progress=False)
+    assert calls == ["fast", "slow", "worse"]
+    data = json.loads((tmp_path / "study.json").read_text())
+    assert data["pareto_psnr"] == ["fast", "slow"]
+    assert data["fastest_within_0.5db"] == "slow"
+    for name in ("psnr_vs_time.png", "lpips_vs_time.png", "stage_seconds.png", "study.md"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert {r.name for r in results if r.pareto_psnr} == {"fast", "slow"}
+    # a second run reads finished variants back instead of running them again
+    run_study(StudyConfig(source="demo", variants=variants), tmp_path, run_variant=_fake_runner(calls), progress=False)
+    assert calls == ["fast", "slow", "worse"]
+
+
+def test_budget_stops_new_variants(tmp_path):
+    variants = [{"name": n, "tag": n} for n in ("fast", "slow")]
+    calls: list[str] = []
+    run_study(StudyConfig(source="demo", variants=variants, budget_minutes=0.0), tmp_path,
+              run_variant=_fake_runner(calls), progress=False)
+    # the budget is checked before starting each variant: with 0 minutes only the first starts
+    assert calls == ["fast"]
+    assert json.loads((tmp_path / "study.json").read_text())["skipped_over_budget"] == ["slow"]
