@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+import fixer4d  # noqa: F401  (first: sets the OpenMP wait policy before any test imports torch)
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PANOPTIC_DIR = Path(__file__).resolve().parents[1].parent / "shared/data/panoptic_basketball"
 

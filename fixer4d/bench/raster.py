@@ -5,15 +5,26 @@ Scene: N Gaussians uniform in the cube [-1, 1]^3 seen from 4 units away (50 degr
 fov), opacity 0.1 and isotropic scales from the mean 3-nearest-neighbour distance, the way a
 random initialisation starts (OpenSplat, 3DGS). Output contract (issue 3):
 {"rows": [{"backend", "n_gaussians", "width", "height", "pass", "ms", "peak_mb",
-"fragments_per_pixel", "ns_per_fragment"}], "skipped": [...], "scaling": {...}, "machine": {...}}.
+"fragments_per_pixel", "ns_per_fragment", "base_mb", "load_avg"}], "skipped": [...], "scaling": {...},
+"machine": {...}}.
+
+Every row runs in a fresh Python process, so that its memory and timing are its own: peak_mb is
+that process's peak resident set (getrusage ru_maxrss: Python + torch + numba + the scene + the
+renders, everything the kernels and torch allocate included), base_mb its resident set just
+before the timed passes (after imports, the scene and a JIT warm-up); peak_mb - base_mb is what
+the timed renders added at their high-water mark. load_avg is the 1-minute load average at the
+end of the row (other processes share the 2 cores: compare rows only at similar load).
 """
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import platform
-import threading
+import resource
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -25,7 +36,6 @@ COUNTS = (10_000, 50_000, 200_000)
 # the oracle's per-tile dense tensors make it minutes-slow beyond this; rows above are skipped
 REFERENCE_MAX_N = 50_000
 INIT_OPACITY = 0.1  # random-init opacity of 3DGS/OpenSplat
-RSS_POLL_S = 0.002  # peak-memory sampler period
 
 
 def knn_scale(points: np.ndarray, k: int = 3) -> np.ndarray:
@@ -52,37 +62,6 @@ def random_init_snapshot(n: int, bbox_min, bbox_max, seed: int = 0):
     return Snapshot(f(pts), f(quats), f(scales), f(np.full(n, INIT_OPACITY)), f(rng.uniform(0, 1, (n, 3))))
 
 
-class PeakRSS:
-    """Peak resident memory above the level at entry, sampled by a thread (MiB)."""
-
-    def __enter__(self):
-        self.base = self._rss()
-        self.peak = self.base
-        self._stop = threading.Event()
-        self._t = threading.Thread(target=self._poll, daemon=True)
-        self._t.start()
-        return self
-
-    def _poll(self):
-        while not self._stop.is_set():
-            self.peak = max(self.peak, self._rss())
-            time.sleep(RSS_POLL_S)
-
-    def __exit__(self, *exc):
-        self._stop.set()
-        self._t.join()
-        self.peak = max(self.peak, self._rss())
-
-    @property
-    def mb(self) -> float:
-        return (self.peak - self.base) / 2 ** 20
-
-    @staticmethod
-    def _rss() -> int:
-        with open("/proc/self/statm") as fh:
-            return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-
-
 def machine_info() -> dict:
     import numba
     import torch
@@ -97,13 +76,21 @@ def machine_info() -> dict:
         pass
     return {"cpu": model or platform.processor(), "cores": os.cpu_count(), "numba_threads": numba.get_num_threads(),
             "torch_threads": torch.get_num_threads(), "python": platform.python_version(),
-            "torch": torch.__version__, "numba": numba.__version__, "platform": platform.platform()}
+            "torch": torch.__version__, "numba": numba.__version__, "platform": platform.platform(),
+            "load_avg_1_5_15min": [round(x, 2) for x in os.getloadavg()]}
 
 
-def time_pass(snap, cam, backend: str, with_backward: bool, repeats: int) -> tuple[float, float, int]:
-    """(median ms, peak MiB, fragments) of render (+ backward of a fixed random loss)."""
+def _rss_mb() -> float:
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2 ** 20
+
+
+def time_pass(snap, cam, backend: str, with_backward: bool, repeats: int) -> tuple[float, int, float]:
+    """(median ms, fragments, RSS MiB before the timed passes) of render (+ backward of a fixed
+    random loss). Meant to run in a fresh process (see run_row) so ru_maxrss is the row's peak."""
     import torch
 
+    from fixer4d.model.snapshot import Snapshot
     from fixer4d.render.api import render
 
     g = torch.Generator().manual_seed(0)
@@ -113,8 +100,6 @@ def time_pass(snap, cam, backend: str, with_backward: bool, repeats: int) -> tup
         if with_backward:
             leaves = [t.detach().requires_grad_(True) for t in (snap.means, snap.quats, snap.scales,
                                                                 snap.opacities, snap.colors)]
-            from fixer4d.model.snapshot import Snapshot
-
             out = render(Snapshot(*leaves), cam, backend=backend)
             ((out.rgb * w).sum() + out.depth.mean()).backward()
         else:
@@ -123,15 +108,49 @@ def time_pass(snap, cam, backend: str, with_backward: bool, repeats: int) -> tup
         return out.n_fragments
 
     warm = snap.subset(torch.arange(min(len(snap), 100)))
-    with torch.no_grad():  # warm-up on a tiny subset: loads the JIT cache, not counted in memory
+    with torch.no_grad():  # warm-up on a tiny subset: loads the JIT cache
         render(warm, cam, backend=backend)
+    base = _rss_mb()
     times = []
-    with PeakRSS() as mem:
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            frags = once()
-            times.append((time.perf_counter() - t0) * 1e3)
-    return float(np.median(times)), mem.mb, frags
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        frags = once()
+        times.append((time.perf_counter() - t0) * 1e3)
+    return float(np.median(times)), frags, base
+
+
+def bench_camera(w: int, h: int):
+    from fixer4d.geometry.camera import Camera
+
+    return Camera.look_at([0.0, 0.0, -4.0], [0.0, 0.0, 0.0], fov_y=math.radians(50.0), width=w, height=h)
+
+
+def _row_child(spec: str) -> None:
+    """Entry point of a row's fresh process: prints the row as JSON on the last stdout line."""
+    import torch
+
+    a = json.loads(spec)
+    torch.set_num_threads(a["torch_threads"])
+    snap = random_init_snapshot(a["n"], (-1, -1, -1), (1, 1, 1))
+    cam = bench_camera(a["w"], a["h"])
+    ms, frags, base = time_pass(snap, cam, a["backend"], a["pass"] == "fwd+bwd", a["repeats"])
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+    print(json.dumps({"ms": ms, "frags": frags, "base_mb": base, "peak_mb": peak,
+                      "load_avg": os.getloadavg()[0]}))
+
+
+def run_row(n: int, w: int, h: int, backend: str, pass_: str, repeats: int, torch_threads: int) -> dict:
+    """Run one row in a fresh interpreter (so ru_maxrss is that row's own peak)."""
+    spec = json.dumps({"n": n, "w": w, "h": h, "backend": backend, "pass": pass_, "repeats": repeats,
+                       "torch_threads": torch_threads})
+    code = f"from fixer4d.bench.raster import _row_child; _row_child({spec!r})"
+    env = dict(os.environ)
+    root = str(Path(__file__).resolve().parents[2])
+    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    if res.returncode != 0:
+        raise RuntimeError(f"bench raster row {backend} N={n} {w}x{h} {pass_} failed:\n{res.stderr[-2000:]}")
+    return json.loads(res.stdout.strip().splitlines()[-1])
 
 
 def _exponent(xs, ys) -> float | None:
@@ -168,31 +187,25 @@ def main(argv: list[str] | None = None) -> int:
                         help="torch intra-op threads for the projection (the numba kernels use every core)")
     args = parser.parse_args(argv)
 
-    import torch
     from tqdm import tqdm
 
     from fixer4d.atomic import write_json
-    from fixer4d.geometry.camera import Camera
 
-    torch.set_num_threads(args.torch_threads)
     counts = (50_000,) if args.quick else COUNTS
     sizes = ((320, 240),) if args.quick else SIZES
     rows, skipped = [], []
     jobs = [(n, s, b, p) for n in counts for s in sizes for b in ("cpu", "reference") for p in ("fwd", "fwd+bwd")]
-    snaps = {}
     for n, (w, h), backend, p in tqdm(jobs, desc="bench raster"):
         if backend == "reference" and n > REFERENCE_MAX_N:
             skipped.append({"backend": backend, "n_gaussians": n, "width": w, "height": h, "pass": p,
                             "reason": f"oracle not run above {REFERENCE_MAX_N} Gaussians (too slow)"})
             continue
-        if n not in snaps:
-            snaps[n] = random_init_snapshot(n, (-1, -1, -1), (1, 1, 1))
-        cam = Camera.look_at([0.0, 0.0, -4.0], [0.0, 0.0, 0.0], fov_y=math.radians(50.0), width=w, height=h)
-        ms, mb, frags = time_pass(snaps[n], cam, backend, p == "fwd+bwd", args.repeats if backend == "cpu" else 1)
+        r = run_row(n, w, h, backend, p, args.repeats if backend == "cpu" else 1, args.torch_threads)
+        ms, frags = r["ms"], r["frags"]
         rows.append({"backend": backend, "n_gaussians": n, "width": w, "height": h, "pass": p,
-                     "ms": round(ms, 2), "peak_mb": round(mb, 1),
+                     "ms": round(ms, 2), "peak_mb": round(r["peak_mb"], 1), "base_mb": round(r["base_mb"], 1),
                      "fragments_per_pixel": round(frags / (w * h), 2),
-                     "ns_per_fragment": round(ms * 1e6 / max(frags, 1), 2)})
+                     "ns_per_fragment": round(ms * 1e6 / max(frags, 1), 2), "load_avg": round(r["load_avg"], 2)})
     speedups = {}
     for r in rows:
         if r["backend"] == "cpu":
@@ -202,12 +215,15 @@ def main(argv: list[str] | None = None) -> int:
                 speedups[f"{r['n_gaussians']} {r['width']}x{r['height']} {r['pass']}"] = round(ref[0]["ms"] / r["ms"], 1)
     result = {"rows": rows, "skipped": skipped, "speedup_cpu_over_reference": speedups,
               "scaling": scaling(rows), "machine": machine_info(), "torch_threads": args.torch_threads,
+              "memory": "peak_mb = ru_maxrss of the row's fresh process; base_mb = its RSS before the timed passes",
               "scene": "uniform cube [-1,1]^3, camera at distance 4, fov 50 deg, opacity 0.1, 3-NN scales"}
     write_json(args.out, result)
-    print(f"{'backend':10s} {'N':>7s} {'size':>8s} {'pass':>8s} {'ms':>10s} {'peak MB':>8s} {'frag/px':>8s} {'ns/frag':>8s}")
+    print(f"{'backend':10s} {'N':>7s} {'size':>8s} {'pass':>8s} {'ms':>10s} {'peak MB':>8s} {'base MB':>8s} "
+          f"{'frag/px':>8s} {'ns/frag':>8s} {'load':>5s}")
     for r in rows:
-        print(f"{r['backend']:10s} {r['n_gaussians']:7d} {r['width']}x{r['height']:<4d} {r['pass']:>8s} {r['ms']:10.1f} "
-              f"{r['peak_mb']:8.1f} {r['fragments_per_pixel']:8.1f} {r['ns_per_fragment']:8.2f}")
+        print(f"{r['backend']:10s} {r['n_gaussians']:7d} {r['width']}x{r['height']:<4d} {r['pass']:>8s} "
+              f"{r['ms']:10.1f} {r['peak_mb']:8.1f} {r['base_mb']:8.1f} {r['fragments_per_pixel']:8.1f} {r['ns_per_fragment']:8.2f} "
+              f"{r['load_avg']:5.2f}")
     for k, v in speedups.items():
         print(f"speed-up cpu/reference {k}: {v}x")
     for k, v in result["scaling"].items():

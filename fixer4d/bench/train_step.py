@@ -12,6 +12,7 @@ compare per fragment: OpenSplat spends 43-58 ns per fragment per iteration.
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -61,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="fixer4d bench train-step", description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output file")
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA, help="Panoptic basketball folder")
-    parser.add_argument("--iters", type=int, default=4, help="timed iterations per row (after one warm-up)")
+    parser.add_argument("--iters", type=int, default=10, help="timed iterations per row (after one warm-up)")
     parser.add_argument("--backend", default="cpu", help="render backend")
     parser.add_argument("--torch-threads", type=int, default=1,
                         help="torch intra-op threads (the numba kernels use every core regardless)")
@@ -98,9 +99,10 @@ def main(argv: list[str] | None = None) -> int:
                                                opacity=0.1)
         opt = torch.optim.Adam(model.param_groups(LRS), eps=1e-15)
         targets = [torch.from_numpy(np.ascontiguousarray(scene.frame(0, i))) for i in range(len(cams))]
-        times, frags = [], []
+        times, cpu_times, frags = [], [], []
         for it in range(args.iters + 1):
             i = it % len(cams)
+            c0 = time.process_time()
             t0 = time.perf_counter()
             out = render(model.at(0.0), cams[i], backend=args.backend)
             loss = loss_fn(out.rgb, targets[i])
@@ -109,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
             opt.step()
             if it > 0:  # the first iteration loads the JIT cache and warms allocators
                 times.append(time.perf_counter() - t0)
+                cpu_times.append(time.process_time() - c0)
                 frags.append(out.n_fragments)
         w, h = cams[0].width, cams[0].height
         s_it = float(np.median(times))
@@ -117,14 +120,20 @@ def main(argv: list[str] | None = None) -> int:
         rows.append({"backend": args.backend, "n_gaussians": n, "width": w, "height": h,
                      "s_per_iter": round(s_it, 4), "fragments_per_pixel": round(fr / (w * h), 1),
                      "ns_per_fragment": round(s_it * 1e9 / max(fr, 1.0), 2),
-                     "opensplat_s_per_iter": ref, "speedup_vs_opensplat": round(ref / s_it, 2) if ref else None})
+                     "opensplat_s_per_iter": ref, "speedup_vs_opensplat": round(ref / s_it, 2) if ref else None,
+                     # process CPU seconds (all threads): what the iteration costs however loaded
+                     # the machine is; on 2 idle cores the wall time lies between cpu/2 and cpu
+                     "cpu_s_per_iter": round(float(np.median(cpu_times)), 4),
+                     "load_avg": round(os.getloadavg()[0], 2)})
     result = {"rows": rows, "loss": loss_name, "bbox": [lo.tolist(), hi.tolist()], "cameras": len(cams),
               "data": str(args.data), "torch_threads": args.torch_threads, "machine": machine_info()}
     write_json(args.out, result)
-    print(f"{'N':>7s} {'size':>8s} {'s/iter':>8s} {'frag/px':>8s} {'ns/frag':>8s} {'OpenSplat':>9s} {'speed-up':>8s}")
+    print(f"{'N':>7s} {'size':>8s} {'s/iter':>8s} {'cpu s':>8s} {'frag/px':>8s} {'ns/frag':>8s} {'OpenSplat':>9s} "
+          f"{'speed-up':>8s} {'load':>5s}")
     for r in rows:
-        print(f"{r['n_gaussians']:7d} {r['width']}x{r['height']:<4d} {r['s_per_iter']:8.3f} {r['fragments_per_pixel']:8.1f} "
-              f"{r['ns_per_fragment']:8.2f} {r['opensplat_s_per_iter'] or float('nan'):9.2f} "
-              f"{r['speedup_vs_opensplat'] or float('nan'):8.2f}")
+        print(f"{r['n_gaussians']:7d} {r['width']}x{r['height']:<4d} {r['s_per_iter']:8.3f} {r['cpu_s_per_iter']:8.3f} "
+              f"{r['fragments_per_pixel']:8.1f} {r['ns_per_fragment']:8.2f} "
+              f"{r['opensplat_s_per_iter'] or float('nan'):9.2f} {r['speedup_vs_opensplat'] or float('nan'):8.2f} "
+              f"{r['load_avg']:5.2f}")
     print(f"wrote {args.out}")
     return 0

@@ -2,7 +2,7 @@
 
 Starts from RUN/model_stage1.ply, trains with L = L_STG + lambda_gen * L1(pseudo-view, cached
 restored frame) on the restoration cache under RUN/cache, refreshing it every K iterations through
-``fixer4d.pipeline.make_refresh_callback(run_dir, scene, config)`` (the pipeline renders the
+``fixer4d.pipeline.make_refresh_callback(run_dir, scene, PipelineConfig)`` (the pipeline renders the
 trajectories with the current model and restores them). Writes RUN/model_final.ply and evaluates
 it into RUN/eval/full and RUN/metrics.json. A rerun resumes from RUN/checkpoints.
 """
@@ -46,15 +46,20 @@ def stage2_config(args: argparse.Namespace, stored: dict | None):
     return Stage2Config.from_dict(d)
 
 
-def load_refresh_callback(run_dir: Path, scene, config: dict):
-    """The pipeline's cache-refresh callback, or None (then the existing cache is used as is)."""
+def load_refresh_callback(run_dir: Path, scene, config: dict, *, progress: bool = True, backend: str = "auto"):
+    """The pipeline's cache-refresh callback for this run's config.json, or None when the
+    pipeline is not available (then the existing cache is used as is)."""
+    import dataclasses
+
     try:
-        from fixer4d.pipeline import make_refresh_callback
+        from fixer4d.pipeline import PipelineConfig, make_refresh_callback
     except ImportError as exc:
         log.warning("fixer4d.pipeline.make_refresh_callback unavailable (%s): refining on the existing cache "
                     "without refreshing it", exc)
         return None
-    return make_refresh_callback(run_dir, scene, config)
+    known = {f.name for f in dataclasses.fields(PipelineConfig)}
+    pipeline_config = PipelineConfig.from_dict({k: v for k, v in config.items() if k in known})
+    return make_refresh_callback(run_dir, scene, pipeline_config, progress=progress, backend=backend)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -87,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(**scene_cfg)
 
     cache = RestoreCache(run_dir / "cache")
-    refresh = load_refresh_callback(run_dir, scene, config)
+    refresh = load_refresh_callback(run_dir, scene, config, progress=progress, backend=s1.backend)
     if refresh is None and cache.latest_round() is None:
         raise InputError(f"{run_dir / 'cache'}: no restored clips and no pipeline to make them; run "
                          f"`fixer4d run` on this scene first")

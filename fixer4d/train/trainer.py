@@ -45,7 +45,7 @@ CHECKPOINT_FORMAT = 1
 _CKPT_NAME = re.compile(r"^stage(\d)_(\d{7})\.pt$")
 # 3DGS's scene radius is 1.1 x the largest camera distance from the rig centre.
 EXTENT_MARGIN = 1.1
-# A rig whose cameras (nearly) coincide has no extent; the init cloud's spread stands in.
+# Floor of the extent (a single point seen by coincident cameras).
 _DEGENERATE_RIG = 1e-6
 # Percentile of point distances from the cloud median used as the cloud's radius (robust to
 # the stray far points MVS and SfM leave).
@@ -146,15 +146,14 @@ def _fallback_points(scene: MultiViewVideo, rng: np.random.Generator) -> tuple[n
 
 def scene_extent(cameras: Sequence[Camera], means: torch.Tensor) -> float:
     """The length every size threshold and the position learning rate scale with:
-    EXTENT_MARGIN x the rig radius (3DGS), or the init cloud's radius for a degenerate rig."""
+    EXTENT_MARGIN x the larger of the rig radius (3DGS's camera extent) and the init cloud's
+    radius. The cloud term matters for narrow, forward-facing rigs (cameras 1 m apart filming a
+    scene 4 m away), where the rig alone would call every background Gaussian "too large"."""
     r = rig_extent(list(cameras))
-    if r > _DEGENERATE_RIG:
-        return EXTENT_MARGIN * r
     pts = means.detach().cpu().double().numpy()
-    if pts.shape[0] == 0:
-        return 1.0
-    radius = float(np.percentile(np.linalg.norm(pts - np.median(pts, 0), axis=1), _CLOUD_RADIUS_PERCENTILE))
-    return EXTENT_MARGIN * max(radius, _DEGENERATE_RIG)
+    if pts.shape[0]:
+        r = max(r, float(np.percentile(np.linalg.norm(pts - np.median(pts, 0), axis=1), _CLOUD_RADIUS_PERCENTILE)))
+    return EXTENT_MARGIN * max(r, _DEGENERATE_RIG)
 
 
 # ---- the trainer ---------------------------------------------------------------------------
@@ -342,7 +341,9 @@ class Trainer:
         s = self.step_count
         counts: dict[str, int] = {}
         if d_from < s < d_until and s % cfg.densify_every == 0:
-            first_reset_done = self.stage2 is not None or s > cfg.opacity_reset_every
+            # 3DGS applies the size prunes only after the first opacity reset; stage 2 never does
+            # (its pseudo-views are less trustworthy than the real views that shaped the model).
+            first_reset_done = self.stage2 is None and s > cfg.opacity_reset_every
             counts = densify_and_prune(
                 self.model, self.optimizer, self.stats, extent=self.extent,
                 grad_threshold=cfg.densify_grad_threshold, percent_dense=cfg.percent_dense,
@@ -452,10 +453,13 @@ class Trainer:
         bar = tqdm(total=self.total_iterations, initial=self.step_count, disable=not show,
                    desc=f"stage {self.stage}", unit="it", dynamic_ncols=True)
         rec: dict[str, float] = {}
-        tic = time.perf_counter()
+        tic = last = time.perf_counter()
         try:
             while self.step_count < end and not self._stop.is_set():
                 rec = self.step()
+                now = time.perf_counter()
+                self.train_seconds += now - last  # before a checkpoint, so that it records it
+                last = now
                 bar.update(1)
                 if self.step_count % 10 == 0 or self.step_count == end:
                     bar.set_postfix(loss=f"{rec['loss']:.4f}", psnr=f"{rec['psnr']:.2f}",
@@ -464,7 +468,6 @@ class Trainer:
                     self.save_checkpoint()
         finally:
             bar.close()
-            self.train_seconds += time.perf_counter() - tic
         if self.run_dir is not None and rec and self.step_count % self.config.checkpoint_every != 0:
             self.save_checkpoint()
         rec = dict(rec)

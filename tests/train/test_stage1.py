@@ -98,7 +98,7 @@ def test_init_keeps_frame_times_and_caps_points(small_scene, small_clouds):
     model = model_from_clouds(small_clouds, small_scene, cfg)
     assert model.num_gaussians == 500
     frame_times = {round(c.time, 6) for c in small_clouds}
-    assert {round(float(t), 6) for t in model.t_center} <= frame_times
+    assert {round(float(t), 6) for t in model.t_center.detach()} <= frame_times
     assert torch.allclose(torch.sigmoid(model.opacity_logits), torch.full((500,), 0.1), atol=1e-6)
     again = model_from_clouds(small_clouds, small_scene, cfg)
     assert torch.equal(model.means, again.means)  # seeded subsample
