@@ -55,7 +55,7 @@ class TrajectoryConfig:
     amplitude: float | None = None  # arc amplitude A; None = drawn from the seeded range
     arcs: bool = True          # add the arcs on the two diagonal pairs
     seed: int = 0
-    time_stride: int = 4       # restore clips every `time_stride` frames of the video
+    time_stride: int = 5       # restore clips every `time_stride` frames of the video
 
 
 @dataclass
@@ -66,8 +66,11 @@ class PipelineConfig:
     scene: SceneConfig = field(default_factory=SceneConfig)
     init: dict[str, Any] = field(default_factory=lambda: {"method": "mvs"})
     baseline_sparse: bool = True   # also train from the sparse init for the "STGS w/ COLMAP" row
-    stage1: dict[str, Any] = field(default_factory=lambda: {"iterations": 1500})
-    stage2: dict[str, Any] = field(default_factory=lambda: {"rounds": 2, "refresh_every": 300})
+    # Sized so that `fixer4d run demo` (two stage-1 trainings, R = 2 restoration rounds and five
+    # evaluations) ends in about 10 minutes on 2 CPU cores; raise them for quality.
+    stage1: dict[str, Any] = field(default_factory=lambda: {"iterations": 600, "init_max_points": 30_000,
+                                                             "max_gaussians": 40_000})
+    stage2: dict[str, Any] = field(default_factory=lambda: {"rounds": 2, "refresh_every": 200})
     trajectories: TrajectoryConfig = field(default_factory=TrajectoryConfig)
     restorer: dict[str, Any] = field(default_factory=dict)
     # Point clouds from every `init_frame_stride`-th frame: each Gaussian's temporal extent
@@ -155,6 +158,47 @@ class StageTimes:
 
     def get(self, *names: str) -> float:
         return float(sum(self.seconds.get(n, 0.0) for n in names))
+
+
+class StageCache:
+    """Finished stage outputs shared between runs, e.g. the variants of a study.
+
+    An output is keyed by everything it depends on (scene, init settings, frames, stage-1
+    settings). A run that needs an output already computed copies it and records the seconds
+    it originally took, so every variant still reports the full cost of its configuration.
+    """
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+
+    @staticmethod
+    def key(*parts: Any) -> str:
+        import hashlib
+
+        return hashlib.sha1(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+    def fetch(self, key: str, dest: Path) -> float | None:
+        """Copy the stored output into ``dest`` (a folder); its original seconds, or None."""
+        import shutil
+
+        entry = self.root / key
+        if not (entry / "done.json").exists():
+            return None
+        shutil.copytree(entry / "data", dest, dirs_exist_ok=True)
+        return float(json.loads((entry / "done.json").read_text())["seconds"])
+
+    def store(self, key: str, files: list[Path], seconds: float) -> None:
+        """Store files and folders (copied under their names) as the output for ``key``."""
+        import shutil
+
+        with atomic.atomic_dir(self.root / key) as tmp:
+            (tmp / "data").mkdir()
+            for f in files:
+                if f.is_dir():
+                    shutil.copytree(f, tmp / "data" / f.name)
+                else:
+                    shutil.copy2(f, tmp / "data" / f.name)
+            (tmp / "done.json").write_text(json.dumps({"seconds": seconds}))
 
 
 def load_scene_from_config(sc: SceneConfig):
@@ -273,31 +317,47 @@ def restoration_render_fn(model, scene, restorer, backend: str = "auto") -> Call
 # the pipeline
 # ---------------------------------------------------------------------------------------------
 def _init_clouds(scene, run_dir: Path, init_cfg: dict[str, Any], method: str, times: StageTimes, progress: bool,
-                 frame_stride: int = 1):
+                 frame_stride: int, cache: StageCache | None, cache_key: str):
     from fixer4d.init import InitConfig, load_frame_clouds, run_init
 
     out = run_dir / f"init_{method}"
     stage = f"init_{method}"
     if times.done(stage) and (out / "init_report.json").exists():
         return load_frame_clouds(out)
+    if cache is not None and (seconds := cache.fetch(cache_key, out)) is not None:
+        times.record(stage, seconds)
+        return load_frame_clouds(out)
     cfg = InitConfig.from_dict({k: v for k, v in init_cfg.items() if k != "method"})
     t0 = time.perf_counter()
     frames = list(range(0, scene.num_frames, max(1, frame_stride)))
     clouds, _report = run_init(scene, method, out, frames=frames, config=cfg, progress=progress)
     times.record(stage, time.perf_counter() - t0)
+    if cache is not None:
+        cache.store(cache_key, [out / p.name for p in out.iterdir()], times.seconds[stage])
     return clouds
 
 
-def _stage1(scene, clouds, run_dir: Path, stage1: dict[str, Any], model_path: Path, times: StageTimes,
-            stage: str, progress: bool):
-    from fixer4d.model.io import load_ply, save_ply
+def stage1_config(stage1: dict[str, Any], progress: bool = True):
+    """Stage1Config from the pipeline's stage1 dict: the 3DGS schedule scaled to its iterations,
+    explicit keys winning."""
     from fixer4d.train.config import Stage1Config
+
+    iterations = int(stage1.get("iterations", Stage1Config().iterations))
+    return Stage1Config.for_iterations(iterations, **{k: v for k, v in stage1.items() if k != "iterations"},
+                                       progress=progress)
+
+
+def _stage1(scene, clouds, stage1: dict[str, Any], model_path: Path, times: StageTimes, stage: str, progress: bool,
+            cache: StageCache | None, cache_key: str):
+    from fixer4d.model.io import load_ply, save_ply
     from fixer4d.train.trainer import Trainer, model_from_clouds
 
     if times.done(stage) and model_path.exists():
         return load_ply(model_path)
-    cfg = Stage1Config.for_iterations(int(stage1.get("iterations", 1500)),
-                                      **{k: v for k, v in stage1.items() if k != "iterations"}, progress=progress)
+    if cache is not None and (seconds := cache.fetch(cache_key, model_path.parent)) is not None:
+        times.record(stage, seconds)
+        return load_ply(model_path)
+    cfg = stage1_config(stage1, progress)
     t0 = time.perf_counter()
     model = model_from_clouds(clouds, scene, cfg)
     trainer = Trainer(model, scene, cfg, run_dir=model_path.parent)
@@ -305,6 +365,8 @@ def _stage1(scene, clouds, run_dir: Path, stage1: dict[str, Any], model_path: Pa
     trainer.train()
     save_ply(trainer.model, model_path)
     times.record(stage, time.perf_counter() - t0)
+    if cache is not None:
+        cache.store(cache_key, [model_path], times.seconds[stage])
     return trainer.model
 
 
@@ -330,8 +392,13 @@ def _model_render_fn(model, backend: str = "auto") -> Callable[[Camera, float], 
     return fn
 
 
-def run_pipeline(config: PipelineConfig, run_dir: str | Path, *, progress: bool = True) -> dict[str, Any]:
-    """Run (or resume) the whole method; returns the report dict (also RUN/report.json)."""
+def run_pipeline(config: PipelineConfig, run_dir: str | Path, *, progress: bool = True,
+                 stage_cache: str | Path | None = None) -> dict[str, Any]:
+    """Run (or resume) the whole method; returns the report dict (also RUN/report.json).
+
+    stage_cache: a folder shared by several runs (a study) where finished inits and stage-1
+    models are kept and reused by runs whose settings match (see StageCache).
+    """
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     cfg_path = run_dir / "config.json"
@@ -356,11 +423,21 @@ def run_pipeline(config: PipelineConfig, run_dir: str | Path, *, progress: bool 
         _write_report(run_dir, config, scene, rows, times)
 
     method = config.init.get("method", "mvs")
+    cache = StageCache(stage_cache) if stage_cache is not None else None
+    scene_key = dataclasses.asdict(config.scene)
+
+    def init_key(m: str) -> str:
+        return StageCache.key("init", m, scene_key, {k: v for k, v in config.init.items() if k != "method"},
+                              config.init_frame_stride)
+
+    def stage1_key(m: str) -> str:
+        return StageCache.key("stage1", init_key(m), config.stage1, config.seed)
     # -- baseline: STGS from the sparse (COLMAP) init -----------------------------------------
     if config.baseline_sparse and method != "sparse":
-        sparse = _init_clouds(scene, run_dir, config.init, "sparse", times, progress, config.init_frame_stride)
-        base_model = _stage1(scene, sparse, run_dir / "baseline_sparse", config.stage1,
-                             run_dir / "baseline_sparse" / "model_stage1.ply", times, "stage1_sparse", progress)
+        sparse = _init_clouds(scene, run_dir, config.init, "sparse", times, progress, config.init_frame_stride,
+                              cache, init_key("sparse"))
+        base_model = _stage1(scene, sparse, config.stage1, run_dir / "baseline_sparse" / "model_stage1.ply", times,
+                             "stage1_sparse", progress, cache, stage1_key("sparse"))
         secs = times.get("init_sparse", "stage1_sparse")
         m = _evaluate(_model_render_fn(base_model, backend), scene, run_dir, ROW_NAMES[0], config.eval_stride,
                       {"prep": times.get("init_sparse"), "train": times.get("stage1_sparse")}, times, progress)
@@ -368,8 +445,10 @@ def run_pipeline(config: PipelineConfig, run_dir: str | Path, *, progress: bool 
         del base_model
 
     # -- ours: dense (MVS) init + stage 1 -------------------------------------------------------
-    clouds = _init_clouds(scene, run_dir, config.init, method, times, progress, config.init_frame_stride)
-    model = _stage1(scene, clouds, run_dir, config.stage1, run_dir / "model_stage1.ply", times, "stage1", progress)
+    clouds = _init_clouds(scene, run_dir, config.init, method, times, progress, config.init_frame_stride,
+                          cache, init_key(method))
+    model = _stage1(scene, clouds, config.stage1, run_dir / "model_stage1.ply", times, "stage1", progress,
+                    cache, stage1_key(method))
     init_name = ROW_NAMES[1] if method != "sparse" else ROW_NAMES[0]
     m = _evaluate(_model_render_fn(model, backend), scene, run_dir, init_name, config.eval_stride,
                   {"prep": times.get(f"init_{method}"), "train": times.get("stage1")}, times, progress)
@@ -404,14 +483,13 @@ def run_pipeline(config: PipelineConfig, run_dir: str | Path, *, progress: bool 
 def _stage2(scene, model, run_dir: Path, config: PipelineConfig, times: StageTimes, progress: bool, backend: str):
     from fixer4d.model.io import load_ply, save_ply
     from fixer4d.restore.cache import RestoreCache
-    from fixer4d.train.config import Stage1Config, Stage2Config
+    from fixer4d.train.config import Stage2Config
     from fixer4d.train.trainer import Trainer
 
     final = run_dir / "model_final.ply"
     if times.done("stage2") and final.exists():
         return load_ply(final)
-    s1 = Stage1Config.for_iterations(int(config.stage1.get("iterations", 1500)),
-                                     **{k: v for k, v in config.stage1.items() if k != "iterations"}, progress=progress)
+    s1 = stage1_config(config.stage1, progress)
     s2 = Stage2Config(**config.stage2)
     t0 = time.perf_counter()
     refresh = make_refresh_callback(run_dir, scene, config, progress=progress, backend=backend)
@@ -447,14 +525,21 @@ def _write_report(run_dir: Path, config: PipelineConfig, scene, rows: list[dict[
 # the study's entry point
 # ---------------------------------------------------------------------------------------------
 def run_variant(source: str, overrides: dict[str, Any], run_dir: str | Path, *, progress: bool = True,
-                base: PipelineConfig | None = None) -> dict[str, Any]:
+                base: dict[str, Any] | None = None, stage_cache: str | Path | None = None) -> dict[str, Any]:
     """Run one study variant: the pipeline without the extra report rows, returning the final
-    model's held-out metrics and its per-stage seconds."""
+    model's held-out metrics and its per-stage seconds.
+
+    base: absolute overrides of the default configuration (the study's base); overrides: the
+    variant's knobs, where the keys in ``study.RELATIVE_KNOBS`` multiply the base value.
+    Variants sharing a ``stage_cache`` reuse each other's inits and stage-1 models (their
+    recorded seconds still count).
+    """
     from fixer4d.study import RELATIVE_KNOBS
 
-    config = base or default_config(source)
-    config = apply_overrides(config, {"baseline_sparse": False, "restoration_rows": False, **overrides}, RELATIVE_KNOBS)
-    report = run_pipeline(config, run_dir, progress=progress)
+    config = apply_overrides(default_config(source), {"baseline_sparse": False, "restoration_rows": False,
+                                                      **(base or {})})
+    config = apply_overrides(config, overrides, RELATIVE_KNOBS)
+    report = run_pipeline(config, run_dir, progress=progress, stage_cache=stage_cache)
     final = report["rows"][-1]
     st = report["stage_seconds"]
     seconds = {"init": sum(v for k, v in st.items() if k.startswith("init_")), "stage1": st.get("stage1", 0.0),

@@ -44,7 +44,7 @@ DEFAULT_SWEEP: list[dict[str, Any]] = [
 
 # Knobs whose override is a multiplier of the base value rather than an absolute value, so one
 # sweep file serves every scene size.
-RELATIVE_KNOBS = {"stage1.iterations", "stage1.max_gaussians", "init.mvs.planes", "init.mvs.scale",
+RELATIVE_KNOBS = {"scene.scale", "stage1.iterations", "stage1.max_gaussians", "init.mvs.planes", "init.mvs.scale",
                   "stage2.refresh_every", "stage2.iterations"}
 
 
@@ -194,7 +194,8 @@ def plot_study(results: list[StudyResult], out_dir: Path) -> list[Path]:
 # The sweep
 # ---------------------------------------------------------------------------------------------
 RunVariant = Callable[[dict[str, Any], Path], dict[str, Any]]
-"""(overrides, run_dir) -> {"psnr", "dssim1", "dssim2", "lpips", "seconds": {stage: s, "total": s}}"""
+"""(variant overrides, run_dir) -> {"psnr", "dssim1", "dssim2", "lpips", "seconds": {stage: s, "total": s}};
+the study's base overrides are the runner's business (the default runner passes them as absolute values)."""
 
 
 @dataclass
@@ -204,7 +205,7 @@ class StudyConfig:
     source: str = "demo"
     budget_minutes: float | None = None
     variants: list[dict[str, Any]] = field(default_factory=lambda: [dict(v) for v in DEFAULT_SWEEP])
-    base: dict[str, Any] = field(default_factory=dict)  # overrides applied to every variant
+    base: dict[str, Any] = field(default_factory=dict)  # absolute overrides applied to every variant
 
 
 def _slug(name: str) -> str:
@@ -220,7 +221,8 @@ def run_study(config: StudyConfig, out_dir: str | Path, run_variant: RunVariant 
         from fixer4d.pipeline import run_variant as default_runner
 
         def run_variant(overrides: dict[str, Any], run_dir: Path) -> dict[str, Any]:
-            return default_runner(config.source, overrides, run_dir, progress=progress)
+            return default_runner(config.source, overrides, run_dir, progress=progress, base=config.base,
+                                  stage_cache=out_dir / "stage_cache")
 
     atomic.write_json(out_dir / "study_config.json", {"source": config.source, "budget_minutes": config.budget_minutes,
                                                       "variants": config.variants, "base": config.base})
@@ -231,7 +233,7 @@ def run_study(config: StudyConfig, out_dir: str | Path, run_variant: RunVariant 
     ran_any = False
     for variant in config.variants:
         name = variant["name"]
-        overrides = {**config.base, **{k: v for k, v in variant.items() if k != "name"}}
+        overrides = {k: v for k, v in variant.items() if k != "name"}
         run_dir = out_dir / "runs" / _slug(name)
         done_file = run_dir / "study_result.json"
         if done_file.exists():

@@ -219,7 +219,7 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
         "per_view": per_view,
         "seconds": {"prep": _finite_or_none(seconds.get("prep")), "train": _finite_or_none(seconds.get("train")),
                     "eval": None},
-        "lpips_unavailable_reason": M.lpips_unavailable_reason(),
+        "lpips_unavailable_reason": _lpips_reason(scene),
         "per_frame": per_frame,
         "protocol": {
             "scene": scene.name,
@@ -243,3 +243,13 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
     write_json(out_dir / "metrics.json", result)
     write_text(out_dir / "metrics.md", markdown_table([result]))
     return result
+
+
+def _lpips_reason(scene) -> str | None:
+    """Why LPIPS is missing from this evaluation, or None when it was computed."""
+    from fixer4d.eval.lpips import MIN_SIDE
+
+    reason = M.lpips_unavailable_reason()
+    if reason is None and any(min(scene.cameras[i].width, scene.cameras[i].height) < MIN_SIDE for i in scene.test_ids):
+        reason = f"held-out images smaller than {MIN_SIDE}x{MIN_SIDE} pixels (LPIPS-alex needs at least that)"
+    return reason

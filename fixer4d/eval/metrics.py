@@ -101,9 +101,14 @@ def lpips_weights_path() -> str | None:
 def lpips(a: np.ndarray, b: np.ndarray) -> float | None:
     """LPIPS-alex distance of two (H, W, 3) images in [0, 1] (fed to the network as 2x - 1).
 
-    Returns None when the weights are unavailable (see :func:`lpips_unavailable_reason`).
+    Returns None when the weights are unavailable or the image is smaller than AlexNet can take
+    (see :func:`lpips_unavailable_reason`).
     """
     a, b = _check_pair(a, b, "lpips")
+    from fixer4d.eval.lpips import MIN_SIDE
+
+    if min(a.shape[:2]) < MIN_SIDE:
+        return None
     module = _lpips_module()
     if module is None:
         return None

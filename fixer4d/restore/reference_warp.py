@@ -261,7 +261,6 @@ class ReferenceWarpRestorer:
         """(H, W) float64 depth of novel frame k: rendered where opaque, splatted from sources elsewhere."""
         cfg = self.config
         cam = request.cameras[k]
-        H, W = request.height, request.width
         rendered = sanitize_depth(request.depth[k])
         opaque = (np.nan_to_num(request.alpha[k], nan=0.0) >= cfg.alpha_depth_min) & (rendered > 0)
         if opaque.all():

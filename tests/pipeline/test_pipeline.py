@@ -69,7 +69,23 @@ def test_overrides_relative_and_errors():
 
 
 def test_run_variant_for_the_study(tmp_path):
-    res = run_variant("tiny", {**TINY, "stage2.rounds": 0}, tmp_path / "v", progress=False)
+    res = run_variant("tiny", {"stage2.rounds": 0}, tmp_path / "v", progress=False, base=TINY)
     assert set(res) >= {"psnr", "dssim1", "dssim2", "lpips", "seconds"}
     assert res["seconds"]["total"] == pytest.approx(sum(v for k, v in res["seconds"].items() if k != "total"))
     assert res["method"] == "STGS w/ MVS"
+
+
+def test_stage_cache_shares_init_and_stage1_between_variants(tmp_path):
+    cache = tmp_path / "stage_cache"
+    a = run_variant("tiny", {"stage2.rounds": 0}, tmp_path / "a", progress=False, base=TINY, stage_cache=cache)
+    b = run_variant("tiny", {"stage2.rounds": 0, "eval_stride": 4}, tmp_path / "b", progress=False, base=TINY,
+                    stage_cache=cache)
+    # b copied a's init and stage-1 model and reports the seconds they originally cost
+    assert b["seconds"]["init"] == a["seconds"]["init"] and b["seconds"]["stage1"] == a["seconds"]["stage1"]
+    assert (tmp_path / "b" / "model_stage1.ply").read_bytes() == (tmp_path / "a" / "model_stage1.ply").read_bytes()
+    # stage1.iterations is a relative knob in a variant: 0.75 x the base's 40 iterations
+    c = run_variant("tiny", {"stage2.rounds": 0, "stage1.iterations": 0.75}, tmp_path / "c", progress=False,
+                    base=TINY, stage_cache=cache)
+    assert json.loads((tmp_path / "c" / "config.json").read_text())["pipeline"]["stage1"]["iterations"] == 30
+    assert c["seconds"]["init"] == a["seconds"]["init"]  # same init, new stage 1
+    assert (tmp_path / "c" / "model_stage1.ply").read_bytes() != (tmp_path / "a" / "model_stage1.ply").read_bytes()

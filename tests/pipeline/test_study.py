@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 
-import pytest
 
 from fixer4d.study import StudyConfig, StudyResult, fastest_within, markdown_table, pareto_front, run_study
 
