@@ -4,6 +4,7 @@ Importing fixer4d never imports optional backends (gsplat, diffusers, MVSAnywher
 are loaded lazily where used.
 """
 import os
+import sys
 from pathlib import Path
 
 # numba's parallel kernels and torch share one OpenMP runtime. With the default (active) wait
@@ -11,6 +12,10 @@ from pathlib import Path
 # a 2-core machine: measured 137 ms vs 15 ms for one 200x150 render + loss. OpenMP reads this
 # once, when the runtime loads, so it must be set before torch is imported.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+# numba ships its OpenMP pool on Linux; naming it skips numba's probe of an older TBB that
+# open3d's dependencies install (a warning on every run, and a layer numba refuses anyway).
+if sys.platform.startswith("linux"):
+    os.environ.setdefault("NUMBA_THREADING_LAYER", "omp")
 
 __version__ = "0.1.0"
 

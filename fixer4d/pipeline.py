@@ -120,6 +120,21 @@ def apply_overrides(config: PipelineConfig, overrides: dict[str, Any], relative:
     return PipelineConfig.from_dict(d)
 
 
+def parse_set_overrides(items: list[str]) -> dict[str, Any]:
+    """``--set KEY=VALUE`` arguments -> {dotted key: value}; values are JSON where they parse
+    (numbers, lists, true/false), strings otherwise."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise InputError(f"--set {item!r}: expected KEY=VALUE, e.g. stage1.iterations=800")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
 def _stage_default(parts: list[str]) -> Any:
     """The default value of a stage config field named by a dotted path (``init.mvs.planes``)."""
     section = parts[0]

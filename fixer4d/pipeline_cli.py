@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from fixer4d.errors import InputError
-    from fixer4d.pipeline import apply_overrides, default_config, run_pipeline
+    from fixer4d.pipeline import apply_overrides, default_config, parse_set_overrides, run_pipeline
 
     overrides: dict = {}
     if args.scale is not None:
@@ -41,14 +40,7 @@ def run(args: argparse.Namespace) -> int:
             overrides[key] = getattr(args, flag)
     if args.no_baseline:
         overrides["baseline_sparse"] = False
-    for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise InputError(f"--set {item!r}: expected KEY=VALUE")
-        try:
-            overrides[key] = json.loads(value)
-        except json.JSONDecodeError:
-            overrides[key] = value
+    overrides.update(parse_set_overrides(args.set))
     config = apply_overrides(default_config(args.scene), overrides)
     run_pipeline(config, args.out, progress=not args.quiet)
     print(open(f"{args.out}/report.md").read())

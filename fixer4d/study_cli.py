@@ -19,6 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from fixer4d.errors import InputError
+    from fixer4d.pipeline import parse_set_overrides
     from fixer4d.study import DEFAULT_SWEEP, StudyConfig, fastest_within, run_study
 
     variants = DEFAULT_SWEEP
@@ -34,15 +35,7 @@ def run(args: argparse.Namespace) -> int:
         if unknown:
             raise InputError(f"--only: unknown variant(s) {sorted(unknown)}; known: {[v['name'] for v in variants]}")
         variants = [v for v in variants if v["name"] in wanted]
-    base = {}
-    for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise InputError(f"--set {item!r}: expected KEY=VALUE, e.g. stage1.iterations=800")
-        try:
-            base[key] = json.loads(value)
-        except json.JSONDecodeError:
-            base[key] = value
+    base = parse_set_overrides(args.set)
     config = StudyConfig(source=args.scene, budget_minutes=args.budget_minutes, variants=[dict(v) for v in variants], base=base)
     results = run_study(config, args.out, progress=not args.quiet)
     best = fastest_within(results, 0.5)

@@ -71,3 +71,22 @@ def test_budget_stops_new_variants(tmp_path):
     # the budget is checked before starting each variant: with 0 minutes only the first starts
     assert calls == ["fast"]
     assert json.loads((tmp_path / "study.json").read_text())["skipped_over_budget"] == ["slow"]
+
+
+def test_study_on_tiny_scene_with_the_real_pipeline(tmp_path):
+    """Two real configurations of the pipeline on the tiny scene: results, front and plots."""
+    base = {"stage1.iterations": 30, "stage2.refresh_every": 10, "trajectories.frames": 3,
+            "trajectories.time_stride": 4, "init_frame_stride": 2, "eval_stride": 2, "init.mvs.planes": 24}
+    variants = [{"name": "restore", "stage2.rounds": 1}, {"name": "no-restore", "stage2.rounds": 0}]
+    results = run_study(StudyConfig(source="tiny", variants=variants, base=base), tmp_path, progress=False)
+    assert [r.name for r in results] == ["restore", "no-restore"]
+    by = {r.name: r for r in results}
+    # skipping restoration and refinement is strictly cheaper
+    assert by["no-restore"].total_seconds < by["restore"].total_seconds
+    assert by["no-restore"].seconds["stage2"] == 0.0
+    costs = [r.total_seconds for r in results]
+    expected = {results[i].name for i in pareto_front(costs, [r.psnr for r in results])}
+    data = json.loads((tmp_path / "study.json").read_text())
+    assert set(data["pareto_psnr"]) == expected and "no-restore" in expected
+    for name in ("psnr_vs_time.png", "lpips_vs_time.png", "stage_seconds.png"):
+        assert (tmp_path / name).stat().st_size > 1000
