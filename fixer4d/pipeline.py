@@ -51,7 +51,7 @@ class SceneConfig:
 class TrajectoryConfig:
     """The novel trajectories rendered and restored in stage 2 (DESIGN.md §4, Eq. 3)."""
 
-    frames: int = 8            # cameras per trajectory clip
+    frames: int = 6            # cameras per trajectory clip
     amplitude: float | None = None  # arc amplitude A; None = drawn from the seeded range
     arcs: bool = True          # add the arcs on the two diagonal pairs
     seed: int = 0
@@ -68,16 +68,16 @@ class PipelineConfig:
     baseline_sparse: bool = True   # also train from the sparse init for the "STGS w/ COLMAP" row
     # Sized so that `fixer4d run demo` (two stage-1 trainings, R = 2 restoration rounds and five
     # evaluations) ends in about 10 minutes on 2 CPU cores; raise them for quality.
-    stage1: dict[str, Any] = field(default_factory=lambda: {"iterations": 600, "init_max_points": 30_000,
-                                                             "max_gaussians": 40_000})
-    stage2: dict[str, Any] = field(default_factory=lambda: {"rounds": 2, "refresh_every": 200})
+    stage1: dict[str, Any] = field(default_factory=lambda: {"iterations": 500, "init_max_points": 25_000,
+                                                             "max_gaussians": 30_000})
+    stage2: dict[str, Any] = field(default_factory=lambda: {"rounds": 2, "refresh_every": 150})
     trajectories: TrajectoryConfig = field(default_factory=TrajectoryConfig)
     restorer: dict[str, Any] = field(default_factory=dict)
     # Point clouds from every `init_frame_stride`-th frame: each Gaussian's temporal extent
     # starts at the gap between clouds (model.from_points), so a stride trades init time for
     # nothing but a longer initial lifetime. Both inits use the same frames.
     init_frame_stride: int = 4
-    eval_stride: int = 4
+    eval_stride: int = 5
     restoration_rows: bool = True  # evaluate restored renders at the held-out cameras
     seed: int = 0
 
