@@ -28,7 +28,9 @@ VERBS: dict[str, tuple[str, str]] = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="fixer4d", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="fixer4d", description="Four synchronized cameras -> spacetime Gaussians, with the unseen views repaired "
+                                    "(4DGS-Fixer). `fixer4d VERB --help` for each verb.")
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     for verb, (module, help_text) in VERBS.items():
