@@ -10,7 +10,6 @@ and depth/camXX.npz (ground-truth z-depth, float32 (T, H, W), inf where nothing 
 """
 from __future__ import annotations
 
-import json
 import re
 import threading
 from collections import OrderedDict
@@ -20,7 +19,7 @@ import numpy as np
 
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
-from fixer4d.scene.base import MultiViewVideo, SceneBounds
+from fixer4d.scene.base import MultiViewVideo, SceneBounds, read_json_object
 from fixer4d.scene.synthetic import centre_camera, most_separated
 from fixer4d.scene.video import VideoReader, probe_video
 
@@ -216,13 +215,7 @@ class Neural3DVScene(MultiViewVideo):
         p = self.root / "scene.json"
         if not p.is_file():
             return {}
-        try:
-            meta = json.loads(p.read_text())
-        except json.JSONDecodeError as exc:
-            raise InputError(f"{p}: not valid JSON ({exc}); fix or delete it") from None
-        if not isinstance(meta, dict):
-            raise InputError(f"{p}: the top level must be a JSON object")
-        return meta
+        return read_json_object(p, str(p), "fix or delete it")
 
     def _reader(self, cam: int) -> VideoReader:
         with self._readers_lock:

@@ -7,14 +7,13 @@ k and w2c define the rig. Train = the train_meta cameras, test = the test_meta c
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
-from fixer4d.scene.base import MultiViewVideo
+from fixer4d.scene.base import MultiViewVideo, read_json_object
 
 # Panoptic Studio HD cameras record at 30 fps (the metadata carries no rate).
 PANOPTIC_FPS = 30.0
@@ -26,10 +25,7 @@ def _read_meta(path: Path) -> dict:
     if not path.is_file():
         raise InputError(f"{path}: file not found; a Dynamic3DGaussians/Panoptic folder needs train_meta.json "
                          f"and test_meta.json next to ims/")
-    try:
-        meta = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not valid JSON ({exc}); re-download or regenerate it") from None
+    meta = read_json_object(path, str(path), "re-download or regenerate it")
     missing = [k for k in ("w", "h", "k", "w2c", "fn", "cam_id") if k not in meta]
     if missing:
         raise InputError(f"{path}: missing keys {missing}; expected w, h, k, w2c, fn, cam_id")

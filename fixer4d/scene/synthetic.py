@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import copy
 import itertools
-import json
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +18,7 @@ from fixer4d.errors import InputError
 from fixer4d.geometry import quaternion
 from fixer4d.geometry.camera import Camera
 from fixer4d.scene import raycast
-from fixer4d.scene.base import MultiViewVideo, SceneBounds
+from fixer4d.scene.base import MultiViewVideo, SceneBounds, read_json_object
 
 # Default supersampling (k x k rays per pixel) of ground-truth frames: 2 removes the staircase
 # on texture and silhouette edges at 4x the rays; 1 is exact-at-centre and 4x faster.
@@ -208,12 +207,7 @@ def read_spec(source: str | Path | dict) -> tuple[dict, str]:
     if not path.is_file():
         raise InputError(f"scene spec {path}: file not found; pass a spec .json path or one of "
                          f"{sorted(p.stem for p in _assets_dir().glob('*.json'))}")
-    try:
-        spec = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise InputError(f"scene spec {path}: not valid JSON ({exc}); fix the file") from None
-    if not isinstance(spec, dict):
-        raise InputError(f"scene spec {path}: the top level must be a JSON object")
+    spec = read_json_object(path, f"scene spec {path}", "fix the file")
     spec.setdefault("name", path.stem)
     return spec, str(path)
 
