@@ -10,14 +10,14 @@ import argparse
 import importlib
 import sys
 
-from fixer4d.errors import Fixer4DError
+from fixer4d.errors import Fixer4DError, InputError
 
 # verb -> (module, one-line help)
 VERBS: dict[str, tuple[str, str]] = {
-    "run": ("fixer4d.pipeline_cli", "the whole method: poses -> init -> stage 1 -> (restore -> refine) x R -> evaluate"),
-    "reconstruct": ("fixer4d.train.cli", "stage 1: STGS on the four observed views from a sparse or MVS init"),
-    "refine": ("fixer4d.train.refine_cli", "stage 2: restoration-guided refinement of a reconstructed run"),
-    "eval": ("fixer4d.eval.cli", "evaluate a run folder on the held-out cameras"),
+    "run": ("fixer4d.pipeline.cli_run", "the whole method: poses -> init -> stage 1 -> (restore -> refine) x R -> evaluate"),
+    "reconstruct": ("fixer4d.pipeline.cli_reconstruct", "stage 1: STGS on the four observed views from a sparse or MVS init"),
+    "refine": ("fixer4d.pipeline.cli_refine", "stage 2: restoration-guided refinement of a reconstructed run"),
+    "eval": ("fixer4d.pipeline.cli_eval", "evaluate a run folder on the held-out cameras"),
     "init": ("fixer4d.init.cli", "per-frame point clouds: sparse (COLMAP) or dense (MVS)"),
     "trajectories": ("fixer4d.geometry.trajectory_cli", "pair trajectories and arcs of a scene's train cameras -> presets"),
     "make-scene": ("fixer4d.scene.cli", "write a synthetic scene spec to disk in the Neural3DV layout"),
@@ -66,6 +66,9 @@ def main(argv: list[str] | None = None) -> int:
     mod = importlib.import_module(args._module)
     try:
         return int(mod.run(args) or 0)
+    except InputError as exc:  # bad input or config: the user can fix it; nothing was run
+        print(f"fixer4d {args.verb}: error: {exc}", file=sys.stderr)
+        return 2
     except Fixer4DError as exc:
         print(f"fixer4d {args.verb}: error: {exc}", file=sys.stderr)
         return 1

@@ -209,6 +209,38 @@ class StudyConfig:
     base: dict[str, Any] = field(default_factory=dict)  # absolute overrides applied to every variant
 
 
+# A variant is scored on the final model alone: the extra report rows would only cost time.
+VARIANT_BASE = {"baseline_sparse": False, "eval.restoration_rows": False, "eval.matched_row": False}
+
+
+def variant_config(source: str, overrides: dict[str, Any], base: dict[str, Any] | None = None):
+    """The RunConfig of a variant: the defaults <- VARIANT_BASE <- the study's absolute ``base``
+    <- the variant's ``overrides`` (keys in RELATIVE_KNOBS multiply the value they replace)."""
+    from fixer4d.pipeline.config import resolve
+
+    absolute = resolve(source, overrides={**VARIANT_BASE, **(base or {})})
+    return resolve(config_file=absolute.to_dict(), overrides=overrides, relative=RELATIVE_KNOBS, defaults={}) \
+        if overrides else absolute
+
+
+def run_pipeline_variant(source: str, overrides: dict[str, Any], run_dir: str | Path, *, progress: bool = True,
+                         base: dict[str, Any] | None = None, stage_cache: str | Path | None = None) -> dict[str, Any]:
+    """Run one variant through the pipeline; its final model's held-out metrics and per-stage seconds.
+
+    Variants sharing a ``stage_cache`` reuse each other's inits and stage-1 models (their recorded
+    seconds still count)."""
+    from fixer4d.pipeline.run import run_pipeline
+
+    report = run_pipeline(variant_config(source, overrides, base), run_dir, progress=progress, stage_cache=stage_cache)
+    final = report["rows"][-1]
+    st = report["stage_seconds"]
+    seconds = {"init": sum(v for k, v in st.items() if k.startswith("init_")), "stage1": st.get("stage1", 0.0),
+               "stage2": st.get("stage2", 0.0)}
+    seconds["total"] = sum(seconds.values())
+    return {**{k: final.get(k) for k in ("psnr", "dssim1", "dssim2", "lpips", "psnr_dynamic", "psnr_static")},
+            "seconds": seconds, "method": final["method"]}
+
+
 def _slug(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "-" for c in name)
 
@@ -219,11 +251,9 @@ def run_study(config: StudyConfig, out_dir: str | Path, run_variant: RunVariant 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     if run_variant is None:
-        from fixer4d.pipeline import run_variant as default_runner
-
         def run_variant(overrides: dict[str, Any], run_dir: Path) -> dict[str, Any]:
-            return default_runner(config.source, overrides, run_dir, progress=progress, base=config.base,
-                                  stage_cache=out_dir / "stage_cache")
+            return run_pipeline_variant(config.source, overrides, run_dir, progress=progress, base=config.base,
+                                        stage_cache=out_dir / "stage_cache")
 
     atomic.write_json(out_dir / "study_config.json", {"source": config.source, "budget_minutes": config.budget_minutes,
                                                       "variants": config.variants, "base": config.base})

@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from fixer4d.errors import InputError
-    from fixer4d.pipeline import parse_set_overrides
+    from fixer4d.pipeline.config_tree import parse_set_overrides
     from fixer4d.study import DEFAULT_SWEEP, StudyConfig, fastest_within, run_study
 
     variants = DEFAULT_SWEEP

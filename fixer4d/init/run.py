@@ -11,7 +11,7 @@ from __future__ import annotations
 import time
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -36,6 +36,7 @@ class InitConfig:
     truth when the scene has it. Nested: poses, sparse, mvs (plane sweep), mvsanywhere, fusion.
     """
 
+    method: Literal["mvs", "sparse"] = "mvs"
     estimator: str = "planesweep"
     quality: bool = True
     poses: PoseConfig = field(default_factory=PoseConfig)

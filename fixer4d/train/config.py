@@ -129,6 +129,13 @@ class Stage1Config:
         sched.update(overrides)
         return cls(**sched)
 
+    @classmethod
+    def from_partial(cls, **given: Any) -> "Stage1Config":
+        """The config a run asks for: the schedule scaled to the given iterations (default
+        ``Stage1Config.iterations``) unless the schedule keys themselves are given."""
+        iterations = given.pop("iterations", cls.iterations)
+        return cls.for_iterations(iterations, **given)
+
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         d["background"] = list(self.background)
@@ -169,8 +176,9 @@ class Stage2Config:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.refresh_every < 1 or self.rounds < 1 or self.batch_pseudo < 0:
-            raise InputError("Stage2Config: refresh_every and rounds must be >= 1, batch_pseudo >= 0")
+        if self.refresh_every < 1 or self.rounds < 0 or self.batch_pseudo < 0:
+            raise InputError("Stage2Config: refresh_every must be >= 1, rounds and batch_pseudo >= 0 "
+                             "(rounds = 0: no stage 2)")
         if self.lambda_gen < 0:
             raise InputError(f"Stage2Config.lambda_gen must be >= 0, got {self.lambda_gen}")
 

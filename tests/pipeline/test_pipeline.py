@@ -1,4 +1,4 @@
-"""The whole pipeline on the tiny synthetic scene: report contract, resume, overrides."""
+"""The whole pipeline on the tiny synthetic scene: report contract, resume, run folders, failures."""
 from __future__ import annotations
 
 import json
@@ -6,86 +6,114 @@ import json
 import pytest
 
 from fixer4d.errors import InputError
-from fixer4d.pipeline import ROW_NAMES, PipelineConfig, SceneConfig, apply_overrides, run_pipeline, run_variant
-
-TINY = {
-    "stage1.iterations": 40, "stage2.rounds": 1, "stage2.refresh_every": 20,
-    "trajectories.frames": 3, "trajectories.time_stride": 4, "init_frame_stride": 2, "eval_stride": 2,
-    "init.mvs.planes": 24,
-}
-
-
-def _tiny_config() -> PipelineConfig:
-    return apply_overrides(PipelineConfig(scene=SceneConfig(source="tiny")), TINY)
-
-
-@pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory):
-    run_dir = tmp_path_factory.mktemp("run")
-    report = run_pipeline(_tiny_config(), run_dir, progress=False)
-    return run_dir, report
+from fixer4d.pipeline import report as R
+from fixer4d.pipeline.config import FORMAT_VERSION
+from fixer4d.pipeline.run import run_pipeline
+from fixer4d.pipeline.run_folder import RunFolder
+from pipeline_tiny import TINY, tiny_config
 
 
 def test_report_contract(tiny_run):
     run_dir, report = tiny_run
     on_disk = json.loads((run_dir / "report.json").read_text())
-    assert [r["method"] for r in on_disk["rows"]] == list(ROW_NAMES)
+    assert [r["method"] for r in on_disk["rows"]] == list(R.ROW_NAMES)
     for r in on_disk["rows"]:
-        assert set(r) == {"method", "psnr", "dssim1", "dssim2", "lpips", "seconds"}
+        assert r["status"] == "ok"
+        assert set(r) == {"method", "status", "psnr", "dssim1", "dssim2", "lpips", "psnr_dynamic", "psnr_static",
+                          "seconds"}
         assert r["psnr"] > 5.0 and 0.0 <= r["dssim1"] <= 1.0 and r["seconds"] > 0
     for name in ("report.md", "model_stage1.ply", "model_final.ply", "metrics.json", "config.json",
-                 "baseline_sparse/model_stage1.ply", "init_mvs/init_report.json", "init_sparse/init_report.json"):
+                 "baseline_sparse/model_stage1.ply", "matched/model.ply", "init_mvs/init_report.json",
+                 "init_sparse/init_report.json"):
         assert (run_dir / name).exists(), name
     # the cache holds the 6 pairs + 2 arcs at the one restored timestamp, in round 0
     keys = sorted(p.name for p in (run_dir / "cache" / "round_0").iterdir() if not p.name.startswith("."))
     assert len(keys) == 8 and keys[0].startswith("t0000_")
-    # rows accumulate time: Full includes stage 1 and stage 2
     rows = {r["method"]: r for r in on_disk["rows"]}
-    assert rows["Full"]["seconds"] > rows["STGS w/ MVS"]["seconds"]
+    assert rows[R.ROW_FULL]["seconds"] > rows[R.ROW_MVS]["seconds"]
+    stored = json.loads((run_dir / "config.json").read_text())
+    assert stored["format_version"] == FORMAT_VERSION and stored["config"] == tiny_config().to_dict()
 
 
-def test_resume_reuses_finished_stages(tiny_run):
+def test_resume_reuses_finished_stages(tiny_run, stage_cache):
     run_dir, report = tiny_run
     stages = json.loads((run_dir / "stages.json").read_text())
-    again = run_pipeline(_tiny_config(), run_dir, progress=False)
+    again = run_pipeline(tiny_config(), run_dir, progress=False, stage_cache=stage_cache)
     assert json.loads((run_dir / "stages.json").read_text()) == stages  # nothing was recomputed
     assert again["rows"] == report["rows"]
 
 
-def test_other_config_in_same_folder_is_refused(tiny_run):
+def test_other_config_in_same_folder_is_refused_naming_the_change(tiny_run):
     run_dir, _ = tiny_run
-    other = apply_overrides(_tiny_config(), {"stage1.iterations": 41})
-    with pytest.raises(InputError, match="different configuration"):
-        run_pipeline(other, run_dir, progress=False)
+    with pytest.raises(InputError, match=r"different configuration \(stage1.iterations: 40 -> 41"):
+        run_pipeline(tiny_config(**{"stage1.iterations": 41}), run_dir, progress=False)
 
 
-def test_overrides_relative_and_errors():
-    cfg = apply_overrides(PipelineConfig(), {"stage1.iterations": 0.5, "init.mvs.planes": 0.5},
-                          relative={"stage1.iterations", "init.mvs.planes"})
-    assert cfg.stage1["iterations"] == PipelineConfig().stage1["iterations"] // 2
-    assert isinstance(cfg.init["mvs"]["planes"], int)
-    with pytest.raises(InputError, match="no section"):
-        apply_overrides(PipelineConfig(), {"nonsense.key": 1})
+def test_foreign_and_newer_folders_are_refused(tmp_path):
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "a.jpg").write_bytes(b"x")
+    with pytest.raises(InputError, match="not a fixer4d run folder"):
+        run_pipeline(tiny_config(), tmp_path / "photos", progress=False)
+    future = tmp_path / "future"
+    future.mkdir()
+    (future / "config.json").write_text(json.dumps({"format_version": FORMAT_VERSION + 1, "config": {}}))
+    with pytest.raises(InputError, match="newer than this fixer4d"):
+        RunFolder.open(future)
+    (future / "config.json").write_text("{not json")
+    with pytest.raises(InputError, match="not valid JSON"):
+        RunFolder.open(future)
 
 
-def test_run_variant_for_the_study(tmp_path):
-    res = run_variant("tiny", {"stage2.rounds": 0}, tmp_path / "v", progress=False, base=TINY)
-    assert set(res) >= {"psnr", "dssim1", "dssim2", "lpips", "seconds"}
-    assert res["seconds"]["total"] == pytest.approx(sum(v for k, v in res["seconds"].items() if k != "total"))
-    assert res["method"] == "STGS w/ MVS"
+def test_format_1_folder_is_migrated_in_place(tmp_path):
+    run = tmp_path / "old"
+    run.mkdir()
+    old = {"scene": {"source": "tiny", "scale": 1.0, "frame_range": None}, "init": {"method": "mvs"},
+           "stage1": {"iterations": 12, "progress": False}}
+    (run / "config.json").write_text(json.dumps(old))
+    (run / "stages.json").write_text(json.dumps({"init_mvs": 1.5, "stage1": 3.0}))
+    folder = RunFolder.open(run)
+    assert folder.config.stage1.iterations == 12
+    assert json.loads((run / "config.v1.json").read_text()) == old
+    assert json.loads((run / "config.json").read_text())["format_version"] == FORMAT_VERSION
+    assert folder.records.seconds("init_mvs", "stage1") == 4.5
+    assert folder.records.done("stage1", "any-key")  # format-1 records are adopted once ...
+    assert not folder.records.done("stage1", "another-key")  # ... then keyed like the rest
 
 
-def test_stage_cache_shares_init_and_stage1_between_variants(tmp_path):
-    cache = tmp_path / "stage_cache"
-    a = run_variant("tiny", {"stage2.rounds": 0}, tmp_path / "a", progress=False, base=TINY, stage_cache=cache)
-    b = run_variant("tiny", {"stage2.rounds": 0, "eval_stride": 4}, tmp_path / "b", progress=False, base=TINY,
-                    stage_cache=cache)
+def test_failing_baseline_is_reported_while_the_main_method_runs(tmp_path, stage_cache, monkeypatch):
+    from fixer4d.pipeline import stages as S
+
+    real = S.init_stage
+
+    def no_sparse_points(ctx, method):
+        if method == "sparse":
+            raise S.StageFailed("the sparse (COLMAP) init triangulated no points on any of its 2 init frames")
+        return real(ctx, method)
+
+    monkeypatch.setattr(S, "init_stage", no_sparse_points)
+    report = run_pipeline(tiny_config(**{"stage2.rounds": 0, "eval.restoration_rows": False}), tmp_path / "r",
+                          progress=False, stage_cache=stage_cache)
+    rows = {r["method"]: r for r in report["rows"]}
+    assert rows[R.ROW_COLMAP]["status"] == "failed" and "no points" in rows[R.ROW_COLMAP]["error"]
+    assert rows[R.ROW_MVS]["status"] == "ok" and rows[R.ROW_MVS]["psnr"] > 5
+    assert "failed: the sparse (COLMAP) init triangulated no points" in (tmp_path / "r" / "report.md").read_text()
+
+
+def test_study_variants_share_stages(tmp_path, stage_cache):
+    from fixer4d.study import run_pipeline_variant
+
+    cache = tmp_path / "study_cache"
+    a = run_pipeline_variant("tiny", {"stage2.rounds": 0}, tmp_path / "a", progress=False, base=TINY, stage_cache=cache)
+    b = run_pipeline_variant("tiny", {"stage2.rounds": 0, "eval.stride": 4}, tmp_path / "b", progress=False, base=TINY,
+                             stage_cache=cache)
+    assert a["method"] == R.ROW_MVS and set(a) >= {"psnr", "dssim1", "dssim2", "lpips", "seconds"}
+    assert a["seconds"]["total"] == pytest.approx(sum(v for k, v in a["seconds"].items() if k != "total"))
     # b copied a's init and stage-1 model and reports the seconds they originally cost
     assert b["seconds"]["init"] == a["seconds"]["init"] and b["seconds"]["stage1"] == a["seconds"]["stage1"]
     assert (tmp_path / "b" / "model_stage1.ply").read_bytes() == (tmp_path / "a" / "model_stage1.ply").read_bytes()
     # stage1.iterations is a relative knob in a variant: 0.75 x the base's 40 iterations
-    c = run_variant("tiny", {"stage2.rounds": 0, "stage1.iterations": 0.75}, tmp_path / "c", progress=False,
-                    base=TINY, stage_cache=cache)
-    assert json.loads((tmp_path / "c" / "config.json").read_text())["pipeline"]["stage1"]["iterations"] == 30
+    c = run_pipeline_variant("tiny", {"stage2.rounds": 0, "stage1.iterations": 0.75}, tmp_path / "c",
+                             progress=False, base=TINY, stage_cache=cache)
+    assert json.loads((tmp_path / "c" / "config.json").read_text())["config"]["stage1"]["iterations"] == 30
     assert c["seconds"]["init"] == a["seconds"]["init"]  # same init, new stage 1
     assert (tmp_path / "c" / "model_stage1.ply").read_bytes() != (tmp_path / "a" / "model_stage1.ply").read_bytes()

@@ -76,7 +76,7 @@ def test_budget_stops_new_variants(tmp_path):
 def test_study_on_tiny_scene_with_the_real_pipeline(tmp_path):
     """Two real configurations of the pipeline on the tiny scene: results, front and plots."""
     base = {"stage1.iterations": 30, "stage2.refresh_every": 10, "trajectories.frames": 3,
-            "trajectories.time_stride": 4, "init_frame_stride": 2, "eval_stride": 2, "init.mvs.planes": 24}
+            "trajectories.time_stride": 4, "init_frame_stride": 2, "eval.stride": 2, "init.mvs.planes": 24}
     variants = [{"name": "restore", "stage2.rounds": 1}, {"name": "no-restore", "stage2.rounds": 0}]
     results = run_study(StudyConfig(source="tiny", variants=variants, base=base), tmp_path, progress=False)
     assert [r.name for r in results] == ["restore", "no-restore"]

@@ -1,0 +1,53 @@
+"""Arguments and config resolution shared by the pipeline's verbs (run, reconstruct, refine)."""
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any
+
+from fixer4d.errors import InputError
+
+
+def add_config_arguments(parser: argparse.ArgumentParser) -> None:
+    """--config, --set, --print-config."""
+    parser.add_argument("--config", default=None, metavar="FILE",
+                        help="a JSON config (a run's config.json or a partial tree) applied over the defaults")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="any config value by dotted key, e.g. --set stage1.iterations=800 (JSON values); "
+                             "see --print-config for every key")
+    parser.add_argument("--print-config", action="store_true",
+                        help="print the resolved config (every key, validated) and exit without running")
+
+
+def frame_range_override(text: str | None) -> list[int] | None:
+    """``--frames a:b`` (half-open, the scene's own frame numbers) -> [a, b]; checked against the
+    scene's length when the scene loads."""
+    if text is None:
+        return None
+    a, sep, b = text.partition(":")
+    if not sep or not a.strip().isdigit() or not b.strip().isdigit() or int(b) <= int(a):
+        raise InputError(f"--frames {text!r}: expected a:b with 0 <= a < b (half-open), e.g. 0:20")
+    return [int(a), int(b)]
+
+
+def resolve_from_args(args: argparse.Namespace, flags: dict[str, Any], *, source: str | None = None,
+                      forced: dict[str, Any] | None = None, base: dict[str, Any] | None = None):
+    """The RunConfig of a verb: defaults (or ``base``, a run's own config) <- --config <- the
+    verb's flags (``flags``: dotted key -> value, None = not given) <- --set <- ``forced``."""
+    from fixer4d.pipeline import config_tree
+    from fixer4d.pipeline.config import resolve
+
+    overrides = {k: v for k, v in flags.items() if v is not None}
+    overrides.update(config_tree.parse_set_overrides(args.set))
+    overrides.update(forced or {})
+    return resolve(source, config_file=args.config, overrides=overrides, defaults=base)
+
+
+def maybe_print_config(args: argparse.Namespace, config) -> bool:
+    """Print the resolved config when --print-config was given; True when the verb should stop."""
+    if not args.print_config:
+        return False
+    from fixer4d.pipeline.config import FORMAT_VERSION
+
+    print(json.dumps({"format_version": FORMAT_VERSION, "config": config.to_dict()}, indent=2))
+    return True

@@ -1,0 +1,89 @@
+"""`fixer4d eval RUN [--model PATH] [--stride S] [--backend B]`: evaluate a run on its held-out cameras.
+
+Opens the run folder (``fixer4d.pipeline.RunFolder``: versioned config, its scene), loads the latest model
+(``model_final.ply``, else ``model_stage1.ply``, or ``--model``), renders every held-out camera at
+every S-th frame and writes ``RUN/eval/<method-slug>/`` (metrics.json, metrics.md, PNGs) and a
+copy of metrics.json at ``RUN/metrics.json``.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from fixer4d.errors import InputError
+
+MODEL_NAMES = ("model_final.ply", "model_stage1.ply")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", help="run folder (holds config.json and model_*.ply)")
+    parser.add_argument("--model", default=None,
+                        help="model to evaluate (.ply); default: RUN/model_final.ply, else RUN/model_stage1.ply")
+    parser.add_argument("--stride", type=int, default=1, help="evaluate every S-th frame (default 1: every frame)")
+    parser.add_argument("--backend", default="auto", help="render backend: auto, reference, cpu, gsplat")
+    parser.add_argument("--method", default=None, help="method name in the table (default: from the model file)")
+    parser.add_argument("--examples", type=int, default=3, help="frames saved as render|gt|error PNGs per view")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def find_model(run: Path, model: str | None = None) -> Path:
+    """The model to evaluate: ``model`` if given, else the run's latest (final, then stage 1)."""
+    if model is not None:
+        path = Path(model)
+        if not path.is_file():
+            raise InputError(f"--model {path}: no such file")
+        return path
+    for name in MODEL_NAMES:
+        if (run / name).is_file():
+            return run / name
+    raise InputError(f"{run}: no {' or '.join(MODEL_NAMES)}; run `fixer4d reconstruct` first or pass --model")
+
+
+def known_seconds(folder, model_path: Path) -> dict[str, float]:
+    """Preparation and training seconds the run recorded for ``model_path`` (absent when unknown)."""
+    rec = folder.records
+    method = folder.config.init_method
+    found: dict[str, float] = {}
+    if f"init_{method}" in rec.as_seconds():
+        found["prep"] = rec.seconds(f"init_{method}")
+    stages = {"model_stage1.ply": ("stage1",), "model_final.ply": ("stage1", "stage2")}.get(model_path.name)
+    if stages and all(s in rec.as_seconds() for s in stages):
+        found["train"] = rec.seconds(*stages)
+    return found
+
+
+def method_name_for(model_path: Path, init_method: str) -> str:
+    """A table label: the report's row name for the run's own models, the file stem otherwise."""
+    from fixer4d.pipeline import report as R
+
+    if model_path.name == "model_final.ply":
+        return R.ROW_FULL
+    if model_path.name == "model_stage1.ply":
+        return R.ROW_MVS if init_method != "sparse" else R.ROW_COLMAP
+    return model_path.stem
+
+
+def run(args: argparse.Namespace) -> int:
+    from fixer4d.atomic import write_json
+    from fixer4d.eval.evaluate import evaluate, markdown_table
+    from fixer4d.model.io import load_ply
+    from fixer4d.pipeline.restoration import model_render_fn
+    from fixer4d.pipeline.run_folder import RunFolder
+    from fixer4d.pipeline.stages import eval_slug
+
+    folder = RunFolder.open(args.run)
+    model_path = find_model(folder.path, args.model)
+    model = load_ply(model_path).eval()
+    render_fn = model_render_fn(model, args.backend, folder.config.stage1.background)
+    method = args.method or method_name_for(model_path, folder.config.init_method)
+    out = folder.path / "eval" / eval_slug(method)
+    result = evaluate(render_fn, folder.scene, out, frame_stride=args.stride, method_name=method,
+                      seconds=known_seconds(folder, model_path), save_examples=args.examples, progress=not args.quiet)
+    result["model"] = str(model_path)
+    write_json(out / "metrics.json", result)
+    write_json(folder.path / "metrics.json", result)
+    print(markdown_table([result]), end="")
+    if result["lpips_unavailable_reason"]:
+        print(f"LPIPS unavailable: {result['lpips_unavailable_reason']}")
+    print(f"wrote {folder.path / 'metrics.json'} and {out}/")
+    return 0

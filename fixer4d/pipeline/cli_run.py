@@ -1,0 +1,49 @@
+"""`fixer4d run SCENE --out RUN`: the whole method, resumable (fixer4d.pipeline.run)."""
+from __future__ import annotations
+
+import argparse
+
+from fixer4d.pipeline.cli_common import add_config_arguments, frame_range_override, maybe_print_config, resolve_from_args
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scene", help="'demo', a spec .json, or a directory (Neural3DV / Panoptic layout)")
+    parser.add_argument("--out", help="run folder (created; an existing one with the same config resumes)")
+    parser.add_argument("--scale", type=float, default=None, help="image scale, e.g. 0.5 for half resolution")
+    parser.add_argument("--frames", default=None, help="frame range a:b of the scene (half-open)")
+    parser.add_argument("--iterations", type=int, default=None, help="stage 1 iterations")
+    parser.add_argument("--rounds", type=int, default=None, help="stage 2 rounds R (0 = no restoration)")
+    parser.add_argument("--refresh-every", type=int, default=None, help="stage 2 cache refresh interval K (iterations)")
+    parser.add_argument("--lambda-gen", type=float, default=None, help="weight of the pseudo-supervision (default 0.5)")
+    parser.add_argument("--init", choices=["mvs", "sparse"], default=None, help="initialization of the main model")
+    parser.add_argument("--no-baseline", action="store_true", help="skip the STGS w/ COLMAP baseline row")
+    parser.add_argument("--eval-stride", type=int, default=None, help="evaluate every S-th frame")
+    parser.add_argument("--segment-frames", type=int, default=None,
+                        help="train a long capture as overlapping temporal segments of F frames")
+    parser.add_argument("--executor", choices=["local", "ray"], default=None,
+                        help="where segments run: this process (local, default) or Ray")
+    parser.add_argument("--ray-address", default=None,
+                        help="join an existing Ray cluster (e.g. auto or ray://HEAD:10001); default: a local Ray")
+    add_config_arguments(parser)
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def run(args: argparse.Namespace) -> int:
+    from fixer4d.errors import InputError
+    from fixer4d.pipeline.run import run_pipeline
+
+    flags = {"scene.scale": args.scale, "scene.frame_range": frame_range_override(args.frames),
+             "stage1.iterations": args.iterations, "stage2.rounds": args.rounds,
+             "stage2.refresh_every": args.refresh_every, "stage2.lambda_gen": args.lambda_gen,
+             "init.method": args.init, "eval.stride": args.eval_stride,
+             "baseline_sparse": False if args.no_baseline else None,
+             "segments.frames": args.segment_frames, "segments.executor": args.executor,
+             "segments.ray_address": args.ray_address}
+    config = resolve_from_args(args, flags, source=args.scene)
+    if maybe_print_config(args, config):
+        return 0
+    if not args.out:
+        raise InputError("--out RUN is required (the run folder)")
+    run_pipeline(config, args.out, progress=not args.quiet)
+    print(open(f"{args.out}/report.md").read())
+    return 0

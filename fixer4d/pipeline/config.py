@@ -1,0 +1,204 @@
+"""``RunConfig``: every knob of a run, one typed tree, resolved and validated before anything is written.
+
+    RunConfig
+      scene         SceneConfig        which scene, scale, frame range
+      init          InitConfig         (init/run.py) method mvs|sparse, plane sweep, fusion, ...
+      stage1        Stage1Config       (train/config.py) STGS on the four observed views
+      stage2        Stage2Config       (train/config.py) restoration-guided refinement
+      trajectories  TrajectoryConfig   the novel trajectories restored in stage 2
+      restorer      ReferenceWarpConfig (restore/) the restorer's settings
+      eval          EvalConfig         held-out evaluation
+      segments      SegmentConfig      (pipeline/segments.py) long captures as temporal segments, executor
+      baseline_sparse, init_frame_stride, seed
+
+A config is built from the defaults, then an optional config file (a ``config.json`` of another
+run or a hand-written partial one), then ``--set`` overrides (dotted keys). ``resolve`` does all
+three and the validation; the resolved tree is what ``config.json`` stores, with
+``FORMAT_VERSION``.
+"""
+from __future__ import annotations
+
+import copy
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from fixer4d.errors import InputError
+from fixer4d.init.run import InitConfig
+from fixer4d.pipeline import config_tree
+from fixer4d.pipeline.segments import SegmentConfig
+from fixer4d.restore.reference_warp import ReferenceWarpConfig
+from fixer4d.train.config import Stage1Config, Stage2Config
+
+# Version of the run-folder layout and config.json schema. 1: the first landing (config.json
+# {"scene", "pipeline"} or reconstruct's {"scene", "init", "stage1"}); 2: {"format_version",
+# "config": RunConfig} plus per-stage keys in stages.json.
+FORMAT_VERSION = 2
+
+
+@dataclass
+class SceneConfig:
+    """Which scene and how much of it: a source for ``fixer4d.scene.load_scene``."""
+
+    source: str = "demo"
+    scale: float = 1.0
+    frame_range: tuple[int, int] | None = None  # half-open [a, b) of the source's frames
+
+    def __post_init__(self) -> None:
+        if not self.scale > 0:
+            raise InputError(f"scale must be > 0, got {self.scale}")
+        if self.frame_range is not None and not 0 <= self.frame_range[0] < self.frame_range[1]:
+            raise InputError(f"frame_range must be [a, b] with 0 <= a < b, got {list(self.frame_range)}")
+
+
+@dataclass
+class TrajectoryConfig:
+    """The novel trajectories rendered and restored in stage 2 (DESIGN.md §4, Eq. 3)."""
+
+    frames: int = 6                  # cameras per trajectory clip
+    amplitude: float | None = None   # arc amplitude A; None = drawn from the seeded range
+    arcs: bool = True                # add the arcs on the two diagonal pairs
+    seed: int = 0
+    time_stride: int = 5             # restore clips every `time_stride` frames of the video
+
+    def __post_init__(self) -> None:
+        if self.frames < 2:
+            raise InputError(f"frames must be >= 2 (a clip needs both ends), got {self.frames}")
+        if self.time_stride < 1:
+            raise InputError(f"time_stride must be >= 1, got {self.time_stride}")
+
+
+@dataclass
+class EvalConfig:
+    """Held-out evaluation (every ``stride``-th frame of every held-out camera)."""
+
+    stride: int = 5
+    restoration_rows: bool = True    # also evaluate restored renders at the held-out cameras
+    # also train and evaluate "STGS w/ MVS (matched iterations)": stage 1 continued as long as
+    # stage 2 runs, without pseudo-views (shows that stage 2's gain is the restorer's)
+    matched_row: bool = True
+    examples: int = 3                # frames saved as render|gt|error PNGs per view
+
+    def __post_init__(self) -> None:
+        if self.stride < 1:
+            raise InputError(f"stride must be >= 1, got {self.stride}")
+
+
+@dataclass
+class RunConfig:
+    """Every knob of a run (see the module docstring for the tree)."""
+
+    scene: SceneConfig = field(default_factory=SceneConfig)
+    init: InitConfig = field(default_factory=InitConfig)
+    stage1: Stage1Config = field(default_factory=Stage1Config)
+    stage2: Stage2Config = field(default_factory=Stage2Config)
+    trajectories: TrajectoryConfig = field(default_factory=TrajectoryConfig)
+    restorer: ReferenceWarpConfig = field(default_factory=ReferenceWarpConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    segments: SegmentConfig = field(default_factory=SegmentConfig)
+    baseline_sparse: bool = True     # also train from the sparse init for the "STGS w/ COLMAP" row
+    # Point clouds from every `init_frame_stride`-th frame (both inits use the same frames).
+    init_frame_stride: int = 4
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.init_frame_stride < 1:
+            raise InputError(f"init_frame_stride must be >= 1, got {self.init_frame_stride}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return config_tree.to_dict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "RunConfig":
+        return config_tree.build(cls, d)
+
+    @property
+    def init_method(self) -> str:
+        return self.init.method
+
+
+# The defaults of `fixer4d run`: sized so that the demo (two stage-1 trainings, R = 2 restoration
+# rounds and five evaluations) ends in about 10 minutes on 2 CPU cores; raise them for quality.
+# Stage 1 keeps its schedule scaled to its iterations (Stage1Config.from_partial).
+RUN_DEFAULTS: dict[str, Any] = {
+    "stage1": {"iterations": 500, "init_max_points": 25_000, "max_gaussians": 30_000},
+    "stage2": {"rounds": 2, "refresh_every": 150},
+}
+
+
+def resolve(source: str | None = None, *, config_file: str | Path | dict[str, Any] | None = None,
+            overrides: dict[str, Any] | None = None, relative: set[str] | None = None,
+            defaults: dict[str, Any] | None = None) -> RunConfig:
+    """Defaults <- config file <- overrides, validated in full; raises InputError naming the key.
+
+    source: the scene (sets ``scene.source`` unless an override does). config_file: a path to a
+    JSON config (a run's ``config.json`` or a partial tree) or the dict itself. relative: dotted
+    keys whose override multiplies the value it replaces (a study's "half the iterations").
+    """
+    tree = copy.deepcopy(RUN_DEFAULTS if defaults is None else defaults)
+    if config_file is not None:
+        tree = config_tree.merge(tree, copy.deepcopy(_read_config_file(config_file)))
+    if source is not None:
+        config_tree.set_dotted(tree, "scene.source", str(source))
+    relative = relative or set()
+    for key, value in (overrides or {}).items():
+        if key in relative:
+            value = _scaled(tree, key, value)
+        config_tree.set_dotted(tree, key, value)
+    return RunConfig.from_dict(tree)
+
+
+def _scaled(tree: dict[str, Any], key: str, factor: Any) -> Any:
+    """The value ``key`` has before the override (tree, else the dataclass default) x factor."""
+    base = config_tree.get_dotted(tree, key)
+    if base is None:
+        base = config_tree.get_dotted(RunConfig().to_dict(), key)
+    if not isinstance(base, (int, float)) or isinstance(base, bool) or not isinstance(factor, (int, float)):
+        raise InputError(f"override {key!r}: a relative knob needs a numeric base and factor "
+                         f"(base {base!r}, factor {factor!r})")
+    return type(base)(round(base * factor)) if isinstance(base, int) else base * factor
+
+
+def _read_config_file(config_file: str | Path | dict[str, Any]) -> dict[str, Any]:
+    if isinstance(config_file, dict):
+        data = config_file
+    else:
+        path = Path(config_file)
+        if not path.is_file():
+            raise InputError(f"--config {path}: no such file")
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise InputError(f"--config {path}: not valid JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise InputError("a config file must hold a JSON object")
+    if "format_version" in data and "config" in data:  # a run folder's config.json
+        data = data["config"]
+    return data
+
+
+def migrate_v1(data: dict[str, Any]) -> dict[str, Any]:
+    """A format-1 config.json (first landing) as a format-2 config tree.
+
+    Format 1 had two shapes: `fixer4d run` wrote {"scene", "pipeline": {..., "init": {"method",
+    ...}, "eval_stride", "restoration_rows", "restorer"}}, `fixer4d reconstruct` wrote {"scene",
+    "init": {"method"}, "stage1": {...}, "stage2"?}.
+    """
+    if "pipeline" in data:
+        p = dict(data["pipeline"])
+        tree: dict[str, Any] = {"scene": p.pop("scene", data.get("scene", {}))}
+        ev = {}
+        if "eval_stride" in p:
+            ev["stride"] = p.pop("eval_stride")
+        if "restoration_rows" in p:
+            ev["restoration_rows"] = p.pop("restoration_rows")
+        tree["eval"] = ev
+        tree.update(p)
+        return tree
+    tree = {k: data[k] for k in ("scene", "init", "stage1", "stage2") if k in data}
+    stage1 = dict(tree.get("stage1", {}))
+    stage1.pop("progress", None)
+    tree["stage1"] = stage1
+    tree.update({"baseline_sparse": False, "stage2": {**tree.get("stage2", {})}})
+    return tree

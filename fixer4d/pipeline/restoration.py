@@ -1,0 +1,134 @@
+"""Everything between a model and its restored pseudo-targets: renders, restore requests, the
+stage-2 cache refresh and the "restoration" evaluation rows. Restorers never render: the request
+built here carries every render they need (DESIGN.md §2).
+
+Clips are named by scene camera ids everywhere (``RestoreCache.key(frame, cam_i, cam_j, arc)``).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+from fixer4d.geometry.camera import Camera
+from fixer4d.pipeline.config import RunConfig, TrajectoryConfig
+
+
+def render_views(model, cameras: list[Camera], t: float, backend: str = "auto",
+                 background: torch.Tensor | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Render ``model`` at time ``t`` from every camera: rgb (F,H,W,3), depth (F,H,W), alpha (F,H,W)."""
+    from fixer4d.render.api import render
+
+    rgbs, depths, alphas = [], [], []
+    with torch.no_grad():
+        for cam in cameras:
+            snap = model.at(t, camera_center=cam.center)
+            out = render(snap, cam, background=background, backend=backend)
+            rgbs.append(out.rgb.clamp(0, 1).numpy())
+            depths.append(out.depth.numpy())
+            alphas.append(out.alpha.numpy())
+    return np.stack(rgbs).astype(np.float32), np.stack(depths).astype(np.float32), np.stack(alphas).astype(np.float32)
+
+
+def model_render_fn(model, backend: str = "auto",
+                    background: tuple[float, float, float] | None = None) -> Callable[[Camera, float], np.ndarray]:
+    """``fn(camera, t) -> (H,W,3)`` rendering ``model`` (what evaluation and the viewer call)."""
+    bg = None if background is None else torch.tensor(background, dtype=torch.float32)
+
+    def fn(camera: Camera, t: float) -> np.ndarray:
+        return render_views(model, [camera], t, backend, bg)[0][0]
+
+    return fn
+
+
+def make_request(model, scene, cameras: list[Camera], frame: int, ref_ids: tuple[int, int], *,
+                 backend: str = "auto", trajectory: dict[str, Any] | None = None):
+    """Render a clip and everything the restorer needs at the references (restorers never render)."""
+    from fixer4d.restore.base import RestoreRequest
+
+    t = scene.time(frame)
+    rgb, depth, alpha = render_views(model, cameras, t, backend)
+    ref_cams = [scene.cameras[i] for i in ref_ids]
+    _, ref_depth, ref_alpha = render_views(model, ref_cams, t, backend)
+    extra_ids = [i for i in scene.train_ids if i not in ref_ids]
+    extra_cams = [scene.cameras[i] for i in extra_ids]
+    _, extra_depth, _ = render_views(model, extra_cams, t, backend) if extra_ids else (None, [], None)
+    return RestoreRequest(
+        rgb=rgb, depth=depth, alpha=alpha, cameras=list(cameras), time=t, frame=frame,
+        ref_images=[scene.frame(frame, i) for i in ref_ids], ref_cameras=ref_cams,
+        ref_depths=list(ref_depth), ref_alphas=list(ref_alpha),
+        extra_images=[scene.frame(frame, i) for i in extra_ids] or None, extra_cameras=extra_cams or None,
+        extra_depths=list(extra_depth) or None, trajectory=trajectory or {})
+
+
+def build_restorer(config: RunConfig):
+    """The restorer a run's config asks for."""
+    from fixer4d.restore.reference_warp import ReferenceWarpRestorer
+
+    return ReferenceWarpRestorer(config.restorer)
+
+
+def scene_trajectories_for(scene, tc: TrajectoryConfig):
+    """The 6 pair trajectories (+ arcs) of the scene's train cameras; pairs are mapped from
+    train-list indices to scene camera indices."""
+    from fixer4d.geometry.trajectory import scene_trajectories
+
+    trajs = scene_trajectories(scene.train_cameras, tc.frames, amplitude=tc.amplitude, arcs=tc.arcs, seed=tc.seed)
+    return [(tr, (scene.train_ids[tr.pair[0]], scene.train_ids[tr.pair[1]])) for tr in trajs]
+
+
+def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, progress: bool = True,
+                          backend: str = "auto") -> Callable[[Any, int], None]:
+    """The stage-2 cache refresh: render every trajectory at every restored timestamp with the
+    current model, restore the clips, write them to RUN/cache/round_<r>. Complete entries of a
+    round are reused (a resumed run does not redo them)."""
+    from fixer4d.restore.cache import RestoreCache
+
+    cache = RestoreCache(Path(run_dir) / "cache")
+    cache.clean_temporary()  # leftovers of a killed write; complete entries are reused below
+    restorer = build_restorer(config)
+    trajectories = scene_trajectories_for(scene, config.trajectories)
+    frames = list(range(0, scene.num_frames, max(1, config.trajectories.time_stride)))
+
+    def refresh(model, round_index: int) -> None:
+        from tqdm.auto import tqdm
+
+        todo = [(f, tr, ids) for f in frames for tr, ids in trajectories]
+        bar = tqdm(todo, desc=f"restore round {round_index}", unit="clip", disable=not progress, leave=False)
+        for f, tr, ids in bar:
+            key = cache.key(f, ids[0], ids[1], tr.arc_index)
+            if cache.has(round_index, key):
+                continue
+            traj_meta = {"name": tr.name, "pair": list(ids), "amplitude": float(tr.amplitude), "arc_index": tr.arc_index}
+            req = make_request(model, scene, tr.cameras, f, ids, backend=backend, trajectory=traj_meta)
+            res = restorer.restore(req)
+            cache.write(round_index, key, req, res, {"restorer": restorer.name, "restorer_settings": restorer.settings(),
+                                                     "model_gaussians": int(model.num_gaussians)})
+
+    return refresh
+
+
+def restoration_render_fn(model, scene, restorer, backend: str = "auto") -> Callable[[Camera, float], np.ndarray]:
+    """A render function for evaluation whose images are *restored* renders.
+
+    For a held-out camera h, the trajectory passes through it: the two train cameras nearest to
+    h are the references, the clip is (midpoint ref_a..h, h, midpoint h..ref_b) and the restored
+    middle frame is returned (the "restoration" rows of the paper's Table 2).
+    """
+    from fixer4d.geometry.trajectory import interpolate_pair
+
+    def fn(camera: Camera, t: float) -> np.ndarray:
+        frame = int(round(t * scene.num_frames))
+        d = [np.linalg.norm(scene.cameras[i].center - camera.center) for i in scene.train_ids]
+        order = np.argsort(d)
+        ids = (scene.train_ids[order[0]], scene.train_ids[order[1]])
+        a, b = scene.cameras[ids[0]], scene.cameras[ids[1]]
+        cams = [interpolate_pair(a, camera, np.array([0.5]), 0.0)[0], camera,
+                interpolate_pair(camera, b, np.array([0.5]), 0.0)[0]]
+        req = make_request(model, scene, cams, frame, ids, backend=backend,
+                           trajectory={"name": f"through-{camera.name}", "pair": list(ids), "amplitude": 0.0})
+        return restorer.restore(req).rgb[1]
+
+    return fn

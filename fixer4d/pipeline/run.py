@@ -1,0 +1,235 @@
+"""The whole method, resumable: init -> stage 1 -> (restore -> refine) x R -> evaluate, one row
+per method of the paper's Table 2 (``report.ROW_NAMES``).
+
+``run_pipeline(config, out)`` checks the scene and the folder before writing anything, then runs
+the stage functions (``stages``); every finished stage is reused on a rerun and a killed one
+resumes. A row whose stage fails (the sparse baseline finding no points) is reported with its
+reason while the others run.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from fixer4d import atomic
+from fixer4d.pipeline import report as R
+from fixer4d.pipeline import stages as S
+from fixer4d.pipeline.config import RunConfig
+from fixer4d.pipeline.restoration import build_restorer, model_render_fn, restoration_render_fn
+from fixer4d.pipeline.run_folder import RunFolder, load_scene_for, stage_key
+from fixer4d.pipeline.stage_cache import StageCache
+
+log = logging.getLogger("fixer4d.pipeline")
+
+
+def open_context(config: RunConfig, out: str | Path, *, progress: bool = True,
+                 stage_cache: str | Path | None = None) -> S.StageContext:
+    """Load and check the scene, then create (or resume) the run folder: a bad scene or frame
+    range fails here, before anything is written."""
+    scene = load_scene_for(config)
+    validate = getattr(scene, "validate", None)
+    if callable(validate):
+        validate()
+    run = RunFolder.create(out, config)
+    return S.StageContext(run=run, scene=scene, progress=progress,
+                          cache=StageCache(stage_cache) if stage_cache is not None else None)
+
+
+def run_pipeline(config: RunConfig, out: str | Path, *, progress: bool = True,
+                 stage_cache: str | Path | None = None) -> dict[str, Any]:
+    """Run (or resume) the whole method; returns the report dict (also RUN/report.json).
+
+    stage_cache: a folder shared by several runs (a study) where finished inits and stage-1
+    models are kept and reused by runs whose settings match.
+    """
+    if config.segments.frames is not None:
+        return run_segmented(config, out, progress=progress, stage_cache=stage_cache)
+    ctx = open_context(config, out, progress=progress, stage_cache=stage_cache)
+    return run_stages(ctx)
+
+
+def run_stages(ctx: S.StageContext) -> dict[str, Any]:
+    """Every stage the config asks for, in order, writing the report after each row."""
+    config = ctx.config
+    torch.manual_seed(config.seed)
+    if ctx.progress:
+        print(f"[fixer4d] {ctx.scene.describe()}", flush=True)
+    rec = ctx.run.records
+    rows: list[dict[str, Any]] = []
+    method = config.init_method
+
+    def add(row: dict[str, Any]) -> None:
+        rows.append(row)
+        R.write_report(ctx.path, ctx.scene.describe(), _ordered(rows), rec.as_seconds())
+
+    def seconds(*stages: str) -> dict[str, float]:
+        return {"prep": rec.seconds(f"init_{method}"), "train": rec.seconds(*stages)}
+
+    # -- baseline: STGS from the sparse (COLMAP) init; its failure never stops the main method --
+    if config.baseline_sparse and method != "sparse":
+        try:
+            clouds = S.init_stage(ctx, "sparse")
+            base = S.stage1(ctx, "sparse", clouds, ctx.path / "baseline_sparse" / "model_stage1.ply", "stage1_sparse")
+            m = S.evaluate_stage(ctx, R.ROW_COLMAP, model_render_fn(base, ctx.backend, config.stage1.background),
+                                 S.stage1_key(config, "sparse"),
+                                 {"prep": rec.seconds("init_sparse"), "train": rec.seconds("stage1_sparse")})
+            add(R.metrics_row(R.ROW_COLMAP, m, rec.seconds("init_sparse", "stage1_sparse")))
+            del base
+        except Exception as exc:  # noqa: BLE001 - any baseline failure becomes its row's reason
+            log.warning("baseline %s failed: %s", R.ROW_COLMAP, exc)
+            if ctx.progress:
+                print(f"[fixer4d] {R.ROW_COLMAP} failed ({exc}); continuing with the main method", flush=True)
+            add(R.failed_row(R.ROW_COLMAP, str(exc)))
+
+    # -- ours: dense init + stage 1 ------------------------------------------------------------
+    clouds = S.init_stage(ctx, method)
+    model = S.stage1(ctx, method, clouds, ctx.path / "model_stage1.ply", "stage1")
+    del clouds
+    main_row = R.ROW_MVS if method != "sparse" else R.ROW_COLMAP
+    s1_key = S.stage1_key(config, method)
+    m = S.evaluate_stage(ctx, main_row, model_render_fn(model, ctx.backend, config.stage1.background), s1_key,
+                         seconds("stage1"))
+    add(R.metrics_row(main_row, m, rec.seconds(f"init_{method}", "stage1")))
+    final_metrics = m
+
+    restorer = build_restorer(config) if config.eval.restoration_rows else None
+    restorer_key = stage_key("restorer", config.to_dict()["restorer"])
+    if restorer is not None:
+        m = S.evaluate_stage(ctx, R.ROW_RESTORED_INIT, restoration_render_fn(model, ctx.scene, restorer, ctx.backend),
+                             stage_key(s1_key, restorer_key), seconds("stage1"))
+        add(R.metrics_row(R.ROW_RESTORED_INIT, m, rec.seconds(f"init_{method}", "stage1")
+                          + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_INIT)}")))
+
+    # -- stage 2: (restore -> refine) x R, and its matched-iterations control -------------------
+    if config.stage2.rounds > 0:
+        if config.eval.matched_row:
+            matched = S.matched_stage1(ctx, model)
+            m = S.evaluate_stage(ctx, R.ROW_MATCHED, model_render_fn(matched, ctx.backend, config.stage1.background),
+                                 S.matched_key(config), seconds("stage1", "matched"))
+            add(R.metrics_row(R.ROW_MATCHED, m, rec.seconds(f"init_{method}", "stage1", "matched")))
+            del matched
+        model = S.stage2(ctx, model)
+        full_secs = rec.seconds(f"init_{method}", "stage1", "stage2")
+        s2_key = S.stage2_key(config)
+        m = S.evaluate_stage(ctx, R.ROW_FULL, model_render_fn(model, ctx.backend, config.stage1.background), s2_key,
+                             seconds("stage1", "stage2"))
+        add(R.metrics_row(R.ROW_FULL, m, full_secs))
+        final_metrics = m
+        if restorer is not None:
+            m = S.evaluate_stage(ctx, R.ROW_RESTORED_REFINED,
+                                 restoration_render_fn(model, ctx.scene, restorer, ctx.backend),
+                                 stage_key(s2_key, restorer_key), seconds("stage1", "stage2"))
+            add(R.metrics_row(R.ROW_RESTORED_REFINED, m, full_secs
+                              + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_REFINED)}")))
+    atomic.write_json(ctx.path / "metrics.json", final_metrics)
+    return R.write_report(ctx.path, ctx.scene.describe(), _ordered(rows), rec.as_seconds(),
+                          {"peak_rss_mb": peak_rss_mb()})
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process and its finished children, in MiB (Linux ru_maxrss is KiB)."""
+    import resource
+
+    return max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+               resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024.0
+
+
+# ---------------------------------------------------------------------------------------------
+# long captures: temporal segments on an executor
+# ---------------------------------------------------------------------------------------------
+# Rows whose model can be stitched over the whole clip, and where each segment run keeps it.
+_MODEL_ROWS = ((R.ROW_COLMAP, "baseline_sparse/model_stage1.ply"), (R.ROW_MVS, "model_stage1.ply"),
+               (R.ROW_MATCHED, "matched/model.ply"), (R.ROW_FULL, "model_final.ply"))
+
+
+def segment_config(config: RunConfig, start: int, stop: int) -> RunConfig:
+    """The config of the segment [start, stop) of ``config``'s clip: the same run on that frame
+    range (absolute frames of the source), not segmented again."""
+    import dataclasses
+
+    offset = 0 if config.scene.frame_range is None else config.scene.frame_range[0]
+    return dataclasses.replace(config, scene=dataclasses.replace(config.scene, frame_range=(offset + start, offset + stop)),
+                               segments=dataclasses.replace(config.segments, frames=None))
+
+
+def _run_segment(job: tuple[dict[str, Any], str]) -> dict[str, Any]:
+    """One segment's whole pipeline (a top-level function, so Ray can ship it)."""
+    config_dict, out = job
+    report = run_pipeline(RunConfig.from_dict(config_dict), out, progress=False)
+    report["peak_rss_mb"] = peak_rss_mb()
+    return report
+
+
+def run_segmented(config: RunConfig, out: str | Path, *, progress: bool = True,
+                  stage_cache: str | Path | None = None) -> dict[str, Any]:
+    """Run a long capture as overlapping segments on the configured executor, then evaluate the
+    stitched models over the whole clip (``segments.SegmentedModel``)."""
+    import time
+
+    from fixer4d.model.io import load_ply
+    from fixer4d.pipeline.executors import make_executor
+    from fixer4d.pipeline.segments import SegmentedModel, owners, segment_dir, split_segments
+
+    ctx = open_context(config, out, progress=progress, stage_cache=stage_cache)
+    scene = ctx.scene
+    ranges = split_segments(scene.num_frames, config.segments.frames, config.segments.overlap)
+    jobs = [(segment_config(config, s, e).to_dict(), str(segment_dir(ctx.path, k, (s, e))))
+            for k, (s, e) in enumerate(ranges)]
+    if progress:
+        print(f"[fixer4d] {len(ranges)} segments {ranges} on the {config.segments.executor} executor", flush=True)
+    rec = ctx.run.records
+    key = stage_key("segments", [j[0] for j in jobs])
+    t0 = time.perf_counter()
+    if not rec.done("segments", key):
+        rec.begin("segments", key)
+        executor = make_executor(config.segments.executor, config.segments.ray_address)
+        seg_reports = executor.map(_run_segment, jobs)
+        rec.finish("segments", key, time.perf_counter() - t0)
+    else:
+        import json
+
+        seg_reports = [json.loads((Path(j[1]) / "report.json").read_text()) for j in jobs]
+
+    own = owners(scene.num_frames, ranges)
+    share = np.bincount(own, minlength=len(ranges)) / float(scene.num_frames)
+    rows: list[dict[str, Any]] = []
+    for name in R.ROW_NAMES:
+        per_seg = [next((r for r in rep["rows"] if r["method"] == name), None) for rep in seg_reports]
+        if any(r is None for r in per_seg):
+            continue
+        failed = [r for r in per_seg if r.get("status") == "failed"]
+        if failed:
+            rows.append(R.failed_row(name, f"{len(failed)} segment(s) failed: {failed[0].get('error')}"))
+            continue
+        seconds = float(sum(r["seconds"] or 0.0 for r in per_seg))
+        model_file = dict(_MODEL_ROWS).get(name)
+        if model_file is None:  # restoration rows: the owned-frame-weighted mean of the segments' rows
+            row = {"method": name, "status": "ok", "seconds": seconds, "aggregate": "segment mean"}
+            for m in R.METRIC_KEYS:
+                vals = [r.get(m) for r in per_seg]
+                row[m] = None if any(v is None for v in vals) else float(np.dot(share, vals))
+            rows.append(row)
+            continue
+        stitched = SegmentedModel([load_ply(Path(j[1]) / model_file) for j in jobs], ranges, scene.num_frames)
+        from fixer4d.pipeline.restoration import model_render_fn
+
+        m = S.evaluate_stage(ctx, name, model_render_fn(stitched, ctx.backend, config.stage1.background),
+                             stage_key(key, name), {"train": seconds})
+        rows.append(R.metrics_row(name, m, seconds))
+        del stitched
+    extra = {"segments": [{"frames": list(r), "peak_rss_mb": rep.get("peak_rss_mb")} for r, rep in zip(ranges, seg_reports)],
+             "executor": config.segments.executor, "segments_wall_seconds": rec.seconds("segments"),
+             "peak_rss_mb": max([peak_rss_mb()] + [rep.get("peak_rss_mb") or 0.0 for rep in seg_reports])}
+    stage_seconds = {f"seg{k:02d}:{n}": v for k, rep in enumerate(seg_reports) for n, v in rep["stage_seconds"].items()}
+    stage_seconds.update(rec.as_seconds())
+    return R.write_report(ctx.path, scene.describe(), rows, stage_seconds, extra)
+
+
+def _ordered(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Rows in the paper's order (they are computed in stage order)."""
+    order = {name: i for i, name in enumerate(R.ROW_NAMES)}
+    return sorted(rows, key=lambda r: order.get(r["method"], len(order)))

@@ -1,0 +1,175 @@
+"""A run folder: its versioned config, its stage records, its scene (DESIGN.md §3).
+
+    RUN/config.json   {"format_version": FORMAT_VERSION, "fixer4d": version, "config": RunConfig}
+    RUN/stages.json   {stage: {"key": inputs key, "seconds": s, "done": bool}}
+
+Every entry point opens a run through ``RunFolder``: ``create`` for a new or resumed run (refuses a
+folder that holds another configuration, naming the keys that differ), ``open`` for an existing one
+(refine, eval, the viewer). A format-1 folder (the first landing) is migrated in place, its old
+config kept as ``config.v1.json``; anything else that is not a fixer4d run is refused in one sentence.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+from fixer4d import atomic
+from fixer4d.errors import InputError
+from fixer4d.pipeline import config_tree
+from fixer4d.pipeline.config import FORMAT_VERSION, RunConfig, migrate_v1
+
+CONFIG_NAME = "config.json"
+STAGES_NAME = "stages.json"
+
+
+def stage_key(*parts: Any) -> str:
+    """A short stable hash of everything a stage's output depends on."""
+    return hashlib.sha1(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _version() -> str:
+    from fixer4d import __version__
+
+    return __version__
+
+
+class StageRecords:
+    """RUN/stages.json: per stage the key of its inputs, its seconds and whether it finished.
+
+    A stage is reused only when it finished with the same key; a stage started under another key
+    is invalidated (its outputs are the caller's to clear, see ``begin``).
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.records: dict[str, dict[str, Any]] = {}
+        if path.exists():
+            try:
+                raw = json.loads(path.read_text())
+            except json.JSONDecodeError as exc:
+                raise InputError(f"{path}: not valid JSON ({exc}); delete it to recompute every stage") from None
+            for name, rec in raw.items():  # format 1 stored bare seconds, trusted once
+                self.records[name] = rec if isinstance(rec, dict) else {"key": None, "seconds": float(rec), "done": True}
+
+    def done(self, name: str, key: str) -> bool:
+        rec = self.records.get(name)
+        if rec is None or not rec.get("done"):
+            return False
+        if rec.get("key") is None:  # migrated from format 1: adopt the current key
+            rec["key"] = key
+            self._save()
+        return rec["key"] == key
+
+    def begin(self, name: str, key: str) -> bool:
+        """Mark ``name`` as running under ``key``; True when an earlier attempt ran under another
+        key (its partial outputs must not be resumed)."""
+        rec = self.records.get(name)
+        stale = rec is not None and rec.get("key") not in (None, key)
+        self.records[name] = {"key": key, "seconds": 0.0, "done": False}
+        self._save()
+        return stale
+
+    def finish(self, name: str, key: str, seconds: float) -> None:
+        self.records[name] = {"key": key, "seconds": float(seconds), "done": True}
+        self._save()
+
+    def seconds(self, *names: str) -> float:
+        return float(sum(self.records.get(n, {}).get("seconds", 0.0) for n in names))
+
+    def as_seconds(self) -> dict[str, float]:
+        return {n: float(r.get("seconds", 0.0)) for n, r in self.records.items() if r.get("done")}
+
+    def _save(self) -> None:
+        atomic.write_json(self.path, self.records)
+
+
+class RunFolder:
+    """One run: ``path``, its resolved ``config`` and its ``records``."""
+
+    def __init__(self, path: Path, config: RunConfig) -> None:
+        self.path = path
+        self.config = config
+        self.records = StageRecords(path / STAGES_NAME)
+        self._scene = None
+
+    # -- opening ------------------------------------------------------------------------------
+    @classmethod
+    def create(cls, path: str | Path, config: RunConfig) -> "RunFolder":
+        """A new run, or the resumption of one with the same configuration.
+
+        Raises InputError (nothing written) when ``path`` is a file, a foreign folder or a run
+        with another configuration.
+        """
+        path = Path(path)
+        if path.exists() and not path.is_dir():
+            raise InputError(f"--out {path}: is a file, not a run folder")
+        if (path / CONFIG_NAME).exists():
+            previous = cls.open(path).config
+            changes = config_tree.diff(previous.to_dict(), config.to_dict())
+            if changes:
+                shown = "; ".join(changes[:4]) + ("; ..." if len(changes) > 4 else "")
+                raise InputError(f"{path} holds a run with a different configuration ({shown}); use another --out, "
+                                 f"`fixer4d refine {path}` to change stage-2 settings, or delete the folder")
+        elif path.is_dir() and any(p for p in path.iterdir() if not p.name.startswith(".")):
+            raise InputError(f"--out {path}: exists and is not a fixer4d run folder (no {CONFIG_NAME}); "
+                             "choose an empty or new folder")
+        path.mkdir(parents=True, exist_ok=True)
+        folder = cls(path, config)
+        folder.save_config()
+        return folder
+
+    @classmethod
+    def open(cls, path: str | Path) -> "RunFolder":
+        """An existing run (migrating a format-1 folder in place)."""
+        path = Path(path)
+        cfg_path = path / CONFIG_NAME
+        if not path.is_dir():
+            raise InputError(f"{path}: no such run folder")
+        if not cfg_path.is_file():
+            raise InputError(f"{path}: not a fixer4d run folder (no {CONFIG_NAME}); make one with `fixer4d run`")
+        try:
+            data = json.loads(cfg_path.read_text())
+        except json.JSONDecodeError as exc:
+            raise InputError(f"{cfg_path}: not valid JSON ({exc}); the run folder is damaged") from None
+        if not isinstance(data, dict):
+            raise InputError(f"{cfg_path}: not a fixer4d run config")
+        version = data.get("format_version")
+        if version is None:
+            if "scene" not in data:
+                raise InputError(f"{cfg_path}: not a fixer4d run config (no format_version, no scene)")
+            config = RunConfig.from_dict(migrate_v1(data))
+            shutil.copy2(cfg_path, path / "config.v1.json")
+            folder = cls(path, config)
+            folder.save_config()
+            return folder
+        if not isinstance(version, int) or version > FORMAT_VERSION:
+            raise InputError(f"{path}: run folder format {version!r} is newer than this fixer4d understands "
+                             f"({FORMAT_VERSION}); update fixer4d")
+        return cls(path, RunConfig.from_dict(data.get("config") or {}))
+
+    def save_config(self) -> None:
+        atomic.write_json(self.path / CONFIG_NAME, {"format_version": FORMAT_VERSION, "fixer4d": _version(),
+                                                    "config": self.config.to_dict()})
+
+    def update_config(self, config: RunConfig) -> None:
+        self.config = config
+        self.save_config()
+
+    # -- the scene ------------------------------------------------------------------------------
+    @property
+    def scene(self):
+        """The run's scene (loaded once)."""
+        if self._scene is None:
+            self._scene = load_scene_for(self.config)
+        return self._scene
+
+
+def load_scene_for(config: RunConfig):
+    """The scene a config names, with its scale and frame range."""
+    from fixer4d.scene import load_scene
+
+    sc = config.scene
+    return load_scene(sc.source, scale=sc.scale, frame_range=None if sc.frame_range is None else tuple(sc.frame_range))

@@ -1,0 +1,280 @@
+"""The stage functions every entry point calls: init -> stage 1 -> (restore -> refine) -> evaluate.
+
+Each stage takes the run (``StageContext``: run folder, resolved config, scene) and returns its
+artifact. Each is keyed by everything its output depends on (``keys``): a finished stage with the
+same key is read back, a stage that was started under another key has its partial outputs (trainer
+checkpoints, restoration cache) moved out of the way and is recomputed, and a study's shared
+``StageCache`` serves finished outputs between runs. `fixer4d run`, `reconstruct`, `refine`, `eval`,
+`study` and the viewer's live training all go through these functions.
+
+Layout of the outputs in RUN/ (DESIGN.md §3):
+
+    init_<method>/            clouds + init_report.json
+    model_stage1.ply          stage 1 from the main init ("STGS w/ MVS")
+    baseline_sparse/          stage 1 from the sparse init ("STGS w/ COLMAP")
+    matched/model.ply         stage 1 continued as long as stage 2, without pseudo-views
+    cache/round_<r>/          restored trajectory clips (pseudo-targets)
+    model_final.ply           after stage 2 ("Full")
+    eval/<slug>/              metrics.json + side-by-side PNGs per report row
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from fixer4d.errors import InputError
+from fixer4d.geometry.camera import Camera
+from fixer4d.pipeline.config import RunConfig
+from fixer4d.pipeline.run_folder import RunFolder, stage_key
+from fixer4d.pipeline.stage_cache import StageCache
+
+log = logging.getLogger("fixer4d.pipeline")
+
+
+class StageFailed(InputError):
+    """A stage could not produce its output for a reason the report should show (e.g. the sparse
+    baseline triangulated no points)."""
+
+
+@dataclass
+class StageContext:
+    """What every stage needs: the run folder (with its config), the scene, the display and an
+    optional study-wide cache."""
+
+    run: RunFolder
+    scene: Any
+    progress: bool = True
+    cache: StageCache | None = None
+
+    @property
+    def config(self) -> RunConfig:
+        return self.run.config
+
+    @property
+    def path(self) -> Path:
+        return self.run.path
+
+    @property
+    def backend(self) -> str:
+        return self.config.stage1.backend
+
+    def stage1_config(self, **changes: Any):
+        return dataclasses.replace(self.config.stage1, progress=self.progress, **changes)
+
+
+# ---------------------------------------------------------------------------------------------
+# keys: everything a stage's output depends on
+# ---------------------------------------------------------------------------------------------
+def _training_settings(stage1_dict: dict[str, Any]) -> dict[str, Any]:
+    """Stage-1 settings that change the trained model (not progress display or checkpoint cadence)."""
+    return {k: v for k, v in stage1_dict.items() if k not in ("progress", "checkpoint_every", "keep_checkpoints")}
+
+
+def init_key(config: RunConfig, method: str) -> str:
+    d = config.to_dict()
+    return stage_key("init", method, d["scene"], {**d["init"], "method": method}, config.init_frame_stride)
+
+
+def stage1_key(config: RunConfig, method: str) -> str:
+    return stage_key("stage1", init_key(config, method), _training_settings(config.to_dict()["stage1"]), config.seed)
+
+
+def stage2_key(config: RunConfig) -> str:
+    """Stage 2 and its pseudo-targets: the stage-1 model, stage-2 settings, restorer, trajectories."""
+    d = config.to_dict()
+    return stage_key("stage2", stage1_key(config, config.init_method), d["stage2"], d["restorer"], d["trajectories"])
+
+
+def matched_key(config: RunConfig) -> str:
+    return stage_key("matched", stage1_key(config, config.init_method), config.to_dict()["stage2"])
+
+
+# ---------------------------------------------------------------------------------------------
+# stages
+# ---------------------------------------------------------------------------------------------
+def init_stage(ctx: StageContext, method: str):
+    """Point clouds of every ``init_frame_stride``-th frame by ``method`` (sparse | mvs) -> RUN/init_<method>/.
+
+    Raises StageFailed when the sparse baseline finds no point at all (reported in its row)."""
+    from fixer4d.init import load_frame_clouds, run_init
+
+    out = ctx.path / f"init_{method}"
+    name = f"init_{method}"
+    key = init_key(ctx.config, method)
+    if not (ctx.run.records.done(name, key) and (out / "init_report.json").exists()):
+        ctx.run.records.begin(name, key)
+        _clear(out, keep_aside=False)
+        if ctx.cache is not None and (seconds := ctx.cache.fetch(key, out)) is not None:
+            ctx.run.records.finish(name, key, seconds)
+        else:
+            t0 = time.perf_counter()
+            frames = list(range(0, ctx.scene.num_frames, ctx.config.init_frame_stride))
+            cfg = dataclasses.replace(ctx.config.init, method=method)
+            run_init(ctx.scene, method, out, frames=frames, config=cfg, progress=ctx.progress)
+            ctx.run.records.finish(name, key, time.perf_counter() - t0)
+            if ctx.cache is not None:
+                ctx.cache.store(key, [out / p.name for p in out.iterdir()], ctx.run.records.seconds(name))
+    try:
+        clouds = load_frame_clouds(out)
+    except InputError:
+        clouds = []
+    if sum(len(c.points) for c in clouds) == 0 and method == "sparse":
+        raise StageFailed(f"the sparse (COLMAP) init triangulated no points on any of its "
+                          f"{len(range(0, ctx.scene.num_frames, ctx.config.init_frame_stride))} init frames")
+    return clouds
+
+
+def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
+    """Stage 1 (STGS on the observed views) from ``clouds`` -> ``model_path``; resumes mid-stage."""
+    from fixer4d.model.io import load_ply, save_ply
+
+    key = stage1_key(ctx.config, method)
+    if ctx.run.records.done(name, key) and model_path.exists():
+        return load_ply(model_path)
+    if ctx.run.records.begin(name, key):
+        _drop_checkpoints(model_path.parent, 1)
+    if ctx.cache is not None and (seconds := ctx.cache.fetch(key, model_path.parent)) is not None:
+        ctx.run.records.finish(name, key, seconds)
+        return load_ply(model_path)
+    t0 = time.perf_counter()
+    trainer = stage1_trainer(ctx, clouds, model_path.parent)
+    prior = trainer.train_seconds if trainer.resume() else 0.0
+    trainer.train()
+    save_ply(trainer.model, model_path)
+    ctx.run.records.finish(name, key, time.perf_counter() - t0 + prior)
+    _drop_checkpoints(model_path.parent, 1)
+    if ctx.cache is not None:
+        ctx.cache.store(key, [model_path], ctx.run.records.seconds(name))
+    return trainer.model
+
+
+def stage1_trainer(ctx: StageContext, clouds, run_dir: Path | None):
+    """The stage-1 Trainer exactly as ``stage1`` builds it (model from ``clouds``, the run's
+    Stage1Config with its scaled schedule), for callers that step it themselves (the viewer's live
+    training). run_dir: where checkpoints go (None: none)."""
+    from fixer4d.train.trainer import Trainer, model_from_clouds
+
+    cfg = ctx.stage1_config()
+    return Trainer(model_from_clouds(clouds, ctx.scene, cfg), ctx.scene, cfg, run_dir=run_dir)
+
+
+def stage2(ctx: StageContext, model, refresh: Callable[[Any, int], None] | None = None):
+    """Restoration-guided refinement of the stage-1 ``model`` -> RUN/model_final.ply.
+
+    refresh: the cache refresh (default: the pipeline's, restoring the configured trajectories).
+    When the stage's settings changed since an earlier attempt, that attempt's cache and
+    checkpoints are moved aside (RUN/stale/) so no stale pseudo-target is reused."""
+    from fixer4d.model.io import load_ply, save_ply
+    from fixer4d.pipeline.restoration import make_refresh_callback
+    from fixer4d.restore.cache import RestoreCache
+    from fixer4d.train.trainer import Trainer
+
+    final = ctx.path / "model_final.ply"
+    key = stage2_key(ctx.config)
+    if ctx.run.records.done("stage2", key) and final.exists():
+        return load_ply(final)
+    if ctx.run.records.begin("stage2", key):
+        _clear(ctx.path / "cache")
+        _drop_checkpoints(ctx.path, 2)
+    t0 = time.perf_counter()
+    if refresh is None:
+        refresh = make_refresh_callback(ctx.path, ctx.scene, ctx.config, progress=ctx.progress, backend=ctx.backend)
+    trainer = Trainer(model, ctx.scene, ctx.stage1_config(), run_dir=ctx.path, stage2=ctx.config.stage2,
+                      cache=RestoreCache(ctx.path / "cache"), refresh_cache=refresh)
+    prior = trainer.train_seconds if trainer.resume() else 0.0
+    trainer.train()
+    save_ply(trainer.model, final)
+    ctx.run.records.finish("stage2", key, time.perf_counter() - t0 + prior)
+    return trainer.model
+
+
+def matched_stage1(ctx: StageContext, model):
+    """Stage 1 continued for as many iterations as stage 2 runs, with stage 2's learning rates and
+    densification window but no pseudo-views -> RUN/matched/model.ply: the control that shows the
+    gain of stage 2 is the restorer's, not extra training."""
+    from fixer4d.model.io import load_ply, save_ply
+    from fixer4d.train.trainer import Trainer
+
+    out = ctx.path / "matched"
+    path = out / "model.ply"
+    key = matched_key(ctx.config)
+    if ctx.run.records.done("matched", key) and path.exists():
+        return load_ply(path)
+    if ctx.run.records.begin("matched", key):
+        _drop_checkpoints(out, 1)
+    s2 = ctx.config.stage2
+    n = s2.total_iterations
+    until = int(s2.densify_until_fraction * n)
+    cfg = ctx.stage1_config(iterations=n, lr_means_init=s2.lr_means_init, lr_means_final=s2.lr_means_final,
+                            densify_from=min(ctx.config.stage1.densify_every, until), densify_until=until,
+                            opacity_reset_every=n + 1, seed=s2.seed)
+    t0 = time.perf_counter()
+    trainer = Trainer(model, ctx.scene, cfg, run_dir=out)
+    prior = trainer.train_seconds if trainer.resume() else 0.0
+    trainer.train()
+    save_ply(trainer.model, path)
+    ctx.run.records.finish("matched", key, time.perf_counter() - t0 + prior)
+    _drop_checkpoints(out, 1)
+    return trainer.model
+
+
+def evaluate_stage(ctx: StageContext, name: str, render_fn: Callable[[Camera, float], np.ndarray], inputs_key: str,
+                   seconds: dict[str, float]) -> dict[str, Any]:
+    """Held-out metrics of ``render_fn`` -> RUN/eval/<slug>/metrics.json (keyed by ``inputs_key``,
+    the key of the model or restorer it evaluates)."""
+    import json
+
+    from fixer4d.eval.evaluate import evaluate
+
+    slug = eval_slug(name)
+    out = ctx.path / "eval" / slug
+    stage = f"eval:{slug}"
+    ev = ctx.config.eval
+    key = stage_key("eval", inputs_key, ev.stride, ev.examples)
+    if ctx.run.records.done(stage, key) and (out / "metrics.json").exists():
+        return json.loads((out / "metrics.json").read_text())
+    ctx.run.records.begin(stage, key)
+    t0 = time.perf_counter()
+    metrics = evaluate(render_fn, ctx.scene, out, frame_stride=ev.stride, method_name=name, seconds=seconds,
+                       save_examples=ev.examples, progress=ctx.progress)
+    ctx.run.records.finish(stage, key, time.perf_counter() - t0)
+    return metrics
+
+
+def eval_slug(name: str) -> str:
+    """A report row's folder name: "STGS w/ MVS" -> "stgs-w-mvs"."""
+    import re
+
+    return re.sub(r"[^a-z0-9._-]+", "-", name.lower().replace("/", "")).strip("-") or "model"
+
+
+def _drop_checkpoints(run_dir: Path, stage: int) -> None:
+    """Delete the trainer checkpoints of ``stage`` under ``run_dir`` (a finished or stale stage)."""
+    from fixer4d.train.trainer import Trainer
+
+    for ckpt in Trainer.list_checkpoints(run_dir, stage):
+        ckpt.unlink(missing_ok=True)
+
+
+def _clear(path: Path, keep_aside: bool = True) -> None:
+    """Remove a stage's partial output; with ``keep_aside`` it goes to RUN/stale/<name>-<n> instead
+    (a cache of restored clips costs minutes to recompute; the user may want to look at it)."""
+    if not path.exists():
+        return
+    if not keep_aside or not path.is_dir() or not any(path.iterdir()):
+        shutil.rmtree(path) if path.is_dir() else path.unlink()
+        return
+    stale = path.parent / "stale"
+    stale.mkdir(exist_ok=True)
+    n = 0
+    while (stale / f"{path.name}-{n}").exists():
+        n += 1
+    path.rename(stale / f"{path.name}-{n}")
+    log.warning("moved %s (made with other settings) to %s", path, stale / f"{path.name}-{n}")

@@ -1,0 +1,75 @@
+"""`fixer4d reconstruct`, `refine` and `eval` go through the same stages and run folders as `run`."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from fixer4d.cli import main
+from fixer4d.errors import InputError
+from fixer4d.pipeline import report as R
+from fixer4d.pipeline.cli_eval import find_model, method_name_for
+from pipeline_tiny import TINY
+
+TINY_ARGS = ["--iterations", "40", "--eval-stride", "2", "--quiet"] + [
+    a for k, v in TINY.items() if not k.startswith(("stage1.iterations", "eval.stride", "stage2."))
+    for a in ("--set", f"{k}={v}")]
+
+
+def test_reconstruct_never_reuses_another_methods_run(tmp_path, capsys):
+    run = tmp_path / "r"
+    assert main(["reconstruct", "tiny", "--init", "mvs", "--out", str(run)] + TINY_ARGS) == 0
+    report = json.loads((run / "report.json").read_text())
+    assert [r["method"] for r in report["rows"]] == [R.ROW_MVS]
+    capsys.readouterr()
+    assert main(["reconstruct", "tiny", "--init", "sparse", "--out", str(run)] + TINY_ARGS) == 2
+    assert "init.method: \"mvs\" -> \"sparse\"" in capsys.readouterr().err
+    assert not (run / "init_sparse").exists()
+
+
+def test_refine_continues_a_run_with_its_own_config(tiny_run, tmp_path, capsys):
+    src, _ = tiny_run
+    run = tmp_path / "copy"
+    shutil.copytree(src, run)
+    before = json.loads((run / "stages.json").read_text())
+    # the run's own config, not refine's defaults: same cap, same trajectories, nothing recomputed
+    assert main(["refine", str(run), "--quiet"]) == 0
+    assert json.loads((run / "stages.json").read_text()) == before
+    # a new stage-2 setting recomputes stage 2; the old pseudo-targets are moved aside, never reused
+    assert main(["refine", str(run), "--refresh-every", "10", "--quiet"]) == 0
+    after = json.loads((run / "stages.json").read_text())
+    assert after["stage1"] == before["stage1"] and after["stage2"]["key"] != before["stage2"]["key"]
+    assert (run / "stale" / "cache-0" / "round_0").is_dir() and (run / "cache" / "round_0").is_dir()
+    config = json.loads((run / "config.json").read_text())["config"]
+    assert config["stage2"]["refresh_every"] == 10 and config["stage1"]["iterations"] == 40
+    capsys.readouterr()
+    assert main(["refine", str(run), "--set", "stage1.iterations=10"]) == 2
+    assert "would change the stage-1 model" in capsys.readouterr().err
+
+
+def test_eval_verb_on_a_run(tiny_run, tmp_path, capsys):
+    src, report = tiny_run
+    run = tmp_path / "copy"
+    shutil.copytree(src, run)
+    assert main(["eval", str(run), "--stride", "2", "--quiet", "--examples", "0"]) == 0
+    res = json.loads((run / "metrics.json").read_text())
+    assert res["method"] == R.ROW_FULL and res["model"].endswith("model_final.ply")
+    full = next(r for r in report["rows"] if r["method"] == R.ROW_FULL)
+    assert res["mean"]["psnr"] == pytest.approx(full["psnr"], abs=1e-6)
+    assert res["seconds"]["train"] > 0 and np.isfinite(res["mean"]["psnr"])
+    assert "| Full |" in capsys.readouterr().out
+
+
+def test_eval_helpers_and_errors(tmp_path, capsys):
+    assert main(["eval", str(tmp_path)]) == 2
+    assert "not a fixer4d run folder" in capsys.readouterr().err
+    with pytest.raises(InputError, match="model_final.ply or model_stage1.ply"):
+        find_model(tmp_path)
+    (tmp_path / "model_final.ply").write_bytes(b"")
+    (tmp_path / "model_stage1.ply").write_bytes(b"")
+    assert find_model(tmp_path).name == "model_final.ply"
+    assert method_name_for(tmp_path / "model_final.ply", "mvs") == R.ROW_FULL
+    assert method_name_for(tmp_path / "model_stage1.ply", "sparse") == R.ROW_COLMAP
+    assert method_name_for(tmp_path / "model_edit_1.ply", "mvs") == "model_edit_1"
