@@ -21,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--segment-frames", type=int, default=None,
                         help="train a long capture as overlapping temporal segments of F frames")
     parser.add_argument("--executor", choices=["local", "ray"], default=None,
-                        help="where segments run: this process (local, default) or Ray")
+                        help="where segments and restore jobs run: this process (local, default) or Ray")
     parser.add_argument("--ray-address", default=None,
                         help="join an existing Ray cluster (e.g. auto or ray://HEAD:10001); default: a local Ray")
     add_config_arguments(parser)
@@ -37,8 +37,8 @@ def run(args: argparse.Namespace) -> int:
              "stage2.refresh_every": args.refresh_every, "stage2.lambda_gen": args.lambda_gen,
              "init.method": args.init, "eval.stride": args.eval_stride,
              "baseline_sparse": False if args.no_baseline else None,
-             "segments.frames": args.segment_frames, "segments.executor": args.executor,
-             "segments.ray_address": args.ray_address}
+             "segments.frames": args.segment_frames, "executor.kind": args.executor,
+             "executor.ray_address": args.ray_address}
     config = resolve_from_args(args, flags, source=args.scene)
     if maybe_print_config(args, config):
         return 0

@@ -8,7 +8,8 @@
       trajectories  TrajectoryConfig   the novel trajectories restored in stage 2
       restorer      ReferenceWarpConfig (restore/) the restorer's settings
       eval          EvalConfig         held-out evaluation
-      segments      SegmentConfig      (pipeline/segments.py) long captures as temporal segments, executor
+      segments      SegmentConfig      (pipeline/segments.py) long captures as temporal segments
+      executor      ExecutorConfig     (pipeline/executors.py) where segments and restore jobs run
       baseline_sparse, init_frame_stride, seed
 
 A config is built from the defaults, then an optional config file (a ``config.json`` of another
@@ -27,6 +28,7 @@ from typing import Any
 from fixer4d.errors import InputError
 from fixer4d.init.run import InitConfig
 from fixer4d.pipeline import config_tree
+from fixer4d.pipeline.executors import ExecutorConfig
 from fixer4d.pipeline.segments import SegmentConfig
 from fixer4d.restore.reference_warp import ReferenceWarpConfig
 from fixer4d.train.config import Stage1Config, Stage2Config
@@ -97,6 +99,7 @@ class RunConfig:
     restorer: ReferenceWarpConfig = field(default_factory=ReferenceWarpConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     segments: SegmentConfig = field(default_factory=SegmentConfig)
+    executor: ExecutorConfig = field(default_factory=ExecutorConfig)
     baseline_sparse: bool = True     # also train from the sparse init for the "STGS w/ COLMAP" row
     # Point clouds from every `init_frame_stride`-th frame (both inits use the same frames).
     init_frame_stride: int = 4

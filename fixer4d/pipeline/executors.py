@@ -7,9 +7,18 @@ given, ``address="auto"`` or ``"ray://host:10001"`` joins an existing cluster.
 """
 from __future__ import annotations
 
-from typing import Any, Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, Callable, Literal, Sequence
 
 from fixer4d.errors import BackendUnavailable
+
+
+@dataclass
+class ExecutorConfig:
+    """Where segments and restore jobs run."""
+
+    kind: Literal["local", "ray"] = "local"
+    ray_address: str | None = None  # join an existing cluster ("auto", "ray://HEAD:10001"); None: a local Ray
 
 
 class LocalExecutor:
@@ -51,3 +60,7 @@ def make_executor(kind: str, address: str | None = None):
     if kind == "ray":
         return RayExecutor(address)
     raise BackendUnavailable(f"unknown executor {kind!r}; choose local or ray")
+
+
+def executor_for(config: ExecutorConfig):
+    return make_executor(config.kind, config.ray_address)

@@ -79,33 +79,53 @@ def scene_trajectories_for(scene, tc: TrajectoryConfig):
     return [(tr, (scene.train_ids[tr.pair[0]], scene.train_ids[tr.pair[1]])) for tr in trajs]
 
 
+# Restore jobs handed to the executor at once: enough to keep a few workers busy, few enough that
+# the rendered requests of one batch (frames x H x W x 5 float32 each) stay small in memory.
+RESTORE_BATCH = 8
+
+
+def _restore_job(job):
+    """(restorer, request) -> result; a top-level function so a Ray worker can run it."""
+    restorer, request = job
+    return restorer.restore(request)
+
+
 def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, progress: bool = True,
-                          backend: str = "auto") -> Callable[[Any, int], None]:
+                          backend: str = "auto", executor=None) -> Callable[[Any, int], None]:
     """The stage-2 cache refresh: render every trajectory at every restored timestamp with the
-    current model, restore the clips, write them to RUN/cache/round_<r>. Complete entries of a
-    round are reused (a resumed run does not redo them)."""
+    current model, restore the clips (on ``executor``: local by default, Ray when configured),
+    write them to RUN/cache/round_<r>. Complete entries of a round are reused (a resumed run does
+    not redo them)."""
+    from fixer4d.pipeline.executors import LocalExecutor
     from fixer4d.restore.cache import RestoreCache
 
     cache = RestoreCache(Path(run_dir) / "cache")
     cache.clean_temporary()  # leftovers of a killed write; complete entries are reused below
     restorer = build_restorer(config)
+    executor = executor or LocalExecutor()
     trajectories = scene_trajectories_for(scene, config.trajectories)
     frames = list(range(0, scene.num_frames, max(1, config.trajectories.time_stride)))
 
     def refresh(model, round_index: int) -> None:
         from tqdm.auto import tqdm
 
-        todo = [(f, tr, ids) for f in frames for tr, ids in trajectories]
-        bar = tqdm(todo, desc=f"restore round {round_index}", unit="clip", disable=not progress, leave=False)
-        for f, tr, ids in bar:
-            key = cache.key(f, ids[0], ids[1], tr.arc_index)
-            if cache.has(round_index, key):
-                continue
-            traj_meta = {"name": tr.name, "pair": list(ids), "amplitude": float(tr.amplitude), "arc_index": tr.arc_index}
-            req = make_request(model, scene, tr.cameras, f, ids, backend=backend, trajectory=traj_meta)
-            res = restorer.restore(req)
-            cache.write(round_index, key, req, res, {"restorer": restorer.name, "restorer_settings": restorer.settings(),
-                                                     "model_gaussians": int(model.num_gaussians)})
+        todo = [(f, tr, ids) for f in frames for tr, ids in trajectories
+                if not cache.has(round_index, cache.key(f, ids[0], ids[1], tr.arc_index))]
+        bar = tqdm(total=len(todo), desc=f"restore round {round_index}", unit="clip", disable=not progress,
+                   leave=False)
+        for start in range(0, len(todo), RESTORE_BATCH):
+            batch = todo[start:start + RESTORE_BATCH]
+            requests = [make_request(model, scene, tr.cameras, f, ids, backend=backend,
+                                     trajectory={"name": tr.name, "pair": list(ids), "amplitude": float(tr.amplitude),
+                                                 "arc_index": tr.arc_index})
+                        for f, tr, ids in batch]
+            results = executor.map(_restore_job, [(restorer, req) for req in requests])
+            for (f, tr, ids), req, res in zip(batch, requests, results):
+                cache.write(round_index, cache.key(f, ids[0], ids[1], tr.arc_index), req, res,
+                            {"restorer": restorer.name, "restorer_settings": restorer.settings(),
+                             "model_gaussians": int(model.num_gaussians)})
+            bar.update(len(batch))
+        bar.close()
 
     return refresh
 

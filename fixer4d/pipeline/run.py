@@ -152,8 +152,10 @@ def segment_config(config: RunConfig, start: int, stop: int) -> RunConfig:
     import dataclasses
 
     offset = 0 if config.scene.frame_range is None else config.scene.frame_range[0]
+    # the segments already run in parallel on the executor: inside one, restore jobs run locally
     return dataclasses.replace(config, scene=dataclasses.replace(config.scene, frame_range=(offset + start, offset + stop)),
-                               segments=dataclasses.replace(config.segments, frames=None))
+                               segments=dataclasses.replace(config.segments, frames=None),
+                               executor=dataclasses.replace(config.executor, kind="local"))
 
 
 def _run_segment(job: tuple[dict[str, Any], str]) -> dict[str, Any]:
@@ -171,7 +173,7 @@ def run_segmented(config: RunConfig, out: str | Path, *, progress: bool = True,
     import time
 
     from fixer4d.model.io import load_ply
-    from fixer4d.pipeline.executors import make_executor
+    from fixer4d.pipeline.executors import executor_for
     from fixer4d.pipeline.segments import SegmentedModel, owners, segment_dir, split_segments
 
     ctx = open_context(config, out, progress=progress, stage_cache=stage_cache)
@@ -180,13 +182,13 @@ def run_segmented(config: RunConfig, out: str | Path, *, progress: bool = True,
     jobs = [(segment_config(config, s, e).to_dict(), str(segment_dir(ctx.path, k, (s, e))))
             for k, (s, e) in enumerate(ranges)]
     if progress:
-        print(f"[fixer4d] {len(ranges)} segments {ranges} on the {config.segments.executor} executor", flush=True)
+        print(f"[fixer4d] {len(ranges)} segments {ranges} on the {config.executor.kind} executor", flush=True)
     rec = ctx.run.records
     key = stage_key("segments", [j[0] for j in jobs])
     t0 = time.perf_counter()
     if not rec.done("segments", key):
         rec.begin("segments", key)
-        executor = make_executor(config.segments.executor, config.segments.ray_address)
+        executor = executor_for(config.executor)
         seg_reports = executor.map(_run_segment, jobs)
         rec.finish("segments", key, time.perf_counter() - t0)
     else:
@@ -222,7 +224,7 @@ def run_segmented(config: RunConfig, out: str | Path, *, progress: bool = True,
         rows.append(R.metrics_row(name, m, seconds))
         del stitched
     extra = {"segments": [{"frames": list(r), "peak_rss_mb": rep.get("peak_rss_mb")} for r, rep in zip(ranges, seg_reports)],
-             "executor": config.segments.executor, "segments_wall_seconds": rec.seconds("segments"),
+             "executor": config.executor.kind, "segments_wall_seconds": rec.seconds("segments"),
              "peak_rss_mb": max([peak_rss_mb()] + [rep.get("peak_rss_mb") or 0.0 for rep in seg_reports])}
     stage_seconds = {f"seg{k:02d}:{n}": v for k, rep in enumerate(seg_reports) for n, v in rep["stage_seconds"].items()}
     stage_seconds.update(rec.as_seconds())

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -23,12 +23,10 @@ from fixer4d.errors import InputError
 
 @dataclass
 class SegmentConfig:
-    """How a long capture is split and where the segments run."""
+    """How a long capture is split (the segments run on the config's ``executor``)."""
 
     frames: int | None = None   # frames per segment; None: the whole clip is one run
     overlap: int = 2            # frames shared by neighbouring segments (stitching margin)
-    executor: Literal["local", "ray"] = "local"
-    ray_address: str | None = None  # join an existing Ray cluster ("auto", "ray://host:10001"); None: start a local one
 
     def __post_init__(self) -> None:
         if self.frames is not None and self.frames < 2:

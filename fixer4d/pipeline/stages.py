@@ -185,7 +185,10 @@ def stage2(ctx: StageContext, model, refresh: Callable[[Any, int], None] | None 
         _drop_checkpoints(ctx.path, 2)
     t0 = time.perf_counter()
     if refresh is None:
-        refresh = make_refresh_callback(ctx.path, ctx.scene, ctx.config, progress=ctx.progress, backend=ctx.backend)
+        from fixer4d.pipeline.executors import executor_for
+
+        refresh = make_refresh_callback(ctx.path, ctx.scene, ctx.config, progress=ctx.progress, backend=ctx.backend,
+                                        executor=executor_for(ctx.config.executor))
     trainer = Trainer(model, ctx.scene, ctx.stage1_config(), run_dir=ctx.path, stage2=ctx.config.stage2,
                       cache=RestoreCache(ctx.path / "cache"), refresh_cache=refresh)
     prior = trainer.train_seconds if trainer.resume() else 0.0

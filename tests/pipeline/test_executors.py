@@ -21,21 +21,31 @@ def test_unknown_executor_is_refused():
         make_executor("slurm")
 
 
-def test_ray_segmented_run_equals_local(tmp_path, stage_cache):
-    """The same segmented tiny run on the local executor and on a local Ray instance (2 CPUs)."""
+def test_ray_runs_give_the_local_results(tmp_path, stage_cache):
+    """On a local Ray instance (2 CPUs): segments as Ray tasks, and stage 2's restore jobs as Ray
+    tasks, give exactly the rows of the local executor (the pipeline is deterministic)."""
     ray = pytest.importorskip("ray", reason="Ray not installed (pip install 'fixer4d[ray]')")
     from fixer4d.pipeline.run import run_pipeline
     from pipeline_tiny import tiny_config
 
-    overrides = {"segments.frames": 3, "segments.overlap": 2, "stage2.rounds": 0, "baseline_sparse": False,
+    segmented = {"segments.frames": 3, "segments.overlap": 2, "stage2.rounds": 0, "baseline_sparse": False,
                  "eval.restoration_rows": False, "init_frame_stride": 1, "eval.stride": 1}
-    local = run_pipeline(tiny_config(**overrides), tmp_path / "local", progress=False)
+    restoring = {"baseline_sparse": False, "eval.restoration_rows": False, "eval.matched_row": False}
+    local_seg = run_pipeline(tiny_config(**segmented), tmp_path / "local_seg", progress=False)
+    local_s2 = run_pipeline(tiny_config(**restoring), tmp_path / "local_s2", progress=False, stage_cache=stage_cache)
     try:
         ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False,
                  runtime_env={"env_vars": {"OMP_NUM_THREADS": "1"}})
-        remote = run_pipeline(tiny_config(**overrides, **{"segments.executor": "ray"}), tmp_path / "ray",
-                              progress=False)
+        ray_seg = run_pipeline(tiny_config(**segmented, **{"executor.kind": "ray"}), tmp_path / "ray_seg",
+                               progress=False)
+        ray_s2 = run_pipeline(tiny_config(**restoring, **{"executor.kind": "ray"}), tmp_path / "ray_s2",
+                              progress=False, stage_cache=stage_cache)
     finally:
         ray.shutdown()
-    strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]  # noqa: E731
-    assert strip(remote["rows"]) == strip(local["rows"])
+
+    def strip(rows):
+        return [{k: v for k, v in r.items() if k != "seconds"} for r in rows]
+
+    assert strip(ray_seg["rows"]) == strip(local_seg["rows"])
+    assert strip(ray_s2["rows"]) == strip(local_s2["rows"])
+    assert (tmp_path / "ray_s2" / "model_final.ply").read_bytes() == (tmp_path / "local_s2" / "model_final.ply").read_bytes()
