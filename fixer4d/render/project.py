@@ -82,7 +82,8 @@ def project_gaussians(snapshot: Snapshot, camera: Camera) -> Projection:
     2D covariance = J W R S (J W R S)^T + LOWPASS_2D I, with W the world-to-camera rotation, R S
     the Gaussian's rotation and scales and J the perspective Jacobian at the mean (tangent
     clamped to the widened field of view, like 3DGS). Writing it as a Gram matrix keeps it
-    positive semi-definite in floating point.
+    positive semi-definite in floating point; its determinant and inverse come from
+    ``stable_conic``, exact enough in float32 for splats thousands of pixels long.
     """
     means, dtype, device = snapshot.means, snapshot.means.dtype, snapshot.means.device
     w2c = torch.tensor(camera.w2c.copy(), dtype=dtype, device=device)
