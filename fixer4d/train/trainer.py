@@ -41,6 +41,9 @@ from fixer4d.train.schedule import exponential_lr
 
 log = logging.getLogger("fixer4d.train")
 
+# Version of the checkpoint layout (the keys of Trainer.state_dict()), bumped when they change meaning.
+# Checkpoints hold tensors, numbers, strings and containers only, so that they load with
+# torch.load(weights_only=True).
 CHECKPOINT_FORMAT = 1
 _CKPT_NAME = re.compile(r"^stage(\d)_(\d{7})\.pt$")
 # 3DGS's scene radius is 1.1 x the largest camera distance from the rig centre.
@@ -512,9 +515,14 @@ class Trainer:
 
     def load_state_dict(self, state: dict[str, Any], source: str = "checkpoint") -> None:
         """Restore a ``state_dict()`` (model, optimizer, statistics, RNG states, step)."""
-        if state.get("format") != CHECKPOINT_FORMAT or state.get("stage") != self.stage:
-            raise InputError(f"{source}: not a stage-{self.stage} checkpoint of this fixer4d version; delete it "
-                             "or train into a new run folder")
+        fmt = state.get("format")
+        if fmt != CHECKPOINT_FORMAT:
+            raise InputError(f"{source}: checkpoint format {fmt!r}, but this fixer4d reads format "
+                             f"{CHECKPOINT_FORMAT}; delete RUN/checkpoints to retrain this stage, or use the "
+                             "fixer4d version that wrote it")
+        if state.get("stage") != self.stage:
+            raise InputError(f"{source}: a stage-{state.get('stage')} checkpoint where stage {self.stage} was "
+                             "expected; delete it or train into a new run folder")
         mine = (_comparable(self.config.to_dict()), None if self.stage2 is None else self.stage2.to_dict())
         if (state["config"], state["stage2"]) != mine:
             raise InputError(f"{source}: written with another training config; resume with the same options, "
@@ -558,12 +566,9 @@ class Trainer:
         return [p for _, p in sorted(found)]
 
     def load_checkpoint(self, path: str | Path) -> None:
-        path = Path(path)
-        try:
-            state = torch.load(path, map_location="cpu", weights_only=False)
-        except Exception as exc:  # a truncated or foreign file: say which and what to do
-            raise InputError(f"{path}: unreadable checkpoint ({exc}); delete it to resume from an older one") from exc
-        self.load_state_dict(state, source=str(path))
+        """Load ``path`` with ``torch.load(weights_only=True)``: only tensors and plain containers
+        are rebuilt, so a checkpoint that carries pickled code or objects is refused, never run."""
+        self.load_state_dict(read_checkpoint(path), source=str(path))
 
     def resume(self) -> bool:
         """Load the newest checkpoint of this stage from ``run_dir`` if there is one."""
@@ -575,6 +580,41 @@ class Trainer:
         self.load_checkpoint(found[-1])
         log.info("resumed stage %d from %s (step %d)", self.stage, found[-1], self.step_count)
         return True
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """The state dict stored in checkpoint ``path``, read without unpickling code.
+
+    ``torch.load(weights_only=True)`` rebuilds tensors, numbers, strings and containers only; a
+    file whose pickle names any other global (a ``__reduce__`` payload, a pickled class) is
+    refused with an InputError before anything in it runs. Truncated or foreign files get an
+    InputError naming the file and the fix.
+    """
+    import pickle
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such checkpoint; list RUN/checkpoints or start the stage over")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        # torch wraps the unpickler's complaint in a long advisory; keep its "WeightsUnpickler error"
+        detail = str(exc).partition("WeightsUnpickler error:")[2].partition("Check the documentation")[0]
+        detail = " ".join(detail.split()) or type(exc).__name__
+        if "Unsupported global" in detail:  # a global other than tensors/containers: code or an object
+            name = detail.partition("GLOBAL ")[2].partition(" ")[0] or "?"
+            raise InputError(f"{path}: refused to load: the checkpoint contains pickled code or objects ({name}), "
+                             "not only tensors; fixer4d never executes a checkpoint; delete it (fixer4d did not "
+                             "write it) to resume from an older one") from None
+        raise InputError(f"{path}: unreadable checkpoint ({detail[:200]}); delete it to resume from an older "
+                         "one") from None
+    except Exception as exc:  # a truncated or foreign file: say which and what to do
+        raise InputError(f"{path}: unreadable checkpoint ({type(exc).__name__}: {str(exc)[:200]}); delete it to "
+                         "resume from an older one") from None
+    if not isinstance(state, dict):
+        raise InputError(f"{path}: not a fixer4d checkpoint (holds a {type(state).__name__}, not a state dict); "
+                         "delete it to resume from an older one")
+    return state
 
 
 def _comparable(cfg: dict[str, Any]) -> dict[str, Any]:
