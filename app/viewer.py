@@ -19,7 +19,9 @@ import numpy as np
 from imgui_bundle import imgui, implot
 
 from app.gl.overlays import OverlayRenderer
+from app.panels._layout import guard, panel
 from app.gl.splats import SplatRenderer
+from app.notifications import Notifications
 from app.session import RestoreQueue, TrainingSession
 from app.state import AppState, TrajectorySpec
 from fixer4d.geometry.camera import Camera
@@ -76,6 +78,11 @@ class Viewer:
         io.config_flags |= imgui.ConfigFlags_.docking_enable.value
         self._ini_path = None if ini_path is None else str(ini_path)
         io.set_ini_filename(self._ini_path)
+        # imgui's error recovery undoes what a failing panel left open (see panels._layout.guard);
+        # its own assertion would turn every recovery into a second error
+        io.config_error_recovery = True
+        io.config_error_recovery_enable_assert = False
+        io.config_error_recovery_enable_tooltip = False
         if platform_init is not None:
             platform_init()
         imgui.backends.opengl3_init("#version 330")
@@ -91,7 +98,10 @@ class Viewer:
         self.frame_ms = 0.0
         self.frame_times: list[float] = []
         self.images: dict[str, moderngl.Texture] = {}
-        self.panel_errors: dict[str, str] = {}
+        self.panel_errors: dict[str, str] = {}  # panel -> its current error (cleared when it draws again)
+        self.notifications = Notifications()
+        self._notifications_seen = 0
+        self.show_notifications = False
         self.blur_max = 1.0  # top of the blur map's colour scale (set by the debug panel)
         # screen rectangles (x0, y0, x1, y1) of named widgets from the last frame, so scripts and
         # tests can click them through imgui's io like a user
@@ -126,15 +136,14 @@ class Viewer:
             imgui.new_frame()
             imgui.dock_space_over_viewport(0, imgui.get_main_viewport(),
                                            imgui.DockNodeFlags_.passthru_central_node.value)
-            self._menu()
+            with guard(self, "menu"):
+                self._menu()
             self._viewport_window()
             for name, draw in self.panels:
-                try:
-                    draw(self)
-                    self.panel_errors.pop(name, None)
-                except Exception as exc:  # a failing panel shows its error, the app keeps going
-                    self.panel_errors[name] = f"{type(exc).__name__}: {exc}"
-            self._shortcuts()
+                draw(self)  # each panel guards its own body (panels._layout.panel)
+            self._notifications_window()
+            with guard(self, "shortcuts"):
+                self._shortcuts()
             imgui.render()
             fbo.use()
             self.ctx.viewport = (0, 0, *fbo.size)
@@ -146,6 +155,43 @@ class Viewer:
         self.frame_ms = 1e3 * (time.perf_counter() - tic)
         self.frame_times.append(self.frame_ms)
         del self.frame_times[:-240]
+
+    def report_error(self, source: str, exc: BaseException | str) -> None:
+        """An error from a panel, menu or action: into the notifications area and the log (once
+        per distinct error while it repeats every frame); the app keeps running."""
+        text = exc if isinstance(exc, str) else f"{type(exc).__name__}: {exc}"
+        if self.panel_errors.get(source) != text:
+            self.notifications.error(source, exc)
+        self.panel_errors[source] = text
+        self.state.status = f"error in {source}: {text}"
+
+    def _notifications_window(self) -> None:
+        from app.panels._layout import error_text, place
+
+        notes = self.notifications
+        if notes.serial != self._notifications_seen:
+            last = notes.items()[-1:]
+            if last and last[0].level == "error":
+                self.show_notifications = True  # an error opens the window
+            self._notifications_seen = notes.serial
+        if not self.show_notifications:
+            return
+        with panel(self, "notifications", "Notifications", 300, 640, 800, 150) as expanded:
+            if not expanded:
+                return
+            if imgui.small_button("clear"):
+                notes.clear()
+                self.panel_errors.clear()
+            imgui.same_line()
+            if imgui.small_button("hide"):
+                self.show_notifications = False
+            for msg in reversed(notes.items()):
+                stamp = time.strftime("%H:%M:%S", time.localtime(msg.when))
+                line = f"{stamp}  [{msg.source}]  {msg.text}"
+                if msg.level == "error":
+                    error_text(line)
+                else:
+                    imgui.text_wrapped(line)
 
     def _poll_models(self) -> None:
         tr = self.source.training
@@ -220,10 +266,11 @@ class Viewer:
                     self.overlays.add_frustum(cams[j], depth, COLOR_PREVIEW)
 
     def _viewport_window(self) -> None:
-        from app.panels._layout import place
+        with panel(self, "viewport", "Viewport", 300, 30, 800, 470) as expanded:
+            if expanded:
+                self._viewport_body()
 
-        place(300, 30, 800, 470)
-        imgui.begin("Viewport")
+    def _viewport_body(self) -> None:
         avail = imgui.get_content_region_avail()
         w = int(min(max(avail.x, 16), MAX_RENDER_SIDE))
         h = int(min(max(avail.y - 4, 16), MAX_RENDER_SIDE))
@@ -240,7 +287,6 @@ class Viewer:
             self._viewport_input(imgui.is_item_hovered(), imgui.is_item_active())
         else:
             imgui.text_wrapped(self._no_model_text())
-        imgui.end()
 
     def _no_model_text(self) -> str:
         tr = self.source.training

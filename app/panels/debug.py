@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
-from app.panels._layout import begin, show_error
+from app.panels._layout import panel
 
 RESOLVE = ("color", "holes", "depth", "alpha", "blur")
 SPLAT = ("color", "speed", "temporal_opacity")
@@ -15,8 +15,9 @@ SPLAT = ("color", "speed", "temporal_opacity")
 def draw(viewer) -> None:
     st = viewer.state
     ui = viewer.__dict__.setdefault("_debug_ui", {"shot": "screenshot.png", "ref": None})
-    if begin("Debug", 1105, 620, 330, 300):
-        show_error(viewer, "debug")
+    with panel(viewer, "debug", "Debug", 1105, 620, 330, 300) as expanded:
+        if not expanded:
+            return
         imgui.text("image")
         for mode in RESOLVE:
             if imgui.radio_button(mode, st.debug_mode == mode):
@@ -43,7 +44,6 @@ def draw(viewer) -> None:
         _, ui["shot"] = imgui.input_text("file", ui["shot"])
         if imgui.button("save screenshot (3D view)"):
             save_view_png(viewer, ui["shot"])
-    imgui.end()
 
 
 def compute_blur(viewer) -> None:

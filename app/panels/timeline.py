@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from app.panels._layout import begin, show_error
+from app.panels._layout import panel
 
 # Playback speeds offered (frames per second).
 FPS_RANGE = (1.0, 120.0)
@@ -11,8 +11,9 @@ FPS_RANGE = (1.0, 120.0)
 
 def draw(viewer) -> None:
     st = viewer.state
-    if begin("Timeline", 300, 505, 800, 95):
-        show_error(viewer, "timeline")
+    with panel(viewer, "timeline", "Timeline", 300, 505, 800, 95) as expanded:
+        if not expanded:
+            return
         if imgui.button("Pause" if st.playing else "Play"):
             st.playing = not st.playing
         imgui.same_line()
@@ -33,4 +34,3 @@ def draw(viewer) -> None:
         viewer.record_item("frame_slider")
         if changed:
             st.set_frame(f)
-    imgui.end()

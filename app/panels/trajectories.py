@@ -7,7 +7,7 @@ from __future__ import annotations
 from imgui_bundle import imgui
 
 from app import trajectories as traj
-from app.panels._layout import begin, show_error
+from app.panels._layout import panel
 from app.state import TrajectorySpec
 
 # Slider ranges: A in units of the rig radius, frame counts per clip.
@@ -21,8 +21,9 @@ def draw(viewer) -> None:
     ui = viewer.__dict__.setdefault("_traj_ui", {"preset": "trajectories.json", "camera_path": "camera_path.json",
                                                  "pending": {}})
     train = [] if scene is None else scene.train_cameras
-    if begin("Trajectories", 5, 365, 290, 430):
-        show_error(viewer, "trajectories")
+    with panel(viewer, "trajectories", "Trajectories", 5, 365, 290, 430) as expanded:
+        if not expanded:
+            return
         if scene is not None and imgui.button("add the 6 pairs + arcs"):
             st.set_trajectories(st.trajectories + traj.default_specs(scene.train_cameras, max(2, scene.num_frames)),
                                 "add default trajectories", selected=len(st.trajectories))
@@ -46,16 +47,19 @@ def draw(viewer) -> None:
         if export:
             st.status = f"wrote {traj.save_preset(ui['preset'], st.trajectories, train)}"
         imgui.same_line()
-        if imgui.button("import preset"):
+        do_import = imgui.button("import preset")
+        viewer.record_item("import_preset")
+        if do_import:
             st.set_trajectories(traj.load_preset(ui["preset"]), f"import {ui['preset']}", selected=0)
         _, ui["camera_path"] = imgui.input_text("camera_path", ui["camera_path"])
         if 0 <= k < len(st.trajectories) and imgui.button("export camera_path"):
             path = traj.save_camera_path(ui["camera_path"], st.trajectories[k], train, min(st.time, 0.999999), st.fps)
             st.status = f"wrote {path}"
         imgui.same_line()
-        if imgui.button("import camera_path"):
+        do_import = imgui.button("import camera_path")
+        viewer.record_item("import_camera_path")
+        if do_import:
             st.add_trajectory(traj.load_camera_path(ui["camera_path"]))
-    imgui.end()
 
 
 def _selected(viewer, k: int, pending: dict) -> None:

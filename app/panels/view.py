@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from app.panels._layout import begin, show_error
+from app.panels._layout import panel
 
 TOOLS = ("navigate", "box", "brush")
 
@@ -13,8 +13,9 @@ TOOLS = ("navigate", "box", "brush")
 def draw(viewer) -> None:
     st = viewer.state
     scene = viewer.source.scene
-    if begin("View & edit", 5, 30, 290, 330):
-        show_error(viewer, "view")
+    with panel(viewer, "view", "View & edit", 5, 30, 290, 330) as expanded:
+        if not expanded:
+            return
         imgui.text("camera")
         for mode in ("orbit", "fly"):
             if imgui.radio_button(mode, st.view.mode == mode):
@@ -68,4 +69,3 @@ def draw(viewer) -> None:
         if st.undo_stack:
             imgui.same_line()
             imgui.text_disabled(st.undo_stack[-1].label)
-    imgui.end()

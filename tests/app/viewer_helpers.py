@@ -8,6 +8,8 @@ import pytest
 from app.gaussians import GaussianArrays
 
 WINDOW = (1152, 720)
+# The viewer's default window size (app.main.DEFAULT_SIZE): the layout is designed for it.
+DEFAULT_WINDOW = (1440, 900)
 
 
 @pytest.fixture(scope="session")
@@ -90,10 +92,10 @@ def make_viewer(gl_ctx, tmp_path):
 
     made = []
 
-    def make(state, source, **kw):
+    def make(state, source, size=WINDOW, **kw):
         viewer = Viewer(gl_ctx, state, source, **kw)
         made.append(viewer)
-        driver = Driver(viewer, gl_ctx)
+        driver = Driver(viewer, gl_ctx, size)
         driver.frame(2)
         return driver
 
