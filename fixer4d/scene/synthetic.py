@@ -441,6 +441,13 @@ class SyntheticScene(MultiViewVideo):
     def _load_depth(self, frame: int, cam: int) -> np.ndarray:
         return raycast.render(self.world, self.cameras[cam], self.seconds(self.time(frame)), with_rgb=False)[1]
 
+    def moving_mask(self, frame: int, cam_index: int) -> np.ndarray:
+        """Exact moving-content mask (H, W) bool of camera ``cam_index`` at ``frame``: pixels
+        whose first hit (ray through the pixel centre) is an object with a motion. Ground truth:
+        for tests and metrics only, never for training."""
+        self._check(frame, cam_index)
+        return raycast.moving_object_mask(self.world, self.cameras[cam_index], self.seconds(self.time(frame)))
+
     def bounds(self) -> SceneBounds:
         """Depth range and box of everything the rig sees at the first, middle and last frame
         (measured by ray-casting every camera at BOUNDS_RENDER_SCALE resolution)."""
