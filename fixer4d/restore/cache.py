@@ -99,12 +99,12 @@ class CacheEntry:
 
     def confidence(self) -> np.ndarray:
         """(F, H, W) float32 in [0, 1]: per-pixel confidence of the restored clip."""
-        with np.load(self.path / CONFIDENCE_FILE) as data:
+        with np.load(self.path / CONFIDENCE_FILE, allow_pickle=False) as data:
             return data["confidence"].astype(np.float32)
 
     def frame_confidence(self) -> np.ndarray:
         """(F,) float32 per-frame confidence."""
-        with np.load(self.path / CONFIDENCE_FILE) as data:
+        with np.load(self.path / CONFIDENCE_FILE, allow_pickle=False) as data:
             return data["frame_confidence"].astype(np.float32)
 
 
