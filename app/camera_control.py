@@ -62,12 +62,11 @@ class ViewCamera:
         return np.asarray(self.target, float) - self.distance * self.forward()
 
     def camera(self, width: int, height: int, name: str = "viewer") -> Camera:
-        """The current view as a ``Camera`` of the given size (a snapped rig camera keeps its
-        intrinsics, rescaled to the size, and its exact pose)."""
+        """The current view as a ``Camera`` of the given size; a snapped rig camera keeps its
+        exact pose and intrinsics, letterboxed into width x height (``letterbox``: its own
+        aspect, so the result may be narrower or shorter than asked)."""
         if self.snapped is not None:
-            cam = self.snapped.resized(width, height) if (width, height) != (self.snapped.width, self.snapped.height) \
-                else self.snapped
-            return Camera(cam.K, cam.c2w, cam.width, cam.height, cam.name)
+            return letterbox(self.snapped, width, height)
         eye = self.eye()
         return Camera.look_at(eye, eye + self.forward(), up=self.up, fov_y=self.fov_y, width=width,
                               height=height, name=name)
@@ -147,6 +146,15 @@ class ViewCamera:
                    pitch=float(d["pitch"]), up=np.asarray(d["up"], float), fov_y=float(d["fov_y"]),
                    mode=str(d.get("mode", "orbit")), scene_radius=float(d.get("scene_radius", 1.0)),
                    snapped=None if snapped is None else Camera.from_dict(snapped))
+
+
+def letterbox(cam: Camera, width: int, height: int) -> Camera:
+    """``cam`` scaled uniformly to the largest image of its own aspect that fits width x height
+    (the rest of the viewport is bars): the same pose, K scaled with the image, so the view is
+    ``cam``'s image resampled, never stretched."""
+    s = min(width / cam.width, height / cam.height)
+    w, h = max(1, int(round(cam.width * s))), max(1, int(round(cam.height * s)))
+    return cam if (w, h) == (cam.width, cam.height) else cam.resized(w, h)
 
 
 def rig_up(cameras: list[Camera]) -> np.ndarray:

@@ -18,6 +18,7 @@ import moderngl
 import numpy as np
 from imgui_bundle import imgui, implot
 
+from app.adaptive import AdaptiveResolution
 from app.gl.overlays import OverlayRenderer
 from app.panels._layout import guard, panel
 from app.gl.splats import SplatRenderer
@@ -94,7 +95,11 @@ class Viewer:
         self._model_serial = 0
         self._torch_model: tuple[int, Any] | None = None
         self.viewport_rect = (0.0, 0.0, 1.0, 1.0)  # screen x, y, w, h of the 3D image
-        self.render_camera: Camera | None = None
+        self.render_camera: Camera | None = None  # the camera of the last 3D image (maybe reduced)
+        self.display_camera: Camera | None = None  # the full-size view camera (viewport pixels)
+        self.depth_range = (0.1, 10.0)  # near, far of the depth colour map (last render)
+        self.scalar_version = 0  # bumped when the blur/mask map changes
+        self.adaptive = AdaptiveResolution()
         self.frame_ms = 0.0
         self.frame_times: list[float] = []
         self.images: dict[str, moderngl.Texture] = {}
@@ -210,32 +215,60 @@ class Viewer:
 
     # ---- the 3D view ----------------------------------------------------------------------------
     def view_camera(self, width: int, height: int) -> Camera:
-        """The camera the viewport shows: the trajectory preview camera while previewing, else
-        the interactive camera."""
+        """The camera the viewport shows in a width x height area: the trajectory preview
+        camera while previewing, else the interactive camera; a preview or snapped camera keeps
+        its own aspect and intrinsics (letterboxed, possibly smaller than the area)."""
+        from app.camera_control import letterbox
+
         st = self.state
         if st.previewing and 0 <= st.selected_trajectory < len(st.trajectories):
             cams = self.trajectory_cameras(st.trajectories[st.selected_trajectory])
             if cams:
                 k = int(round(st.preview_alpha * (len(cams) - 1)))
-                return cams[k].resized(width, height) if (cams[k].width, cams[k].height) != (width, height) else cams[k]
+                return letterbox(cams[k], width, height)
         return st.view.camera(width, height)
 
+    def _view_key(self, cam: Camera) -> tuple:
+        """Everything the 3D image depends on: when it is unchanged the last image stands."""
+        st = self.state
+        return (cam.K.tobytes(), cam.c2w.tobytes(), cam.width, cam.height, round(st.time, 9), st.gaussians_version,
+                st.splat_mode, st.debug_mode, tuple(st.background), self.scalar_version, st.show_frusta,
+                st.show_trajectories, id(st.trajectories), tuple(id(t) for t in st.trajectories),
+                st.selected_trajectory, st.previewing, st.preview_alpha)
+
     def render_view(self, width: int, height: int, *, wait_sort: bool = False) -> moderngl.Texture | None:
-        """Render splats + overlays at the current camera and time into the display texture."""
+        """Render splats + overlays at the current camera and time into the display texture
+        (adaptive resolution: smaller while the view changes, full size once it rests, nothing
+        new while it is unchanged). ``display_camera`` is the full-size view camera (viewport
+        pixels), ``render_camera`` the one the image was drawn with (``wait_sort``: full size
+        with the exact depth order, for tests and screenshots)."""
         st = self.state
         if st.gaussians is None:
             return None
         cam = self.view_camera(width, height)
-        self.render_camera = cam
+        self.display_camera = cam
+        key = self._view_key(cam)
+        if wait_sort:
+            self.adaptive.last_key = key
+            scale = 1.0
+        else:
+            scale = self.adaptive.plan(key)
+        if scale is None and self.splats.display_texture is not None:
+            return self.splats.display_texture
+        scale = 1.0 if scale is None else scale
+        rcam = cam if scale >= 1.0 else cam.resized(max(1, int(round(cam.width * scale))),
+                                                    max(1, int(round(cam.height * scale))))
+        self.render_camera = rcam
         heat = float(np.percentile(st.gaussians.speed_at(st.time), 99)) if st.splat_mode == "speed" and st.gaussians.n else 1.0
-        self.splats.render(cam, st.time, mode=st.splat_mode, heat_scale=heat, wait_sort=wait_sort)
-        depth_range = self._depth_range(cam)
-        tex = self.splats.resolve(st.background, st.debug_mode, depth_range=depth_range,
+        stats = self.splats.render(rcam, st.time, mode=st.splat_mode, heat_scale=heat, wait_sort=wait_sort)
+        self.adaptive.done(scale, stats.draw_ms, self.splats.order_matches(rcam, st.time))
+        self.depth_range = self._depth_range(rcam)
+        tex = self.splats.resolve(st.background, st.debug_mode, depth_range=self.depth_range,
                                   scalar_max=self.blur_max if st.debug_mode == "blur" else 1.0)
         self.splats.display_framebuffer.use()
         self.overlays.clear()
-        self._collect_overlays(cam)
-        self.overlays.draw(cam, st.view.scene_radius)
+        self._collect_overlays(rcam)
+        self.overlays.draw(rcam, st.view.scene_radius)
         return tex
 
     def _depth_range(self, cam: Camera) -> tuple[float, float]:
@@ -272,12 +305,19 @@ class Viewer:
 
     def _viewport_body(self) -> None:
         avail = imgui.get_content_region_avail()
-        w = int(min(max(avail.x, 16), MAX_RENDER_SIDE))
-        h = int(min(max(avail.y - 4, 16), MAX_RENDER_SIDE))
-        tex = self.render_view(w, h)
-        pos = imgui.get_cursor_screen_pos()
-        self.viewport_rect = (pos.x, pos.y, float(w), float(h))
+        aw = int(min(max(avail.x, 16), MAX_RENDER_SIDE))
+        ah = int(min(max(avail.y - 4, 16), MAX_RENDER_SIDE))
+        tex = self.render_view(aw, ah)
+        area = imgui.get_cursor_screen_pos()
+        self.item_rects["viewport_area"] = (area.x, area.y, area.x + aw, area.y + ah)
         if tex is not None:
+            # a letterboxed (snapped / preview) camera sits centred on black bars
+            imgui.get_window_draw_list().add_rect_filled(area, imgui.ImVec2(area.x + aw, area.y + ah),
+                                                         imgui.get_color_u32(imgui.ImVec4(0, 0, 0, 1)))
+            w, h = self.display_camera.width, self.display_camera.height
+            pos = imgui.ImVec2(area.x + (aw - w) // 2, area.y + (ah - h) // 2)
+            self.viewport_rect = (pos.x, pos.y, float(w), float(h))
+            imgui.set_cursor_screen_pos(pos)
             imgui.image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(w, h), imgui.ImVec2(0, 1), imgui.ImVec2(1, 0))
             # an invisible button over the image takes the mouse, so drags steer the camera or
             # select instead of moving the window
@@ -336,7 +376,7 @@ class Viewer:
     # ---- selection (screen space, at the current time) -----------------------------------------
     def _screen_positions(self) -> tuple[np.ndarray, np.ndarray]:
         """(N, 2) pixel positions in the viewport image and (N,) bool 'visible now' mask."""
-        g, cam = self.state.gaussians, self.render_camera
+        g, cam = self.state.gaussians, self.display_camera
         if g is None or cam is None:
             return np.zeros((0, 2)), np.zeros(0, bool)
         t = self.state.time

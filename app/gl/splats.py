@@ -290,6 +290,10 @@ class SplatRenderer:
         self.stats = stats
         return stats
 
+    def order_matches(self, camera: Camera, t: float) -> bool:
+        """Whether the installed depth order is the exact one for ``camera`` at ``t``."""
+        return self._order_key is not None and self._order_key == self._sort_key(camera, t)
+
     def upload_order(self, order: np.ndarray, camera: Camera, t: float) -> None:
         """Install a depth order computed elsewhere (``depth_order``) for ``camera`` at ``t``, so
         the next ``render`` of that view draws it without sorting (benchmarks, scripts)."""

@@ -61,6 +61,7 @@ def compute_blur(viewer) -> None:
     m = blur_map(viewer.splats.read_rgb(viewer.state.background), viewer.splats.read_depth(),
                  viewer.splats.read_alpha(), cam, scene.frame(viewer.state.frame, ref_idx), train[j])
     viewer.splats.set_scalar_map(m)
+    viewer.scalar_version += 1
     viewer.blur_max = float(max(np.percentile(m, 99), 1e-6))
     ui["ref"] = train[j].name or str(ref_idx)
 

@@ -61,7 +61,7 @@ def test_trajectory_overlay_projects_at_the_trajectory_cameras(make_viewer, tiny
     rig = np.mean([c.center for c in tiny.train_cameras], axis=0)
     st.view.look_from(rig + np.array([0.0, 2.5, 3.0]), np.array([0.0, 0.6, 0.0]))
     d = make_viewer(st, src)
-    d.frame()
+    d.settle()
     shot = d.viewer.splats.read_display().astype(float)
     cam = d.viewer.render_camera
     cams = d.viewer.trajectory_cameras(st.trajectories[arc])[1:-1]  # interior: only this path passes there

@@ -55,6 +55,13 @@ class Driver:
         for _ in range(n):
             self.viewer.frame(dt, self.fbo)
 
+    def settle(self, max_frames: int = 8) -> None:
+        """Run frames until the 3D view rests at full size (adaptive resolution refined)."""
+        for _ in range(max_frames):
+            self.frame()
+            if self.viewer.state.gaussians is None or self.viewer.adaptive.final:
+                return
+
     def _io(self):
         from imgui_bundle import imgui
 
