@@ -50,12 +50,11 @@ MVS_GEO_PIXEL_TOL = 1.0
 MVS_GEO_DEPTH_TOL = 0.01
 # Views that must confirm a depth for it to stay valid after the consistency check.
 MVS_GEO_MIN_VIEWS = 1
-# Fallback depth range when neither SfM points nor scene bounds exist: around the point where
+# Fallback depth range when neither SfM points nor a common view exist: around the point where
 # the optical axes converge, from a third to three times its distance.
 MVS_DEFAULT_RANGE_FACTOR = 3.0
-# Axes closer to parallel than this (sin of the angle) do not converge: use the rig extent instead.
-MVS_PARALLEL_AXES_SIN = 0.05
-# Forward-facing rigs with no bounds: scene depth from 1x to 100x the rig radius.
+# Forward-facing rigs with no common view: scene depth from 1x to 100x the rig radius
+# (axes closer to parallel than fixer4d.geometry.rig.PARALLEL_AXES_SIN do not converge).
 MVS_PARALLEL_NEAR_EXTENT = 1.0
 MVS_PARALLEL_FAR_EXTENT = 100.0
 # Depth range from SfM points: percentiles of the points' depths, widened by this factor on

@@ -125,8 +125,7 @@ def run_init(scene, method: str, out_dir: str | Path, frames: list[int] | None =
     """
     from fixer4d.init import quality as Q
     from fixer4d.init.fusion import fuse_results
-    from fixer4d.init.mvs import (default_depth_ranges, depth_ranges_from_bounds, depth_ranges_from_points,
-                                  make_estimator)
+    from fixer4d.init.mvs import make_estimator, scene_depth_ranges
     from fixer4d.init.poses import align_cameras, compare_poses, estimate_poses
     from fixer4d.init.sparse import sparse_cloud
 
@@ -176,14 +175,8 @@ def run_init(scene, method: str, out_dir: str | Path, frames: list[int] | None =
     if method == "mvs":
         t0 = time.perf_counter()
         estimator = make_estimator(config.estimator, config.mvs, config.mvsanywhere)
-        bounds = scene.bounds()
-        if bounds is not None:
-            ranges, report["depth_range_source"] = depth_ranges_from_bounds(bounds, cams), "scene bounds"
-        if ranges is None and sfm_points is not None:
-            ranges = depth_ranges_from_points(sfm_points, cams)
-            report["depth_range_source"] = "sfm points"
-        if ranges is None:
-            ranges, report["depth_range_source"] = default_depth_ranges(cams), "axis convergence default"
+        # SfM points, else the train cameras' common view; never scene ground truth (issue 11).
+        ranges, report["depth_range_source"] = scene_depth_ranges(cams, sfm_points)
         report["depth_ranges"] = [list(r) for r in ranges]
         timer.add("depth_range", t0)
 
