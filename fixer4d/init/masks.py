@@ -176,6 +176,7 @@ def moving_masks_for_scene(scene, camera_ids: Sequence[int], frames: Sequence[in
     Each camera's statistics use its own video only (``statistics_frames`` of the clip). Where
     the scene provides a foreground mask for the camera (``scene.mask``), the foreground regions
     that move are added whole (module docstring). Nothing from other cameras or ground truth.
+    A one-frame clip shows no motion: all False.
     """
     frames = [int(f) for f in frames]
     camera_ids = [int(c) for c in camera_ids]
@@ -187,6 +188,8 @@ def moving_masks_for_scene(scene, camera_ids: Sequence[int], frames: Sequence[in
     if len({(c.height, c.width) for c in cams}) != 1:
         raise InputError("moving masks: the cameras must share one resolution to stack their masks")
     out = np.zeros((len(camera_ids), len(frames), cams[0].height, cams[0].width), bool)
+    if len(stat) < 2:
+        return out  # a one-frame clip shows no motion
     for v, cam in enumerate(camera_ids):
         clip = np.stack([scene.frame(f, cam) for f in stat])
         segs = [scene.mask(f, cam) for f in stat]
