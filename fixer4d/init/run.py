@@ -38,6 +38,9 @@ class InitConfig:
 
     estimator: str = "planesweep"
     quality: bool = True
+    # MVS only: one static cloud for the clip + per-frame moving points from the moving-content
+    # masks (fixer4d.init.decompose); False = the per-frame full sweeps of the paper's recipe.
+    decompose: bool = True
     poses: PoseConfig = field(default_factory=PoseConfig)
     sparse: SparseConfig = field(default_factory=SparseConfig)
     mvs: PlaneSweepConfig = field(default_factory=PlaneSweepConfig)
@@ -181,6 +184,11 @@ def run_init(scene, method: str, out_dir: str | Path, frames: list[int] | None =
         timer.add("depth_range", t0)
 
     want_quality = config.quality and scene.has_depth
+    if method == "mvs" and config.decompose:
+        from fixer4d.init.decompose import run_decomposed
+
+        return run_decomposed(scene, cams, frames, estimator, ranges, config, out_dir, report, timer, t_start,
+                              want_quality, progress)
     clouds: list[FrameCloud] = []
     per_frame: list[dict] = []
     depth_stats: list[dict] = []
@@ -242,8 +250,21 @@ def run_init(scene, method: str, out_dir: str | Path, frames: list[int] | None =
         if depth_stats:
             quality.update(Q.summarize_depth(depth_stats))
         report["quality"] = quality
-    # a pose *check* (given poses used) is a diagnostic, not part of preparing the clouds
-    prep_stages = ("depth_range", "sparse", "mvs", "fusion") + (("poses",) if config.poses.source == "sfm" else ())
+    report["per_frame"] = per_frame
+    finish_report(report, timer, t_start, config, estimator, out_dir)
+    return clouds, report
+
+
+# Stages whose time counts as preparing the init (loading, writing and quality checks do not;
+# a pose *check* with given poses is a diagnostic, not part of preparing the clouds).
+PREP_STAGES = ("depth_range", "sparse", "mvs", "fusion", "masks", "static_median", "motion", "evidence")
+
+
+def finish_report(report: dict[str, Any], timer: _Timer, t_start: float, config: InitConfig, estimator,
+                  out_dir: Path) -> None:
+    """Add seconds (wall, CPU, "preparation" = PREP_STAGES (+ poses when SfM gives them)), the
+    estimator name and the config to ``report`` and write ``out_dir/init_report.json``."""
+    prep_stages = PREP_STAGES + (("poses",) if config.poses.source == "sfm" else ())
     seconds = dict(timer.seconds)
     seconds["preparation"] = sum(seconds.get(k, 0.0) for k in prep_stages)
     seconds["total"] = time.perf_counter() - t_start
@@ -253,7 +274,5 @@ def run_init(scene, method: str, out_dir: str | Path, frames: list[int] | None =
     report["cpu_seconds"] = cpu
     if estimator is not None:
         report["estimator"] = estimator.name
-    report["per_frame"] = per_frame
     report["config"] = config.to_dict()
     write_json(out_dir / REPORT_NAME, report)
-    return clouds, report
