@@ -198,7 +198,7 @@ class _Spec:
 
 def read_spec(source: str | Path | dict) -> tuple[dict, str]:
     """A spec dict and a label for messages from a dict, a .json path or a bundled name
-    ("demo", "tiny", "static_matte": assets/scenes/<name>.json)."""
+    ("demo", "tiny", "static_matte", "slow_rigid", "fast_thin": assets/scenes/<name>.json)."""
     if isinstance(source, dict):
         return copy.deepcopy(source), str(source.get("name", "<dict>"))
     path = Path(source)
