@@ -258,10 +258,30 @@ def make_request(model, scene, cameras: list[Camera], frame: int, ref_ids: tuple
         extra_depths=list(extra_depth) or None, trajectory=trajectory or {})
 
 
-def build_restorer(settings: dict[str, Any]):
-    from fixer4d.restore.reference_warp import ReferenceWarpConfig, ReferenceWarpRestorer
+def build_restorer(settings: dict[str, Any], weights_dir: Path | None = None):
+    # [issue 12, helper C] the restorer is a choice: settings = RestoreConfig dict (kind learned |
+    # warp | cogvideo; flat ReferenceWarpConfig keys still mean warp settings)
+    from fixer4d.restore.config import RestoreConfig, build_restorer as build
 
-    return ReferenceWarpRestorer(ReferenceWarpConfig(**settings))
+    return build(RestoreConfig.from_dict(settings), weights_dir)
+
+
+def _scene_restorer(scene, clouds, config: "PipelineConfig", run_dir: Path, times: "StageTimes", progress: bool):
+    # [issue 12, helper C] the learned restorer is trained (leave-one-camera-out, train cameras
+    # only) into RUN/restorer before its first use; other kinds are just built
+    from fixer4d.restore.config import RestoreConfig
+
+    rc = RestoreConfig.from_dict(config.restorer)
+    if rc.kind != "learned":
+        return build_restorer(config.restorer, run_dir / "restorer")
+    from fixer4d.train.restorer_pairs import train_scene_restorer
+
+    t0 = time.perf_counter()
+    restorer = train_scene_restorer(scene, clouds, stage1_config(config.stage1, progress), run_dir / "restorer", rc,
+                                    progress=progress)
+    if not times.done("restorer"):
+        times.record("restorer", time.perf_counter() - t0)
+    return restorer
 
 
 def scene_trajectories_for(scene, tc: TrajectoryConfig):
@@ -282,7 +302,7 @@ def make_refresh_callback(run_dir: str | Path, scene, config: PipelineConfig, *,
 
     cache = RestoreCache(Path(run_dir) / "cache")
     cache.clean_temporary()  # leftovers of a killed write; complete entries are reused below
-    restorer = build_restorer(config.restorer)
+    restorer = build_restorer(config.restorer, Path(run_dir) / "restorer")  # [issue 12, helper C]
     trajectories = scene_trajectories_for(scene, config.trajectories)
     frames = list(range(0, scene.num_frames, max(1, config.trajectories.time_stride)))
 
@@ -302,6 +322,7 @@ def make_refresh_callback(run_dir: str | Path, scene, config: PipelineConfig, *,
                                                      "model_gaussians": int(model.num_gaussians)})
 
     return refresh
+                                                     "restorer_kind": config.restorer.get("kind", "warp"),  # [issue 12, C]
 
 
 def restoration_render_fn(model, scene, restorer, backend: str = "auto") -> Callable[[Camera, float], np.ndarray]:
@@ -471,17 +492,18 @@ def run_pipeline(config: PipelineConfig, run_dir: str | Path, *, progress: bool 
     row(init_name, m, secs_stage1)
     final_metrics = m
 
-    restorer = build_restorer(config.restorer)
+    restorer = _scene_restorer(scene, clouds, config, run_dir, times, progress)  # [issue 12, helper C]
+    secs_restorer = times.get("restorer")  # [issue 12, helper C] training the learned restorer counts
     if config.restoration_rows:
         m = _evaluate(restoration_render_fn(model, scene, restorer, backend), scene, run_dir, ROW_NAMES[2],
                       config.eval_stride, {"prep": times.get(f"init_{method}"), "train": times.get("stage1")}, times, progress)
-        row(ROW_NAMES[2], m, secs_stage1 + times.get("eval:restoration-init"))
+        row(ROW_NAMES[2], m, secs_stage1 + secs_restorer + times.get("eval:restoration-init"))
 
     # -- stage 2: (restore -> refine) x R --------------------------------------------------------
     rounds = int(config.stage2.get("rounds", 2))
     if rounds > 0:
         model = _stage2(scene, model, run_dir, config, times, progress, backend)
-        secs_full = secs_stage1 + times.get("stage2")
+        secs_full = secs_stage1 + secs_restorer + times.get("stage2")
         m = _evaluate(_model_render_fn(model, backend), scene, run_dir, ROW_NAMES[3], config.eval_stride,
                       {"prep": times.get(f"init_{method}"), "train": times.get("stage1", "stage2")}, times, progress)
         row(ROW_NAMES[3], m, secs_full)
@@ -525,11 +547,23 @@ def _fmt(value: float | None, digits: int) -> str:
 def _write_report(run_dir: Path, config: PipelineConfig, scene, rows: list[dict[str, Any]], times: StageTimes) -> dict[str, Any]:
     report = {"rows": rows, "stage_seconds": times.seconds, "scene": scene.describe()}
     atomic.write_json(run_dir / "report.json", report)
-    lines = [f"# fixer4d report: {run_dir.name}", "", f"Scene: {scene.describe()}", "",
+    lines = [f"# fixer4d report: {run_dir.name}", "", f"Scene: {scene.describe()}", "", _restorer_line(run_dir, config), "",
              "| Method | PSNR | DSSIM1 | DSSIM2 | LPIPS | Time (s) |", "|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['method']} | {_fmt(r['psnr'], 2)} | {_fmt(r['dssim1'], 4)} | {_fmt(r['dssim2'], 4)} | "
                      f"{_fmt(r['lpips'], 4)} | {_fmt(r['seconds'], 1)} |")
+def _restorer_line(run_dir: Path, config: PipelineConfig) -> str:
+    # [issue 12, helper C] the report names the restorer and, for the learned one, its validation
+    kind = config.restorer.get("kind", "warp")
+    val = run_dir / "restorer" / "validation.json"
+    if kind != "learned" or not val.exists():
+        return f"Restorer: {kind}"
+    v = json.loads(val.read_text())
+    return (f"Restorer: learned (leave-one-camera-out validation on train camera {v['held_out_fold_camera']}: "
+            f"render {v['psnr_render']:.2f} dB -> restored {v['psnr_learned']:.2f} dB, {v['gain_db']:+.2f} dB; warp "
+            f"restorer {v['psnr_warp']:.2f} dB; {v['cpu_seconds']['total']:.0f} CPU s to train)")
+
+
     lines += ["", "Seconds per stage:", "", "| Stage | Seconds |", "|---|---|"]
     lines += [f"| {k} | {v:.1f} |" for k, v in times.seconds.items()]
     atomic.write_text(run_dir / "report.md", "\n".join(lines) + "\n")

@@ -15,6 +15,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lambda-gen", type=float, default=None, help="weight of the pseudo-supervision (default 0.5)")
     parser.add_argument("--init", choices=["mvs", "sparse"], default=None, help="initialization of the main model")
     parser.add_argument("--no-baseline", action="store_true", help="skip the STGS w/ COLMAP baseline row")
+    parser.add_argument("--restorer", choices=["learned", "warp", "cogvideo"], default=None,
+                        help="restorer of stage 2 (learned: trained per scene on its train cameras)")
     parser.add_argument("--eval-stride", type=int, default=None, help="evaluate every S-th frame")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="any config override by dotted key, e.g. --set trajectories.frames=6 (JSON values)")
@@ -35,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
         overrides["scene.frame_range"] = [int(a), int(b)]
     for flag, key in (("iterations", "stage1.iterations"), ("rounds", "stage2.rounds"),
                       ("refresh_every", "stage2.refresh_every"), ("lambda_gen", "stage2.lambda_gen"),
-                      ("init", "init.method"), ("eval_stride", "eval_stride")):
+                      ("init", "init.method"), ("eval_stride", "eval_stride"), ("restorer", "restorer.kind")):
         if getattr(args, flag) is not None:
             overrides[key] = getattr(args, flag)
     if args.no_baseline:

@@ -6,8 +6,9 @@
     trainer.snapshot(t)                  # a detached Snapshot, safe to read between steps
 
 Stage 2 is the same trainer with a ``Stage2Config``, a restoration cache and (optionally) a
-refresh callback: L = L_STG(observed views) + lambda_gen * L1(render at a cached pseudo-view,
-its restored frame), the pseudo-view rendered at its clip's time.
+refresh callback: L = mean over the observed views of L_STG + lambda_gen * mean over the cached
+pseudo-views of the confidence-weighted L1(render, restored frame), each pseudo-view rendered at
+its clip's time; a clip's frames at the train cameras themselves (alpha = 0 and 1) are skipped.
 
 Everything random draws from the trainer's own generators (numpy for frames/views/pseudo
 batches, a torch.Generator for split sampling) whose states live in the checkpoints, so a run
@@ -239,6 +240,7 @@ class Trainer:
 
     def _set_learning_rates(self) -> None:
         lrs = self.learning_rates(self.step_count)
+        self._entry_frames: list[np.ndarray] = []  # per entry: the clip frames used as pseudo-views
         for group in self.optimizer.param_groups:
             group["lr"] = lrs[group["name"]]
 
@@ -302,7 +304,7 @@ class Trainer:
             raise NumericalError(f"stage {self.stage} step {self.step_count}: the loss is {float(loss)}; "
                                  "lower the learning rates or resume from the last checkpoint")
         tic = time.perf_counter()
-        loss.backward()
+        (loss * n_views).backward()
         timing["t_backward"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
@@ -319,6 +321,12 @@ class Trainer:
         timing["t_optim"] = time.perf_counter() - tic
         self.step_count += 1
 
+        # L = mean_v L_STG(view v) + lambda_gen * mean_p L1(pseudo p): both per-view means, as the
+        # paper states it. The gradient taken is that of V x L: Adam is invariant to the overall
+        # scale, and each observed view keeps the gradient of its own loss, on which the
+        # densification threshold (3DGS: one view per step) is calibrated.
+        n_views = max(len(views), 1)
+        loss_stg = loss_stg / n_views
         tic = time.perf_counter()
         counts = self._density_control(d_from, d_until)
         timing["t_densify"] += time.perf_counter() - tic
@@ -382,13 +390,24 @@ class Trainer:
             self._load_round(self.round if self.round >= 0 else self.cache.latest_round())
 
     def _load_round(self, r: int | None) -> None:
-        entries = [] if r is None else [e for e in self.cache.entries(r) if len(e.cameras) > 0]
+        """Load round ``r``'s entries; only their novel frames are pseudo-views (a trajectory's
+        endpoints at alpha = 0 and 1 are the train cameras themselves, supervised by real frames)."""
+        from fixer4d.geometry.trajectory import novel_frame_mask
+
+        train_cams = self.scene.train_cameras
+        entries, frames = [], []
+        for e in ([] if r is None else self.cache.entries(r)):
+            novel = np.flatnonzero(novel_frame_mask(e.cameras, train_cams)) if len(e.cameras) else []
+            if len(novel):
+                entries.append(e)
+                frames.append(novel.astype(np.int64))
         if not entries:
-            raise InputError(f"stage 2: the restoration cache has no entries for round {r}; run the restore step "
-                             "(`fixer4d run`, or a refresh callback) before refining")
+            raise InputError(f"stage 2: the restoration cache has no entries with novel views for round {r}; run "
+                             "the restore step (`fixer4d run`, or a refresh callback) before refining")
         self.round = int(r)
         self._entries = entries
-        self._entry_offsets = np.concatenate([[0], np.cumsum([len(e.cameras) for e in entries])]).astype(np.int64)
+        self._entry_frames = frames
+        self._entry_offsets = np.concatenate([[0], np.cumsum([len(f) for f in frames])]).astype(np.int64)
         self._clips.clear()
 
     def _clip(self, entry: PseudoEntry) -> tuple[torch.Tensor, torch.Tensor]:
@@ -407,8 +426,8 @@ class Trainer:
         return rgb, conf
 
     def _pseudo_loss(self, outputs: list[tuple[RenderOutput, Camera]], timing: dict[str, float]) -> torch.Tensor:
-        """Mean over ``batch_pseudo`` cached frames of the (confidence-weighted) L1 between the model
-        rendered at the frame's camera *and its clip's time* and the restored frame."""
+        """Mean over ``batch_pseudo`` cached novel frames of the (confidence-weighted) L1 between the
+        model rendered at the frame's camera *and its clip's time* and the restored frame."""
         s2 = self.stage2
         assert s2 is not None
         total = int(self._entry_offsets[-1])
@@ -417,7 +436,7 @@ class Trainer:
         for flat in picks:
             e_idx = int(np.searchsorted(self._entry_offsets, flat, side="right") - 1)
             entry = self._entries[e_idx]
-            f = int(flat - self._entry_offsets[e_idx])
+            f = int(self._entry_frames[e_idx][int(flat - self._entry_offsets[e_idx])])
             cam = entry.cameras[f]
             tic = time.perf_counter()
             snap = self.model.at(float(entry.time), camera_center=cam.center)
