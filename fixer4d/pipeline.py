@@ -319,10 +319,10 @@ def make_refresh_callback(run_dir: str | Path, scene, config: PipelineConfig, *,
             req = make_request(model, scene, tr.cameras, f, ids, backend=backend, trajectory=traj_meta)
             res = restorer.restore(req)
             cache.write(round_index, key, req, res, {"restorer": restorer.name, "restorer_settings": restorer.settings(),
+                                                     "restorer_kind": config.restorer.get("kind", "warp"),  # [issue 12, C]
                                                      "model_gaussians": int(model.num_gaussians)})
 
     return refresh
-                                                     "restorer_kind": config.restorer.get("kind", "warp"),  # [issue 12, C]
 
 
 def restoration_render_fn(model, scene, restorer, backend: str = "auto") -> Callable[[Camera, float], np.ndarray]:
