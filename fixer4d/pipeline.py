@@ -539,6 +539,18 @@ def _stage2(scene, model, run_dir: Path, config: PipelineConfig, times: StageTim
     return trainer.model
 
 
+def _restorer_line(run_dir: Path, config: PipelineConfig) -> str:
+    # [issue 12, helper C] the report names the restorer and, for the learned one, its validation
+    kind = config.restorer.get("kind", "warp")
+    val = run_dir / "restorer" / "validation.json"
+    if kind != "learned" or not val.exists():
+        return f"Restorer: {kind}"
+    v = json.loads(val.read_text())
+    return (f"Restorer: learned (leave-one-camera-out validation on train camera {v['held_out_fold_camera']}: "
+            f"render {v['psnr_render']:.2f} dB -> restored {v['psnr_learned']:.2f} dB, {v['gain_db']:+.2f} dB; warp "
+            f"restorer {v['psnr_warp']:.2f} dB; {v['cpu_seconds']['total']:.0f} CPU s to train)")
+
+
 def _fmt(value: float | None, digits: int) -> str:
     """Table cell: n/a for a missing value (LPIPS without weights; PSNR of an exact render)."""
     return "n/a" if value is None else f"{value:.{digits}f}"
@@ -552,18 +564,6 @@ def _write_report(run_dir: Path, config: PipelineConfig, scene, rows: list[dict[
     for r in rows:
         lines.append(f"| {r['method']} | {_fmt(r['psnr'], 2)} | {_fmt(r['dssim1'], 4)} | {_fmt(r['dssim2'], 4)} | "
                      f"{_fmt(r['lpips'], 4)} | {_fmt(r['seconds'], 1)} |")
-def _restorer_line(run_dir: Path, config: PipelineConfig) -> str:
-    # [issue 12, helper C] the report names the restorer and, for the learned one, its validation
-    kind = config.restorer.get("kind", "warp")
-    val = run_dir / "restorer" / "validation.json"
-    if kind != "learned" or not val.exists():
-        return f"Restorer: {kind}"
-    v = json.loads(val.read_text())
-    return (f"Restorer: learned (leave-one-camera-out validation on train camera {v['held_out_fold_camera']}: "
-            f"render {v['psnr_render']:.2f} dB -> restored {v['psnr_learned']:.2f} dB, {v['gain_db']:+.2f} dB; warp "
-            f"restorer {v['psnr_warp']:.2f} dB; {v['cpu_seconds']['total']:.0f} CPU s to train)")
-
-
     lines += ["", "Seconds per stage:", "", "| Stage | Seconds |", "|---|---|"]
     lines += [f"| {k} | {v:.1f} |" for k, v in times.seconds.items()]
     atomic.write_text(run_dir / "report.md", "\n".join(lines) + "\n")

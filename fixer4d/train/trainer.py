@@ -213,6 +213,7 @@ class Trainer:
         self.train_seconds = 0.0  # wall time spent in train(), summed over resumed sessions
         self._entries: list[PseudoEntry] = []
         self._entry_offsets = np.zeros(1, np.int64)
+        self._entry_frames: list[np.ndarray] = []  # per entry: the clip frames used as pseudo-views
         self._clips: OrderedDict[str, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
         self._lock = threading.RLock()
         self._stop = threading.Event()
@@ -240,7 +241,6 @@ class Trainer:
 
     def _set_learning_rates(self) -> None:
         lrs = self.learning_rates(self.step_count)
-        self._entry_frames: list[np.ndarray] = []  # per entry: the clip frames used as pseudo-views
         for group in self.optimizer.param_groups:
             group["lr"] = lrs[group["name"]]
 
@@ -294,6 +294,12 @@ class Trainer:
             timing["t_loss"] += time.perf_counter() - tic
             outputs.append((out, cam))
 
+        # L = mean_v L_STG(view v) + lambda_gen * mean_p L1(pseudo p): both per-view means, as the
+        # paper states it. The gradient taken is that of V x L: Adam is invariant to the overall
+        # scale, and each observed view keeps the gradient of its own loss, on which the
+        # densification threshold (3DGS: one view per step) is calibrated.
+        n_views = max(len(views), 1)
+        loss_stg = loss_stg / n_views
         loss_gen = torch.zeros(())
         if self.stage2 is not None and self.stage2.lambda_gen > 0 and self.stage2.batch_pseudo > 0:
             loss_gen = self._pseudo_loss(outputs, timing)
@@ -321,12 +327,6 @@ class Trainer:
         timing["t_optim"] = time.perf_counter() - tic
         self.step_count += 1
 
-        # L = mean_v L_STG(view v) + lambda_gen * mean_p L1(pseudo p): both per-view means, as the
-        # paper states it. The gradient taken is that of V x L: Adam is invariant to the overall
-        # scale, and each observed view keeps the gradient of its own loss, on which the
-        # densification threshold (3DGS: one view per step) is calibrated.
-        n_views = max(len(views), 1)
-        loss_stg = loss_stg / n_views
         tic = time.perf_counter()
         counts = self._density_control(d_from, d_until)
         timing["t_densify"] += time.perf_counter() - tic
