@@ -47,6 +47,8 @@ log = logging.getLogger("fixer4d.train")
 # torch.load(weights_only=True).
 CHECKPOINT_FORMAT = 1
 _CKPT_NAME = re.compile(r"^stage(\d)_(\d{7})\.pt$")
+# The temporary that fixer4d.atomic.atomic_path writes a checkpoint to before the rename.
+_CKPT_TEMP = re.compile(r"^\.stage(\d)_\d{7}\.pt\..+$")
 # 3DGS's scene radius is 1.1 x the largest camera distance from the rig centre.
 EXTENT_MARGIN = 1.1
 # Floor of the extent (a single point seen by coincident cameras).
@@ -589,10 +591,22 @@ class Trainer:
         are rebuilt, so a checkpoint that carries pickled code or objects is refused, never run."""
         self.load_state_dict(read_checkpoint(path), source=str(path))
 
+    def _remove_partial_checkpoints(self) -> int:
+        """Delete this stage's checkpoint temporaries (``.stage{S}_{STEP}.pt.*``) that a process
+        killed inside ``save_checkpoint`` left; the complete checkpoints are never touched."""
+        d = self.checkpoint_dir
+        if d is None or not d.is_dir():
+            return 0
+        partial = [p for p in d.iterdir() if (m := _CKPT_TEMP.match(p.name)) and int(m.group(1)) == self.stage]
+        for p in partial:
+            p.unlink(missing_ok=True)
+        return len(partial)
+
     def resume(self) -> bool:
         """Load the newest checkpoint of this stage from ``run_dir`` if there is one."""
         if self.run_dir is None:
             return False
+        self._remove_partial_checkpoints()
         found = self.list_checkpoints(self.run_dir, self.stage)
         if not found:
             return False
