@@ -84,3 +84,17 @@ def test_other_checkpoint_format_gets_one_clear_sentence(small_scene, small_clou
     with pytest.raises(InputError, match=rf"checkpoint format {CHECKPOINT_FORMAT + 1}, but this fixer4d reads "
                                          rf"format {CHECKPOINT_FORMAT}"):
         trainer.load_state_dict(state, source="x.pt")
+
+
+def test_resume_removes_checkpoint_temporaries_of_a_killed_save(small_scene, small_clouds, make_config, tmp_path):
+    trainer = _trainer(small_scene, small_clouds, make_config, tmp_path)
+    trainer.train(6)
+    ckpts = tmp_path / "checkpoints"
+    partial = ckpts / ".stage1_0000012.pt.k3j4h5.pt"  # what SIGKILL inside torch.save leaves
+    partial.write_bytes(b"PK\x03\x04 half a zip")
+    other_stage = ckpts / ".stage2_0000003.pt.aaaa.pt"  # another stage's: not this trainer's to touch
+    other_stage.write_bytes(b"")
+    again = _trainer(small_scene, small_clouds, make_config, tmp_path)
+    assert again.resume() and again.step_count == 6
+    assert not partial.exists() and other_stage.exists()
+    assert [p.name for p in Trainer.list_checkpoints(tmp_path, 1)] == ["stage1_0000006.pt"]
