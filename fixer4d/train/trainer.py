@@ -32,6 +32,7 @@ from fixer4d.atomic import atomic_path
 from fixer4d.errors import InputError, NumericalError
 from fixer4d.geometry.camera import Camera, rig_extent
 from fixer4d.model.densify import DensifyStats, densify_and_prune, reset_parameter
+from fixer4d.model.effects import EffectsConfig, EffectsDecision, TemporalStats, revise_effects
 from fixer4d.model.snapshot import Snapshot
 from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians, knn_scales
 from fixer4d.render.api import RenderOutput, render
@@ -150,6 +151,25 @@ def _fallback_points(scene: MultiViewVideo, rng: np.random.Generator) -> tuple[n
     return pts, frames / float(scene.num_frames)
 
 
+def model_from_init(init: Any, scene: MultiViewVideo, config: Stage1Config,
+                    effects: EffectsConfig | None = None) -> tuple[SpacetimeGaussians, EffectsDecision | None]:
+    """The model of an init and the effect decision behind it.
+
+    init: a DecomposedInit (fixer4d.init.decompose) -> effects decided by evidence
+    (fixer4d.model.effects.decide_effects; ``effects`` picks auto | all | static and forced
+    switches), or per-frame clouds -> ``model_from_clouds`` with the default effects on every
+    Gaussian (decision None; e.g. the sparse baseline).
+    """
+    from fixer4d.model.effects import decide_effects, model_from_decomposed
+
+    if isinstance(init, (list, tuple)):
+        return model_from_clouds(init, scene, config), None
+    decision = decide_effects(init, effects)
+    model = model_from_decomposed(init, decision, opacity=config.init_opacity, max_points=config.init_max_points,
+                                  seed=config.seed)
+    return model, decision
+
+
 def scene_extent(cameras: Sequence[Camera], means: torch.Tensor) -> float:
     """The length every size threshold and the position learning rate scale with:
     EXTENT_MARGIN x the larger of the rig radius (3DGS's camera extent) and the init cloud's
@@ -183,7 +203,8 @@ class Trainer:
 
     def __init__(self, model: SpacetimeGaussians, scene: MultiViewVideo, config: Stage1Config, *,
                  run_dir: str | Path | None = None, stage2: Stage2Config | None = None,
-                 cache: PseudoCache | None = None, refresh_cache: RefreshFn | None = None) -> None:
+                 cache: PseudoCache | None = None, refresh_cache: RefreshFn | None = None,
+                 effects: EffectsConfig | None = None) -> None:
         if len(scene.train_ids) < 1:
             raise InputError(f"{scene.name}: no train cameras to optimize on")
         if stage2 is not None and cache is None:
@@ -211,6 +232,10 @@ class Trainer:
         self.round = -1  # stage 2: index of the cache round in use (-1 = none loaded yet)
         self.optimizer = self._make_optimizer()
         self.stats = DensifyStats.zeros(model.num_gaussians, model.means.device)
+        # effects revised during stage 1 (auto mode): demote / split on the density schedule
+        self.revise = stage2 is None and effects is not None and effects.mode == "auto" and effects.revise
+        self.temporal_stats = TemporalStats.zeros(model.num_gaussians if self.revise else 0, device=model.means.device)
+        self.revisions: dict[str, int] = {"demoted": 0, "split_dynamic": 0}
         self.history: list[dict[str, float]] = []
         self.train_seconds = 0.0  # wall time spent in train(), summed over resumed sessions
         self._entries: list[PseudoEntry] = []
@@ -321,6 +346,8 @@ class Trainer:
             for out, cam in outputs:
                 if out.means2d.grad is not None:
                     self.stats.update(out.means2d.grad, out.radii, cam.width, cam.height)
+                    if self.revise:
+                        self.temporal_stats.update(out.means2d.grad, out.radii, cam.width, cam.height, t)
         timing["t_densify"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
@@ -357,15 +384,26 @@ class Trainer:
             # 3DGS applies the size prunes only after the first opacity reset; stage 2 never does
             # (its pseudo-views are less trustworthy than the real views that shaped the model).
             first_reset_done = self.stage2 is None and s > cfg.opacity_reset_every
-            counts = densify_and_prune(
+            if self.revise:
+                rev = revise_effects(self.model, self.optimizer, self.temporal_stats,
+                                     grad_threshold=cfg.densify_grad_threshold, max_gaussians=cfg.max_gaussians)
+                for k, v in rev.items():
+                    self.revisions[k] += v
+                    counts[k] = v
+                if rev["split_dynamic"]:  # the new rows have no statistics yet
+                    self.stats = DensifyStats(*(torch.cat([x, x.new_zeros(rev["split_dynamic"])])
+                                                for x in (self.stats.grad_accum, self.stats.denom, self.stats.max_radii)))
+            counts.update(densify_and_prune(
                 self.model, self.optimizer, self.stats, extent=self.extent,
                 grad_threshold=cfg.densify_grad_threshold, percent_dense=cfg.percent_dense,
                 max_gaussians=cfg.max_gaussians, prune_opacity=cfg.prune_opacity,
                 prune_world_scale=cfg.prune_world_scale if first_reset_done else None,
                 prune_screen_fraction=cfg.prune_screen_fraction if first_reset_done else None,
                 generator=self.generator, split_children=cfg.split_children,
-                split_scale_divisor=cfg.split_scale_divisor)
+                split_scale_divisor=cfg.split_scale_divisor))
             self.stats = DensifyStats.zeros(self.model.num_gaussians, self.model.means.device)
+            if self.revise:
+                self.temporal_stats = TemporalStats.zeros(self.model.num_gaussians, device=self.model.means.device)
         if self.stage2 is None and s < d_until and s % cfg.opacity_reset_every == 0:
             cap = math.log(cfg.opacity_reset_value / (1.0 - cfg.opacity_reset_value))
             reset_parameter(self.model, self.optimizer, "opacity_logits",
@@ -526,6 +564,7 @@ class Trainer:
                 "model": {k: v.detach().clone() for k, v in self.model.state_dict().items()},
                 "optimizer": self.optimizer.state_dict(),
                 "stats": self.stats.state_dict(),
+                "temporal_stats": self.temporal_stats.state_dict(), "revisions": dict(self.revisions),
                 "numpy_rng": self.rng.bit_generator.state,
                 "torch_generator": self.generator.get_state(),
                 "config": _comparable(self.config.to_dict()),
@@ -557,6 +596,9 @@ class Trainer:
             self.optimizer = self._make_optimizer()
             self.optimizer.load_state_dict(state["optimizer"])
             self.stats = DensifyStats.from_state_dict(state["stats"])
+            if "temporal_stats" in state:
+                self.temporal_stats = TemporalStats.from_state_dict(state["temporal_stats"])
+                self.revisions = dict(state.get("revisions", self.revisions))
             self.rng.bit_generator.state = state["numpy_rng"]
             self.generator.set_state(state["torch_generator"])
             self.history = list(state.get("history", []))
