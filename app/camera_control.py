@@ -17,8 +17,12 @@ from fixer4d.geometry.camera import Camera
 
 # Pitch is kept this far from +-90 degrees so that the up vector never aligns with the view.
 PITCH_LIMIT = math.radians(89.0)
-# Radians of yaw/pitch per pixel of mouse drag.
+# Radians of yaw/pitch per pixel of mouse drag when the viewport size is unknown.
 ROTATE_SPEED = 0.005
+# Orbit sensitivity scaled by the viewport: a drag across the viewport's height turns the view
+# by this angle (90 degrees: a 200 px drag in a 430 px viewport is ~40 degrees, where a fixed
+# 0.005 rad/px made it ~57 and users overshot).
+ORBIT_RADIANS_PER_VIEWPORT = math.pi / 2.0
 # Orbit distance factor per mouse-wheel notch (10% closer/farther).
 ZOOM_STEP = 1.1
 # Shortest orbit distance, relative to the scene radius: the eye never reaches the target.
@@ -99,12 +103,14 @@ class ViewCamera:
         self.snapped = None
 
     # ---- input ------------------------------------------------------------------------------
-    def rotate(self, dx: float, dy: float) -> None:
-        """Mouse drag by (dx, dy) pixels: orbit about the target, or look around in fly mode."""
+    def rotate(self, dx: float, dy: float, viewport_px: float | None = None) -> None:
+        """Mouse drag by (dx, dy) pixels: orbit about the target, or look around in fly mode;
+        ``viewport_px`` (the viewport's height) scales the rate (ORBIT_RADIANS_PER_VIEWPORT)."""
+        rate = ROTATE_SPEED if not viewport_px else ORBIT_RADIANS_PER_VIEWPORT / max(float(viewport_px), 1.0)
         eye = self.eye()
         self._unsnap()
-        self.yaw -= ROTATE_SPEED * dx
-        self.pitch = float(np.clip(self.pitch - ROTATE_SPEED * dy, -PITCH_LIMIT, PITCH_LIMIT))
+        self.yaw -= rate * dx
+        self.pitch = float(np.clip(self.pitch - rate * dy, -PITCH_LIMIT, PITCH_LIMIT))
         if self.mode == "fly":  # keep the eye, move the target
             self.target = eye + self.distance * self.forward()
 

@@ -23,6 +23,7 @@ from app.gl.overlays import OverlayRenderer
 from app.panels._layout import guard, panel
 from app.gl.splats import SplatRenderer
 from app.notifications import Notifications
+from app.camera_control import ViewCamera
 from app.session import RestoreQueue, TrainingSession
 from app.state import AppState, TrajectorySpec
 from fixer4d.geometry.camera import Camera
@@ -52,6 +53,7 @@ class ViewerSource:
     cache: a ``fixer4d.restore.cache.RestoreCache`` (the compare panel reads it), or None.
     restore: a ``RestoreQueue`` to queue restorations, or None.
     render_backend: the torch rasterizer backend for compare/restore renders.
+    model_path: the model file shown, or None (live training).
     """
 
     scene: Any = None
@@ -61,6 +63,7 @@ class ViewerSource:
     cache: Any = None
     restore: RestoreQueue | None = None
     render_backend: str = "auto"
+    model_path: Path | None = None  # the model file shown (a run's version, or a bare model)
 
 
 class Viewer:
@@ -115,6 +118,7 @@ class Viewer:
         from app.panels import PANELS  # the panels import the viewer's helpers
 
         self.panels = PANELS
+        self.home_view = ViewCamera.from_dict(state.view.to_dict())  # "reset view" returns here
         if session_path is not None:
             try:
                 state.load_session(session_path)
@@ -147,6 +151,10 @@ class Viewer:
             for name, draw in self.panels:
                 draw(self)  # each panel guards its own body (panels._layout.panel)
             self._notifications_window()
+            with guard(self, "file"):
+                from app.panels import files
+
+                files.draw_dialog(self)
             with guard(self, "shortcuts"):
                 self._shortcuts()
             imgui.render()
@@ -343,7 +351,7 @@ class Viewer:
         mx, my = io.mouse_pos.x - x0, io.mouse_pos.y - y0
         if self.tool == "navigate":
             if active and imgui.is_mouse_dragging(imgui.MouseButton_.left.value, 0.0):
-                st.view.rotate(io.mouse_delta.x, io.mouse_delta.y)
+                st.view.rotate(io.mouse_delta.x, io.mouse_delta.y, h)
             if active and imgui.is_mouse_dragging(imgui.MouseButton_.right.value, 0.0):
                 st.view.pan(io.mouse_delta.x, io.mouse_delta.y, int(h))
             if hovered and io.mouse_wheel != 0.0:
@@ -409,22 +417,131 @@ class Viewer:
         st.set_selection(sel)
         return int(sel.sum())
 
-    def save_edited_model(self) -> Path | None:
-        """Save the displayed (edited) Gaussians as a new model version in the run folder:
-        RUN/model_edit_<k>.ply, k = 1 + the highest existing. Returns the path (None without a
-        run folder)."""
-        run, g = self.source.run_dir, self.state.gaussians
-        if run is None or g is None:
-            self.state.status = "no run folder: open a run to save edits"
-            return None
-        from fixer4d.model.io import save_ply
+    # ---- files ------------------------------------------------------------------------------------
+    @property
+    def output_dir(self) -> Path:
+        """Where relative paths the user types resolve: the run folder, the shown model's
+        folder, else the session folder (never the working directory)."""
+        src = self.source
+        if src.run_dir is not None:
+            return Path(src.run_dir)
+        if src.model_path is not None:
+            return Path(src.model_path).parent
+        if self.session_path is not None:
+            return Path(self.session_path).parent
+        from app.main import _config_dir
 
-        existing = [int(p.stem.rsplit("_", 1)[1]) for p in Path(run).glob("model_edit_*.ply")
-                    if p.stem.rsplit("_", 1)[1].isdigit()]
-        path = Path(run) / f"model_edit_{max(existing, default=0) + 1}.ply"
-        save_ply(g.to_model(), path)
-        self.state.status = f"saved {path.name} ({g.n} Gaussians)"
+        return _config_dir()
+
+    def output_path(self, text: str) -> Path:
+        from app.files import resolve_output
+
+        return resolve_output(text, self.output_dir)
+
+    def model_versions(self) -> list[Path]:
+        """The model files of the open run folder (or of the shown model's folder)."""
+        from app.files import model_versions
+
+        folder = self.source.run_dir or (None if self.source.model_path is None else Path(self.source.model_path).parent)
+        return [] if folder is None else model_versions(Path(folder))
+
+    def save_model(self, path: Path) -> Path:
+        """Write the displayed Gaussians (edits included) to ``path`` (.ply or .npz)."""
+        from fixer4d.model.io import save_model
+
+        if self.state.gaussians is None:
+            raise ValueError("no model to save")
+        return save_model(self.state.gaussians.to_model(), path)
+
+    def save_edited_model(self) -> Path | None:
+        """Save the displayed (edited) Gaussians as a new model version next to the shown one:
+        RUN/model_edit_<k>.ply, k = 1 + the highest existing (the session folder for a live
+        scene). It becomes the shown version, so the run reopens with it. Returns the path."""
+        from app.files import next_edit_path
+
+        g = self.state.gaussians
+        if g is None:
+            self.state.status = "no model to save"
+            return None
+        path = self.save_model(next_edit_path(self.output_dir))
+        self.source.model_path = path
+        self.source.label = str(path)
+        self.state.model_version = path.name
+        self._save_session()
+        self.state.status = f"saved {path} ({g.n} Gaussians)"
+        self.notifications.info("file", self.state.status)
         return path
+
+    def open_version(self, path: Path) -> str:
+        """Show another model file of the same run (keeps camera, time and trajectories; edits
+        of the previous version can no longer be undone)."""
+        from app.gaussians import GaussianArrays
+        from fixer4d.model.io import load_model
+
+        g = GaussianArrays.from_model(load_model(path))
+        st = self.state
+        st.set_gaussians(g)
+        st.undo_stack.clear()
+        st.redo_stack.clear()
+        self.source.model_path = Path(path)
+        self.source.label = str(path)
+        st.model_version = Path(path).name
+        self._save_session()
+        return f"opened {path} ({g.n} Gaussians)"
+
+    def open_path(self, text: str) -> str:
+        """File > Open: a run folder or a model file (a model of the open run switches the
+        version; anything else replaces the source, with its own session)."""
+        from app.files import is_model_file, is_run_folder, resolve_input
+        from app.main import open_source
+        from fixer4d.errors import InputError
+
+        path = resolve_input(text, self.output_dir)
+        if not (is_run_folder(path) or (path.is_file() and is_model_file(path))):
+            raise InputError(f"{path}: not a run folder (with config.json) or a model file (.ply / .npz)")
+        if self.source.run_dir is not None and path.is_file() and path.parent == Path(self.source.run_dir):
+            return self.open_version(path)
+        src, g, session_dir = open_source(str(path))
+        self.switch_source(src, g, session_dir)
+        return f"opened {src.label}"
+
+    def switch_source(self, src: ViewerSource, gaussians: Any, session_dir: Path) -> None:
+        """Replace what the viewer shows: the current session is saved and its background work
+        stopped; the new source's state starts fresh or from its own saved session."""
+        from app.main import initial_state
+
+        self._save_session()
+        old = self.source
+        if old.training is not None:
+            old.training.stop()
+        if old.restore is not None:
+            old.restore.shutdown()
+        state = initial_state(src, gaussians)
+        home = ViewCamera.from_dict(state.view.to_dict())
+        if self.session_path is not None:
+            session_dir.mkdir(parents=True, exist_ok=True)
+            self.session_path = session_dir / "session.json"
+            try:
+                state.load_session(self.session_path)
+            except Exception as exc:  # a bad session must not stop the open
+                self.report_error("session", exc)
+            if src.model_path is not None:
+                state.model_version = src.model_path.name
+        self.state, self.source = state, src
+        self.home_view = home
+        self._trajectory_cache.clear()
+        self._torch_model = None
+        self._uploaded_version = -1
+        self.adaptive.invalidate()
+        for key in ("_compare_ui", "_debug_ui"):
+            self.__dict__.pop(key, None)
+        if src.training is not None:
+            src.training.start()
+
+    def _save_session(self) -> None:
+        if self.session_path is not None:
+            Path(self.session_path).parent.mkdir(parents=True, exist_ok=True)
+            self.state.save_session(self.session_path)
 
     # ---- trajectories and torch renders ----------------------------------------------------------
     def trajectory_cameras(self, spec: TrajectorySpec) -> list[Camera]:
@@ -489,8 +606,11 @@ class Viewer:
 
     # ---- menu and keys ----------------------------------------------------------------------------
     def _menu(self) -> None:
+        from app.panels import files
+
         if not imgui.begin_main_menu_bar():
             return
+        files.draw_menu(self)
         if imgui.begin_menu("Edit"):
             if imgui.menu_item("Undo", "Ctrl+Z", False, bool(self.state.undo_stack))[0]:
                 self.state.undo()
@@ -508,6 +628,12 @@ class Viewer:
             self.state.undo()
         if io.key_ctrl and imgui.is_key_pressed(imgui.Key.y, False):
             self.state.redo()
+        if io.key_ctrl and imgui.is_key_pressed(imgui.Key.o, False):
+            from app.panels import files
+
+            files.ask(self, "open")
+        if io.key_ctrl and imgui.is_key_pressed(imgui.Key.s, False) and self.state.gaussians is not None:
+            self.save_edited_model()
         if imgui.is_key_pressed(imgui.Key.space, False) and not io.key_ctrl:
             self.state.playing = not self.state.playing
 
@@ -520,8 +646,7 @@ class Viewer:
     def close(self, platform_shutdown: Callable[[], None] | None = None) -> None:
         """Save the session and the imgui layout, stop background work, free GL objects
         (``platform_shutdown``: the window backend's, run before the imgui context goes)."""
-        if self.session_path is not None:
-            self.state.save_session(self.session_path)
+        self._save_session()
         if self._ini_path is not None:
             imgui.save_ini_settings_to_disk(self._ini_path)
         if self.source.training is not None:

@@ -63,3 +63,20 @@ def error_text(text: str) -> None:
     imgui.push_style_color(imgui.Col_.text.value, imgui.ImVec4(1.0, 0.4, 0.35, 1.0))
     imgui.text_wrapped(text)
     imgui.pop_style_color()
+
+
+def radio_row(items: tuple[str, ...] | list[str], current: str, id_suffix: str = "") -> str:
+    """Radio buttons for ``items`` laid out left to right, wrapping to a new line instead of
+    running past the panel's edge; returns the chosen item."""
+    style = imgui.get_style()
+    right = imgui.get_cursor_screen_pos().x + imgui.get_content_region_avail().x
+    chosen = current
+    for k, item in enumerate(items):
+        width = imgui.get_frame_height() + style.item_inner_spacing.x + imgui.calc_text_size(item).x
+        if k:
+            imgui.same_line()
+            if imgui.get_cursor_screen_pos().x + width > right:
+                imgui.new_line()
+        if imgui.radio_button(f"{item}##{id_suffix}", item == current):
+            chosen = item
+    return chosen

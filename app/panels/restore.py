@@ -14,7 +14,7 @@ def draw(viewer) -> None:
     st = viewer.state
     src = viewer.source
     ui = viewer.__dict__.setdefault("_restore_ui", {"every": 0})
-    with panel(viewer, "restore", "Restore", 1105, 365, 330, 250) as expanded:
+    with panel(viewer, "restore", "Restore", 1105, 365, 330, 230) as expanded:
         if not expanded:
             return
         if src.restore is None or src.scene is None:
@@ -23,8 +23,9 @@ def draw(viewer) -> None:
             k = st.selected_trajectory
             name = st.trajectories[k].name if 0 <= k < len(st.trajectories) else "(select a trajectory)"
             imgui.text(f"trajectory: {name}")
+            imgui.text("frames: every n-th (0 = the current one)")
             imgui.set_next_item_width(120)
-            _, ui["every"] = imgui.input_int("every n-th frame (0 = current)", ui["every"])
+            _, ui["every"] = imgui.input_int("n", ui["every"])
             ui["every"] = max(0, ui["every"])
             queue = 0 <= k < len(st.trajectories) and imgui.button("queue")
             viewer.record_item("queue")
