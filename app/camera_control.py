@@ -17,8 +17,12 @@ from fixer4d.geometry.camera import Camera
 
 # Pitch is kept this far from +-90 degrees so that the up vector never aligns with the view.
 PITCH_LIMIT = math.radians(89.0)
-# Radians of yaw/pitch per pixel of mouse drag.
+# Radians of yaw/pitch per pixel of mouse drag when the viewport size is unknown.
 ROTATE_SPEED = 0.005
+# Orbit sensitivity scaled by the viewport: a drag across the viewport's height turns the view
+# by this angle (90 degrees: a 200 px drag in a 430 px viewport is ~40 degrees, where a fixed
+# 0.005 rad/px made it ~57 and users overshot).
+ORBIT_RADIANS_PER_VIEWPORT = math.pi / 2.0
 # Orbit distance factor per mouse-wheel notch (10% closer/farther).
 ZOOM_STEP = 1.1
 # Shortest orbit distance, relative to the scene radius: the eye never reaches the target.
@@ -62,12 +66,11 @@ class ViewCamera:
         return np.asarray(self.target, float) - self.distance * self.forward()
 
     def camera(self, width: int, height: int, name: str = "viewer") -> Camera:
-        """The current view as a ``Camera`` of the given size (a snapped rig camera keeps its
-        intrinsics, rescaled to the size, and its exact pose)."""
+        """The current view as a ``Camera`` of the given size; a snapped rig camera keeps its
+        exact pose and intrinsics, letterboxed into width x height (``letterbox``: its own
+        aspect, so the result may be narrower or shorter than asked)."""
         if self.snapped is not None:
-            cam = self.snapped.resized(width, height) if (width, height) != (self.snapped.width, self.snapped.height) \
-                else self.snapped
-            return Camera(cam.K, cam.c2w, cam.width, cam.height, cam.name)
+            return letterbox(self.snapped, width, height)
         eye = self.eye()
         return Camera.look_at(eye, eye + self.forward(), up=self.up, fov_y=self.fov_y, width=width,
                               height=height, name=name)
@@ -100,12 +103,14 @@ class ViewCamera:
         self.snapped = None
 
     # ---- input ------------------------------------------------------------------------------
-    def rotate(self, dx: float, dy: float) -> None:
-        """Mouse drag by (dx, dy) pixels: orbit about the target, or look around in fly mode."""
+    def rotate(self, dx: float, dy: float, viewport_px: float | None = None) -> None:
+        """Mouse drag by (dx, dy) pixels: orbit about the target, or look around in fly mode;
+        ``viewport_px`` (the viewport's height) scales the rate (ORBIT_RADIANS_PER_VIEWPORT)."""
+        rate = ROTATE_SPEED if not viewport_px else ORBIT_RADIANS_PER_VIEWPORT / max(float(viewport_px), 1.0)
         eye = self.eye()
         self._unsnap()
-        self.yaw -= ROTATE_SPEED * dx
-        self.pitch = float(np.clip(self.pitch - ROTATE_SPEED * dy, -PITCH_LIMIT, PITCH_LIMIT))
+        self.yaw -= rate * dx
+        self.pitch = float(np.clip(self.pitch - rate * dy, -PITCH_LIMIT, PITCH_LIMIT))
         if self.mode == "fly":  # keep the eye, move the target
             self.target = eye + self.distance * self.forward()
 
@@ -147,6 +152,15 @@ class ViewCamera:
                    pitch=float(d["pitch"]), up=np.asarray(d["up"], float), fov_y=float(d["fov_y"]),
                    mode=str(d.get("mode", "orbit")), scene_radius=float(d.get("scene_radius", 1.0)),
                    snapped=None if snapped is None else Camera.from_dict(snapped))
+
+
+def letterbox(cam: Camera, width: int, height: int) -> Camera:
+    """``cam`` scaled uniformly to the largest image of its own aspect that fits width x height
+    (the rest of the viewport is bars): the same pose, K scaled with the image, so the view is
+    ``cam``'s image resampled, never stretched."""
+    s = min(width / cam.width, height / cam.height)
+    w, h = max(1, int(round(cam.width * s))), max(1, int(round(cam.height * s)))
+    return cam if (w, h) == (cam.width, cam.height) else cam.resized(w, h)
 
 
 def rig_up(cameras: list[Camera]) -> np.ndarray:

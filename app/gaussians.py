@@ -36,7 +36,7 @@ class GaussianArrays:
     opacity_logits (N,); colors (N,3) SH DC coefficients; t_center (N,) in clip time [0,1);
     t_log_scale (N,) log temporal std; motion (N,9) = m1, m2, m3 as xyz triples; omega (N,4)
     quaternion velocity; dynamic (N,) bool; sh_rest (N,K,3) higher SH bands (K may be 0; the
-    GL renderer draws the DC colour only); model_config: the ModelConfig as a dict.
+    GL shader evaluates them up to the degree K implies); model_config: the ModelConfig as a dict.
     """
 
     means: np.ndarray

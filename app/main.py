@@ -77,9 +77,13 @@ def open_source(source: str, *, scale: float = 1.0, iterations: int | None = Non
     folder for the viewer's session files)."""
     from fixer4d.scene import load_scene
 
-    path = Path(source)
-    if path.is_dir() and (path / "config.json").is_file():
-        return open_run(path)
+    from app.files import is_model_file, is_run_folder
+
+    path = Path(source).expanduser()
+    if is_run_folder(path):
+        return open_run(path.resolve())
+    if path.is_file() and is_model_file(path):
+        return open_model(path.resolve())
     scene = load_scene(source, scale=scale)
     training = TrainingSession(lambda: live_trainer(scene, iterations, init, init_frames))
     session_dir = _config_dir() / _slug(str(path.resolve()) if path.exists() else source)
@@ -89,8 +93,24 @@ def open_source(source: str, *, scale: float = 1.0, iterations: int | None = Non
     return src, None, session_dir
 
 
-def open_run(run: Path) -> tuple[ViewerSource, Any, Path]:
-    """A run folder: its scene, latest model, restoration cache and a restorer for new jobs."""
+def open_model(path: Path) -> tuple[ViewerSource, Any, Path]:
+    """A model file (.ply / .npz): inside a run folder, that run with this model version; else
+    the model alone (no scene), its session under the user's config folder."""
+    from app.files import is_run_folder
+    from app.gaussians import GaussianArrays
+    from fixer4d.model.io import load_model
+
+    if is_run_folder(path.parent):
+        return open_run(path.parent, model=path)
+    g = GaussianArrays.from_model(load_model(path))
+    src = ViewerSource(label=str(path), model_path=path)
+    return src, g, _config_dir() / _slug(str(path))
+
+
+def open_run(run: Path, model: Path | None = None) -> tuple[ViewerSource, Any, Path]:
+    """A run folder: its scene, a model version (``model``, else the one the session remembers,
+    else model_final / model_stage1), its restoration cache and a restorer for new jobs."""
+    from app.files import choose_model, remembered_version
     from app.gaussians import GaussianArrays
     from fixer4d.model.io import load_model
     from fixer4d.scene import load_scene
@@ -103,12 +123,11 @@ def open_run(run: Path) -> tuple[ViewerSource, Any, Path]:
     if scene_cfg.get("frame_range") is not None:
         scene_cfg["frame_range"] = tuple(scene_cfg["frame_range"])
     scene = load_scene(**scene_cfg)
-    model_path = next((run / n for n in ("model_final.ply", "model_stage1.ply") if (run / n).is_file()), None)
-    if model_path is None:
-        raise InputError(f"{run}: no model_final.ply or model_stage1.ply yet; run `fixer4d reconstruct` first")
+    model_path = model if model is not None else choose_model(run, remembered_version(run / "viewer" / "session.json"))
     g = GaussianArrays.from_model(load_model(model_path))
     cache, restore = make_restore(run / "cache")
-    src = ViewerSource(scene=scene, run_dir=run, label=f"{run.name}: {model_path.name}", cache=cache, restore=restore)
+    src = ViewerSource(scene=scene, run_dir=run, label=str(model_path), cache=cache, restore=restore,
+                       model_path=model_path)
     return src, g, run / "viewer"
 
 
@@ -161,6 +180,14 @@ def initial_state(src: ViewerSource, gaussians: Any) -> AppState:
         if len(scene.train_ids) >= 2:
             st.trajectories = default_specs(scene.train_cameras, max(2, min(scene.num_frames, 16)))
             st.selected_trajectory = 0
+        if src.run_dir is not None:  # a finished run: the model first, the rig on demand
+            st.show_frusta = st.show_trajectories = False
+    elif gaussians is not None and gaussians.n:  # a bare model: orbit its bulk from outside
+        lo, hi = np.percentile(gaussians.means, [5, 95], axis=0)
+        center, radius = (lo + hi) / 2.0, float(np.linalg.norm(hi - lo) / 2.0) or 1.0
+        st.view.look_from(center - 2.5 * radius * st.view.forward(), center, scene_radius=radius)
+    if src.model_path is not None:
+        st.model_version = src.model_path.name
     st.set_gaussians(gaussians)
     return st
 

@@ -90,6 +90,7 @@ class AppState:
     undo_stack: list[Edit] = field(default_factory=list)
     redo_stack: list[Edit] = field(default_factory=list)
     status: str = ""
+    model_version: str | None = None  # file name of the model shown, within its run folder
 
     # ---- time -------------------------------------------------------------------------------
     @property
@@ -240,7 +241,7 @@ class AppState:
                 "loop": self.loop, "fps": self.fps, "selected_trajectory": self.selected_trajectory,
                 "trajectories": [t.to_dict() for t in self.trajectories], "preview_alpha": self.preview_alpha,
                 "splat_mode": self.splat_mode, "debug_mode": self.debug_mode, "show_frusta": self.show_frusta,
-                "show_trajectories": self.show_trajectories}
+                "show_trajectories": self.show_trajectories, "model_version": self.model_version}
 
     def save_session(self, path: str | Path) -> Path:
         return write_json(path, self.session_dict())
@@ -270,4 +271,6 @@ class AppState:
         self.debug_mode = str(d.get("debug_mode", "color"))
         self.show_frusta = bool(d.get("show_frusta", True))
         self.show_trajectories = bool(d.get("show_trajectories", True))
+        # the model version is chosen when the run opens (app.files.remembered_version); keep
+        # the one actually shown
         return True

@@ -18,8 +18,12 @@ import moderngl
 import numpy as np
 from imgui_bundle import imgui, implot
 
+from app.adaptive import AdaptiveResolution
 from app.gl.overlays import OverlayRenderer
+from app.panels._layout import guard, panel
 from app.gl.splats import SplatRenderer
+from app.notifications import Notifications
+from app.camera_control import ViewCamera
 from app.session import RestoreQueue, TrainingSession
 from app.state import AppState, TrajectorySpec
 from fixer4d.geometry.camera import Camera
@@ -49,6 +53,7 @@ class ViewerSource:
     cache: a ``fixer4d.restore.cache.RestoreCache`` (the compare panel reads it), or None.
     restore: a ``RestoreQueue`` to queue restorations, or None.
     render_backend: the torch rasterizer backend for compare/restore renders.
+    model_path: the model file shown, or None (live training).
     """
 
     scene: Any = None
@@ -58,6 +63,7 @@ class ViewerSource:
     cache: Any = None
     restore: RestoreQueue | None = None
     render_backend: str = "auto"
+    model_path: Path | None = None  # the model file shown (a run's version, or a bare model)
 
 
 class Viewer:
@@ -76,6 +82,11 @@ class Viewer:
         io.config_flags |= imgui.ConfigFlags_.docking_enable.value
         self._ini_path = None if ini_path is None else str(ini_path)
         io.set_ini_filename(self._ini_path)
+        # imgui's error recovery undoes what a failing panel left open (see panels._layout.guard);
+        # its own assertion would turn every recovery into a second error
+        io.config_error_recovery = True
+        io.config_error_recovery_enable_assert = False
+        io.config_error_recovery_enable_tooltip = False
         if platform_init is not None:
             platform_init()
         imgui.backends.opengl3_init("#version 330")
@@ -87,11 +98,18 @@ class Viewer:
         self._model_serial = 0
         self._torch_model: tuple[int, Any] | None = None
         self.viewport_rect = (0.0, 0.0, 1.0, 1.0)  # screen x, y, w, h of the 3D image
-        self.render_camera: Camera | None = None
+        self.render_camera: Camera | None = None  # the camera of the last 3D image (maybe reduced)
+        self.display_camera: Camera | None = None  # the full-size view camera (viewport pixels)
+        self.depth_range = (0.1, 10.0)  # near, far of the depth colour map (last render)
+        self.scalar_version = 0  # bumped when the blur/mask map changes
+        self.adaptive = AdaptiveResolution()
         self.frame_ms = 0.0
         self.frame_times: list[float] = []
         self.images: dict[str, moderngl.Texture] = {}
-        self.panel_errors: dict[str, str] = {}
+        self.panel_errors: dict[str, str] = {}  # panel -> its current error (cleared when it draws again)
+        self.notifications = Notifications()
+        self._notifications_seen = 0
+        self.show_notifications = False
         self.blur_max = 1.0  # top of the blur map's colour scale (set by the debug panel)
         # screen rectangles (x0, y0, x1, y1) of named widgets from the last frame, so scripts and
         # tests can click them through imgui's io like a user
@@ -100,6 +118,7 @@ class Viewer:
         from app.panels import PANELS  # the panels import the viewer's helpers
 
         self.panels = PANELS
+        self.home_view = ViewCamera.from_dict(state.view.to_dict())  # "reset view" returns here
         if session_path is not None:
             try:
                 state.load_session(session_path)
@@ -126,15 +145,18 @@ class Viewer:
             imgui.new_frame()
             imgui.dock_space_over_viewport(0, imgui.get_main_viewport(),
                                            imgui.DockNodeFlags_.passthru_central_node.value)
-            self._menu()
+            with guard(self, "menu"):
+                self._menu()
             self._viewport_window()
             for name, draw in self.panels:
-                try:
-                    draw(self)
-                    self.panel_errors.pop(name, None)
-                except Exception as exc:  # a failing panel shows its error, the app keeps going
-                    self.panel_errors[name] = f"{type(exc).__name__}: {exc}"
-            self._shortcuts()
+                draw(self)  # each panel guards its own body (panels._layout.panel)
+            self._notifications_window()
+            with guard(self, "file"):
+                from app.panels import files
+
+                files.draw_dialog(self)
+            with guard(self, "shortcuts"):
+                self._shortcuts()
             imgui.render()
             fbo.use()
             self.ctx.viewport = (0, 0, *fbo.size)
@@ -146,6 +168,43 @@ class Viewer:
         self.frame_ms = 1e3 * (time.perf_counter() - tic)
         self.frame_times.append(self.frame_ms)
         del self.frame_times[:-240]
+
+    def report_error(self, source: str, exc: BaseException | str) -> None:
+        """An error from a panel, menu or action: into the notifications area and the log (once
+        per distinct error while it repeats every frame); the app keeps running."""
+        text = exc if isinstance(exc, str) else f"{type(exc).__name__}: {exc}"
+        if self.panel_errors.get(source) != text:
+            self.notifications.error(source, exc)
+        self.panel_errors[source] = text
+        self.state.status = f"error in {source}: {text}"
+
+    def _notifications_window(self) -> None:
+        from app.panels._layout import error_text, place
+
+        notes = self.notifications
+        if notes.serial != self._notifications_seen:
+            last = notes.items()[-1:]
+            if last and last[0].level == "error":
+                self.show_notifications = True  # an error opens the window
+            self._notifications_seen = notes.serial
+        if not self.show_notifications:
+            return
+        with panel(self, "notifications", "Notifications", 300, 640, 800, 150) as expanded:
+            if not expanded:
+                return
+            if imgui.small_button("clear"):
+                notes.clear()
+                self.panel_errors.clear()
+            imgui.same_line()
+            if imgui.small_button("hide"):
+                self.show_notifications = False
+            for msg in reversed(notes.items()):
+                stamp = time.strftime("%H:%M:%S", time.localtime(msg.when))
+                line = f"{stamp}  [{msg.source}]  {msg.text}"
+                if msg.level == "error":
+                    error_text(line)
+                else:
+                    imgui.text_wrapped(line)
 
     def _poll_models(self) -> None:
         tr = self.source.training
@@ -164,32 +223,60 @@ class Viewer:
 
     # ---- the 3D view ----------------------------------------------------------------------------
     def view_camera(self, width: int, height: int) -> Camera:
-        """The camera the viewport shows: the trajectory preview camera while previewing, else
-        the interactive camera."""
+        """The camera the viewport shows in a width x height area: the trajectory preview
+        camera while previewing, else the interactive camera; a preview or snapped camera keeps
+        its own aspect and intrinsics (letterboxed, possibly smaller than the area)."""
+        from app.camera_control import letterbox
+
         st = self.state
         if st.previewing and 0 <= st.selected_trajectory < len(st.trajectories):
             cams = self.trajectory_cameras(st.trajectories[st.selected_trajectory])
             if cams:
                 k = int(round(st.preview_alpha * (len(cams) - 1)))
-                return cams[k].resized(width, height) if (cams[k].width, cams[k].height) != (width, height) else cams[k]
+                return letterbox(cams[k], width, height)
         return st.view.camera(width, height)
 
+    def _view_key(self, cam: Camera) -> tuple:
+        """Everything the 3D image depends on: when it is unchanged the last image stands."""
+        st = self.state
+        return (cam.K.tobytes(), cam.c2w.tobytes(), cam.width, cam.height, round(st.time, 9), st.gaussians_version,
+                st.splat_mode, st.debug_mode, tuple(st.background), self.scalar_version, st.show_frusta,
+                st.show_trajectories, id(st.trajectories), tuple(id(t) for t in st.trajectories),
+                st.selected_trajectory, st.previewing, st.preview_alpha)
+
     def render_view(self, width: int, height: int, *, wait_sort: bool = False) -> moderngl.Texture | None:
-        """Render splats + overlays at the current camera and time into the display texture."""
+        """Render splats + overlays at the current camera and time into the display texture
+        (adaptive resolution: smaller while the view changes, full size once it rests, nothing
+        new while it is unchanged). ``display_camera`` is the full-size view camera (viewport
+        pixels), ``render_camera`` the one the image was drawn with (``wait_sort``: full size
+        with the exact depth order, for tests and screenshots)."""
         st = self.state
         if st.gaussians is None:
             return None
         cam = self.view_camera(width, height)
-        self.render_camera = cam
+        self.display_camera = cam
+        key = self._view_key(cam)
+        if wait_sort:
+            self.adaptive.last_key = key
+            scale = 1.0
+        else:
+            scale = self.adaptive.plan(key)
+        if scale is None and self.splats.display_texture is not None:
+            return self.splats.display_texture
+        scale = 1.0 if scale is None else scale
+        rcam = cam if scale >= 1.0 else cam.resized(max(1, int(round(cam.width * scale))),
+                                                    max(1, int(round(cam.height * scale))))
+        self.render_camera = rcam
         heat = float(np.percentile(st.gaussians.speed_at(st.time), 99)) if st.splat_mode == "speed" and st.gaussians.n else 1.0
-        self.splats.render(cam, st.time, mode=st.splat_mode, heat_scale=heat, wait_sort=wait_sort)
-        depth_range = self._depth_range(cam)
-        tex = self.splats.resolve(st.background, st.debug_mode, depth_range=depth_range,
+        stats = self.splats.render(rcam, st.time, mode=st.splat_mode, heat_scale=heat, wait_sort=wait_sort)
+        self.adaptive.done(scale, stats.draw_ms, self.splats.order_matches(rcam, st.time))
+        self.depth_range = self._depth_range(rcam)
+        tex = self.splats.resolve(st.background, st.debug_mode, depth_range=self.depth_range,
                                   scalar_max=self.blur_max if st.debug_mode == "blur" else 1.0)
         self.splats.display_framebuffer.use()
         self.overlays.clear()
-        self._collect_overlays(cam)
-        self.overlays.draw(cam, st.view.scene_radius)
+        self._collect_overlays(rcam)
+        self.overlays.draw(rcam, st.view.scene_radius)
         return tex
 
     def _depth_range(self, cam: Camera) -> tuple[float, float]:
@@ -220,17 +307,25 @@ class Viewer:
                     self.overlays.add_frustum(cams[j], depth, COLOR_PREVIEW)
 
     def _viewport_window(self) -> None:
-        from app.panels._layout import place
+        with panel(self, "viewport", "Viewport", 300, 30, 800, 470) as expanded:
+            if expanded:
+                self._viewport_body()
 
-        place(300, 30, 800, 470)
-        imgui.begin("Viewport")
+    def _viewport_body(self) -> None:
         avail = imgui.get_content_region_avail()
-        w = int(min(max(avail.x, 16), MAX_RENDER_SIDE))
-        h = int(min(max(avail.y - 4, 16), MAX_RENDER_SIDE))
-        tex = self.render_view(w, h)
-        pos = imgui.get_cursor_screen_pos()
-        self.viewport_rect = (pos.x, pos.y, float(w), float(h))
+        aw = int(min(max(avail.x, 16), MAX_RENDER_SIDE))
+        ah = int(min(max(avail.y - 4, 16), MAX_RENDER_SIDE))
+        tex = self.render_view(aw, ah)
+        area = imgui.get_cursor_screen_pos()
+        self.item_rects["viewport_area"] = (area.x, area.y, area.x + aw, area.y + ah)
         if tex is not None:
+            # a letterboxed (snapped / preview) camera sits centred on black bars
+            imgui.get_window_draw_list().add_rect_filled(area, imgui.ImVec2(area.x + aw, area.y + ah),
+                                                         imgui.get_color_u32(imgui.ImVec4(0, 0, 0, 1)))
+            w, h = self.display_camera.width, self.display_camera.height
+            pos = imgui.ImVec2(area.x + (aw - w) // 2, area.y + (ah - h) // 2)
+            self.viewport_rect = (pos.x, pos.y, float(w), float(h))
+            imgui.set_cursor_screen_pos(pos)
             imgui.image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(w, h), imgui.ImVec2(0, 1), imgui.ImVec2(1, 0))
             # an invisible button over the image takes the mouse, so drags steer the camera or
             # select instead of moving the window
@@ -240,7 +335,6 @@ class Viewer:
             self._viewport_input(imgui.is_item_hovered(), imgui.is_item_active())
         else:
             imgui.text_wrapped(self._no_model_text())
-        imgui.end()
 
     def _no_model_text(self) -> str:
         tr = self.source.training
@@ -257,7 +351,7 @@ class Viewer:
         mx, my = io.mouse_pos.x - x0, io.mouse_pos.y - y0
         if self.tool == "navigate":
             if active and imgui.is_mouse_dragging(imgui.MouseButton_.left.value, 0.0):
-                st.view.rotate(io.mouse_delta.x, io.mouse_delta.y)
+                st.view.rotate(io.mouse_delta.x, io.mouse_delta.y, h)
             if active and imgui.is_mouse_dragging(imgui.MouseButton_.right.value, 0.0):
                 st.view.pan(io.mouse_delta.x, io.mouse_delta.y, int(h))
             if hovered and io.mouse_wheel != 0.0:
@@ -290,7 +384,7 @@ class Viewer:
     # ---- selection (screen space, at the current time) -----------------------------------------
     def _screen_positions(self) -> tuple[np.ndarray, np.ndarray]:
         """(N, 2) pixel positions in the viewport image and (N,) bool 'visible now' mask."""
-        g, cam = self.state.gaussians, self.render_camera
+        g, cam = self.state.gaussians, self.display_camera
         if g is None or cam is None:
             return np.zeros((0, 2)), np.zeros(0, bool)
         t = self.state.time
@@ -323,22 +417,131 @@ class Viewer:
         st.set_selection(sel)
         return int(sel.sum())
 
-    def save_edited_model(self) -> Path | None:
-        """Save the displayed (edited) Gaussians as a new model version in the run folder:
-        RUN/model_edit_<k>.ply, k = 1 + the highest existing. Returns the path (None without a
-        run folder)."""
-        run, g = self.source.run_dir, self.state.gaussians
-        if run is None or g is None:
-            self.state.status = "no run folder: open a run to save edits"
-            return None
-        from fixer4d.model.io import save_ply
+    # ---- files ------------------------------------------------------------------------------------
+    @property
+    def output_dir(self) -> Path:
+        """Where relative paths the user types resolve: the run folder, the shown model's
+        folder, else the session folder (never the working directory)."""
+        src = self.source
+        if src.run_dir is not None:
+            return Path(src.run_dir)
+        if src.model_path is not None:
+            return Path(src.model_path).parent
+        if self.session_path is not None:
+            return Path(self.session_path).parent
+        from app.main import _config_dir
 
-        existing = [int(p.stem.rsplit("_", 1)[1]) for p in Path(run).glob("model_edit_*.ply")
-                    if p.stem.rsplit("_", 1)[1].isdigit()]
-        path = Path(run) / f"model_edit_{max(existing, default=0) + 1}.ply"
-        save_ply(g.to_model(), path)
-        self.state.status = f"saved {path.name} ({g.n} Gaussians)"
+        return _config_dir()
+
+    def output_path(self, text: str) -> Path:
+        from app.files import resolve_output
+
+        return resolve_output(text, self.output_dir)
+
+    def model_versions(self) -> list[Path]:
+        """The model files of the open run folder (or of the shown model's folder)."""
+        from app.files import model_versions
+
+        folder = self.source.run_dir or (None if self.source.model_path is None else Path(self.source.model_path).parent)
+        return [] if folder is None else model_versions(Path(folder))
+
+    def save_model(self, path: Path) -> Path:
+        """Write the displayed Gaussians (edits included) to ``path`` (.ply or .npz)."""
+        from fixer4d.model.io import save_model
+
+        if self.state.gaussians is None:
+            raise ValueError("no model to save")
+        return save_model(self.state.gaussians.to_model(), path)
+
+    def save_edited_model(self) -> Path | None:
+        """Save the displayed (edited) Gaussians as a new model version next to the shown one:
+        RUN/model_edit_<k>.ply, k = 1 + the highest existing (the session folder for a live
+        scene). It becomes the shown version, so the run reopens with it. Returns the path."""
+        from app.files import next_edit_path
+
+        g = self.state.gaussians
+        if g is None:
+            self.state.status = "no model to save"
+            return None
+        path = self.save_model(next_edit_path(self.output_dir))
+        self.source.model_path = path
+        self.source.label = str(path)
+        self.state.model_version = path.name
+        self._save_session()
+        self.state.status = f"saved {path} ({g.n} Gaussians)"
+        self.notifications.info("file", self.state.status)
         return path
+
+    def open_version(self, path: Path) -> str:
+        """Show another model file of the same run (keeps camera, time and trajectories; edits
+        of the previous version can no longer be undone)."""
+        from app.gaussians import GaussianArrays
+        from fixer4d.model.io import load_model
+
+        g = GaussianArrays.from_model(load_model(path))
+        st = self.state
+        st.set_gaussians(g)
+        st.undo_stack.clear()
+        st.redo_stack.clear()
+        self.source.model_path = Path(path)
+        self.source.label = str(path)
+        st.model_version = Path(path).name
+        self._save_session()
+        return f"opened {path} ({g.n} Gaussians)"
+
+    def open_path(self, text: str) -> str:
+        """File > Open: a run folder or a model file (a model of the open run switches the
+        version; anything else replaces the source, with its own session)."""
+        from app.files import is_model_file, is_run_folder, resolve_input
+        from app.main import open_source
+        from fixer4d.errors import InputError
+
+        path = resolve_input(text, self.output_dir)
+        if not (is_run_folder(path) or (path.is_file() and is_model_file(path))):
+            raise InputError(f"{path}: not a run folder (with config.json) or a model file (.ply / .npz)")
+        if self.source.run_dir is not None and path.is_file() and path.parent == Path(self.source.run_dir):
+            return self.open_version(path)
+        src, g, session_dir = open_source(str(path))
+        self.switch_source(src, g, session_dir)
+        return f"opened {src.label}"
+
+    def switch_source(self, src: ViewerSource, gaussians: Any, session_dir: Path) -> None:
+        """Replace what the viewer shows: the current session is saved and its background work
+        stopped; the new source's state starts fresh or from its own saved session."""
+        from app.main import initial_state
+
+        self._save_session()
+        old = self.source
+        if old.training is not None:
+            old.training.stop()
+        if old.restore is not None:
+            old.restore.shutdown()
+        state = initial_state(src, gaussians)
+        home = ViewCamera.from_dict(state.view.to_dict())
+        if self.session_path is not None:
+            session_dir.mkdir(parents=True, exist_ok=True)
+            self.session_path = session_dir / "session.json"
+            try:
+                state.load_session(self.session_path)
+            except Exception as exc:  # a bad session must not stop the open
+                self.report_error("session", exc)
+            if src.model_path is not None:
+                state.model_version = src.model_path.name
+        self.state, self.source = state, src
+        self.home_view = home
+        self._trajectory_cache.clear()
+        self._torch_model = None
+        self._uploaded_version = -1
+        self.adaptive.invalidate()
+        for key in ("_compare_ui", "_debug_ui"):
+            self.__dict__.pop(key, None)
+        if src.training is not None:
+            src.training.start()
+
+    def _save_session(self) -> None:
+        if self.session_path is not None:
+            Path(self.session_path).parent.mkdir(parents=True, exist_ok=True)
+            self.state.save_session(self.session_path)
 
     # ---- trajectories and torch renders ----------------------------------------------------------
     def trajectory_cameras(self, spec: TrajectorySpec) -> list[Camera]:
@@ -403,8 +606,11 @@ class Viewer:
 
     # ---- menu and keys ----------------------------------------------------------------------------
     def _menu(self) -> None:
+        from app.panels import files
+
         if not imgui.begin_main_menu_bar():
             return
+        files.draw_menu(self)
         if imgui.begin_menu("Edit"):
             if imgui.menu_item("Undo", "Ctrl+Z", False, bool(self.state.undo_stack))[0]:
                 self.state.undo()
@@ -422,6 +628,12 @@ class Viewer:
             self.state.undo()
         if io.key_ctrl and imgui.is_key_pressed(imgui.Key.y, False):
             self.state.redo()
+        if io.key_ctrl and imgui.is_key_pressed(imgui.Key.o, False):
+            from app.panels import files
+
+            files.ask(self, "open")
+        if io.key_ctrl and imgui.is_key_pressed(imgui.Key.s, False) and self.state.gaussians is not None:
+            self.save_edited_model()
         if imgui.is_key_pressed(imgui.Key.space, False) and not io.key_ctrl:
             self.state.playing = not self.state.playing
 
@@ -434,8 +646,7 @@ class Viewer:
     def close(self, platform_shutdown: Callable[[], None] | None = None) -> None:
         """Save the session and the imgui layout, stop background work, free GL objects
         (``platform_shutdown``: the window backend's, run before the imgui context goes)."""
-        if self.session_path is not None:
-            self.state.save_session(self.session_path)
+        self._save_session()
         if self._ini_path is not None:
             imgui.save_ini_settings_to_disk(self._ini_path)
         if self.source.training is not None:

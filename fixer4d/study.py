@@ -33,7 +33,7 @@ DEFAULT_SWEEP: list[dict[str, Any]] = [
     {"name": "rounds-1", "stage2.rounds": 1},
     {"name": "rounds-3", "stage2.rounds": 3},
     {"name": "K-0.5x", "stage2.refresh_every": 0.5},
-    {"name": "restorer-refs-only", "restorer.use_extra_views": False},
+    {"name": "restorer-refs-only", "restorer.warp.use_extra_views": False},
     {"name": "sparse-init", "init.method": "sparse"},
     {"name": "res-0.5", "scene.scale": 0.5},
     {"name": "iters-0.5x", "stage1.iterations": 0.5},

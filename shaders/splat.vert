@@ -5,8 +5,11 @@
 // covariance is projected with the EWA Jacobian plus the rasterizer's low-pass, exactly as the
 // torch rasterizer does, in OpenCV pixel coordinates with pixel centres at +0.5.
 
-#define TEXELS 8
-uniform sampler2D u_params;    // RGBA32F, width u_tex_width texels
+#define MAX_SH_TEXELS 12       // degree 3: 15 coefficients x 3 channels = 45 floats
+uniform sampler2D u_params;    // RGBA32F, width u_tex_width texels, u_texels per Gaussian
+uniform int u_texels;          // 8 + the SH texels
+uniform int u_sh_degree;       // 0..3: higher SH bands after the 8 base texels
+uniform vec3 u_cam_center;     // world position of the camera (view direction for SH)
 uniform sampler2D u_flags;     // R32F, one texel per Gaussian: 1 = selected
 uniform int u_tex_width;
 uniform mat4 u_w2c;            // world -> camera (OpenCV axes), column-major
@@ -32,7 +35,7 @@ flat out vec4 v_color; // rgb, opacity at u_time
 flat out float v_depth;
 
 vec4 fetch(int i, int k) {
-    int texel = i * TEXELS + k;
+    int texel = i * u_texels + k;
     return texelFetch(u_params, ivec2(texel % u_tex_width, texel / u_tex_width), 0);
 }
 
@@ -45,6 +48,45 @@ mat3 quat_to_mat(vec4 q) {  // q = (w, x, y, z), normalized here, zero -> identi
         1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y),
         2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x),
         2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y));
+}
+
+// Real SH constants (fixer4d.model.spacetime SH_C0..SH_C3, the 3DGS convention).
+const float SH_C1 = 0.4886025119029199;
+const float SH_C2[5] = float[5](1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
+                                -1.0925484305920792, 0.5462742152960396);
+const float SH_C3[7] = float[7](-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
+                                -0.4570457994644658, 1.445305721320277, -0.5900435899266435);
+
+// Colour before the +0.5 offset from the higher SH bands of Gaussian i seen along unit dir d,
+// as fixer4d.model.spacetime.sh_basis (coefficient k of channel c at float 3k + c).
+vec3 sh_rest(int i, vec3 d) {
+    vec4 t[MAX_SH_TEXELS];
+    int n = (3 * ((u_sh_degree + 1) * (u_sh_degree + 1) - 1) + 3) / 4;
+    for (int j = 0; j < MAX_SH_TEXELS; ++j) t[j] = j < n ? fetch(i, 8 + j) : vec4(0.0);
+    float f[4 * MAX_SH_TEXELS];
+    for (int j = 0; j < MAX_SH_TEXELS; ++j) {
+        f[4 * j] = t[j].x; f[4 * j + 1] = t[j].y; f[4 * j + 2] = t[j].z; f[4 * j + 3] = t[j].w;
+    }
+    float x = d.x, y = d.y, z = d.z;
+    float b[15];
+    b[0] = -SH_C1 * y; b[1] = SH_C1 * z; b[2] = -SH_C1 * x;
+    int K = 3;
+    if (u_sh_degree > 1) {
+        float xx = x * x, yy = y * y, zz = z * z;
+        b[3] = SH_C2[0] * x * y; b[4] = SH_C2[1] * y * z; b[5] = SH_C2[2] * (2.0 * zz - xx - yy);
+        b[6] = SH_C2[3] * x * z; b[7] = SH_C2[4] * (xx - yy);
+        K = 8;
+        if (u_sh_degree > 2) {
+            b[8] = SH_C3[0] * y * (3.0 * xx - yy); b[9] = SH_C3[1] * x * y * z;
+            b[10] = SH_C3[2] * y * (4.0 * zz - xx - yy); b[11] = SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy);
+            b[12] = SH_C3[4] * x * (4.0 * zz - xx - yy); b[13] = SH_C3[5] * z * (xx - yy);
+            b[14] = SH_C3[6] * x * (xx - 3.0 * yy);
+            K = 15;
+        }
+    }
+    vec3 rgb = vec3(0.0);
+    for (int k = 0; k < K; ++k) rgb += b[k] * vec3(f[3 * k], f[3 * k + 1], f[3 * k + 2]);
+    return rgb;
 }
 
 void cull() {
@@ -113,7 +155,13 @@ void main() {
     vec2 pix = center + corner * radius;
     v_offset = pix - center;
     v_conic = vec3(c, -b, a) / det;
-    vec3 rgb = max(0.5 + 0.28209479177387814 * p3.xyz, 0.0);
+    vec3 rgb = 0.28209479177387814 * p3.xyz;
+    if (u_sh_degree > 0) {
+        // view direction from the camera centre to the mean at u_time (eps as DIRECTION_EPS)
+        vec3 dir = mean - u_cam_center;
+        rgb += sh_rest(i, dir / sqrt(dot(dir, dir) + 1e-12));
+    }
+    rgb = max(rgb + 0.5, 0.0);
     if (u_mode == 1) {
         vec3 vel = p4.xyz + 2.0 * dt * p5.xyz + 3.0 * dt * dt * p6.xyz;
         rgb = turbo(dynamic ? length(vel) / max(u_heat_scale, 1e-12) : 0.0);

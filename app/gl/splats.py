@@ -28,23 +28,44 @@ from fixer4d.render.constants import (ALPHA_MAX, ALPHA_MIN, DET_MIN, LOWPASS_2D,
                                       SIGMA_EXTENT, TAN_FOV_MARGIN)
 
 
-# Texels per Gaussian in the parameter texture and the texture's width in texels. 4096 is within
-# every GL 3.3 implementation's minimum max-texture-size guarantee for float textures in practice
-# and gives 512 Gaussians per row (16M Gaussians before the 4096-row limit).
+# Texels per Gaussian in the parameter texture without view-dependent colour, and the texture's
+# width in texels. 4096 is within every GL 3.3 implementation's minimum max-texture-size
+# guarantee for float textures in practice and gives 512 Gaussians per row at 8 texels (16M
+# Gaussians before the 4096-row limit). Higher SH bands add ceil(3 K / 4) texels (K = (d+1)^2-1
+# coefficients per channel, 12 texels at degree 3); the shader's SH array holds that maximum.
 TEXELS_PER_GAUSSIAN = 8
+MAX_SH_TEXELS = 12
 TEXTURE_WIDTH = 4096
+
+
+def sh_texels(num_rest: int) -> int:
+    """Texels holding ``num_rest`` higher-band SH coefficients per channel (3 floats each)."""
+    return -(-3 * int(num_rest) // 4)
+
+
+def sh_degree_of(num_rest: int) -> int:
+    """The SH degree d with (d+1)^2 - 1 == num_rest (0, 3, 8, 15 -> 0..3)."""
+    d = int(round((num_rest + 1) ** 0.5)) - 1
+    if (d + 1) ** 2 - 1 != num_rest or not 0 <= d <= 3:
+        raise ValueError(f"{num_rest} SH coefficients per channel is not a full band set of degree 0..3")
+    return d
 
 # Debug modes of the resolve pass (heatmap.frag) and of the splat colours (splat.vert).
 RESOLVE_MODES = {"color": 0, "holes": 1, "depth": 2, "blur": 3, "alpha": 4}
 SPLAT_MODES = {"color": 0, "speed": 1, "temporal_opacity": 2}
 
 
+def texels_per_gaussian(g: GaussianArrays) -> int:
+    return TEXELS_PER_GAUSSIAN + sh_texels(g.sh_rest.shape[1])
+
+
 def pack_params(g: GaussianArrays) -> np.ndarray:
-    """(rows, TEXTURE_WIDTH, 4) float32 texture image holding TEXELS_PER_GAUSSIAN texels per
-    Gaussian: mean+opacity logit, log-scale+t_center, quat, colour+t_log_scale, m1+dynamic, m2,
-    m3, omega."""
+    """(rows, TEXTURE_WIDTH, 4) float32 texture image holding ``texels_per_gaussian(g)`` texels
+    per Gaussian: mean+opacity logit, log-scale+t_center, quat, colour+t_log_scale, m1+dynamic,
+    m2, m3, omega, then the higher SH bands as a flat (K, 3) row-major float run."""
     n = g.n
-    texels = np.zeros((max(n, 1), TEXELS_PER_GAUSSIAN, 4), np.float32)
+    k = g.sh_rest.shape[1]
+    texels = np.zeros((max(n, 1), texels_per_gaussian(g), 4), np.float32)
     if n:
         texels[:, 0, :3], texels[:, 0, 3] = g.means, g.opacity_logits
         texels[:, 1, :3], texels[:, 1, 3] = g.log_scales, g.t_center
@@ -54,6 +75,10 @@ def pack_params(g: GaussianArrays) -> np.ndarray:
         texels[:, 5, :3] = g.motion[:, 3:6]
         texels[:, 6, :3] = g.motion[:, 6:9]
         texels[:, 7] = g.omega
+        if k:
+            flat = np.zeros((n, 4 * sh_texels(k)), np.float32)
+            flat[:, : 3 * k] = g.sh_rest.reshape(n, 3 * k)
+            texels[:, TEXELS_PER_GAUSSIAN:] = flat.reshape(n, -1, 4)
     flat = texels.reshape(-1, 4)
     rows = -(-flat.shape[0] // TEXTURE_WIDTH)
     out = np.zeros((rows * TEXTURE_WIDTH, 4), np.float32)
@@ -261,6 +286,9 @@ class SplatRenderer:
         self._param_tex.use(0)
         self._flag_tex.use(1)
         p["u_tex_width"].value = TEXTURE_WIDTH
+        p["u_texels"].value = texels_per_gaussian(g)
+        p["u_sh_degree"].value = sh_degree_of(g.sh_rest.shape[1])
+        p["u_cam_center"].value = tuple(float(x) for x in camera.center)
         p["u_w2c"].write(np.ascontiguousarray(camera.w2c.T, dtype=np.float32).tobytes())
         p["u_intr"].value = (camera.fx, camera.fy, camera.cx, camera.cy)
         p["u_size"].value = (float(camera.width), float(camera.height))
@@ -289,6 +317,10 @@ class SplatRenderer:
         stats.instances = self._instances
         self.stats = stats
         return stats
+
+    def order_matches(self, camera: Camera, t: float) -> bool:
+        """Whether the installed depth order is the exact one for ``camera`` at ``t``."""
+        return self._order_key is not None and self._order_key == self._sort_key(camera, t)
 
     def upload_order(self, order: np.ndarray, camera: Camera, t: float) -> None:
         """Install a depth order computed elsewhere (``depth_order``) for ``camera`` at ``t``, so

@@ -1,24 +1,21 @@
-"""Default placement of a panel the first time it appears (later the imgui ini layout wins)."""
+"""Panel plumbing: first-use placement and the guard every panel body runs in.
+
+``panel(viewer, name, title, x, y, w, h)`` opens the panel's window and yields whether its body
+should be drawn. Whatever the body raises (a bad file, a bug, an imgui assertion such as an
+unbalanced push/pop) is caught there: imgui's error recovery closes everything the body opened
+(child windows, groups, ID and style stacks, disabled blocks) plus the panel's own window, the
+error goes to the viewer's notifications area and the log, and the frame goes on. Nothing else
+in the frame is lost.
+"""
 from __future__ import annotations
+
+from contextlib import contextmanager
+from typing import Iterator
 
 from imgui_bundle import imgui
 
 # The default layout is designed for this window size and scaled to the actual one.
 DESIGN_SIZE = (1440.0, 900.0)
-
-
-def begin(title: str, x: float, y: float, w: float, h: float) -> bool:
-    """imgui.begin with a first-use position/size given in DESIGN_SIZE pixels (scaled to the
-    window); returns whether the body should be drawn (call imgui.end() either way)."""
-    place(x, y, w, h)
-    expanded, _ = imgui.begin(title)
-    return expanded
-
-
-def show_error(viewer, name: str) -> None:
-    err = viewer.panel_errors.get(name)
-    if err:
-        imgui.text_colored(imgui.ImVec4(1.0, 0.35, 0.3, 1.0), err)
 
 
 def place(x: float, y: float, w: float, h: float) -> None:
@@ -27,3 +24,59 @@ def place(x: float, y: float, w: float, h: float) -> None:
     sx, sy = size.x / DESIGN_SIZE[0], size.y / DESIGN_SIZE[1]
     imgui.set_next_window_pos(imgui.ImVec2(x * sx, y * sy), imgui.Cond_.first_use_ever.value)
     imgui.set_next_window_size(imgui.ImVec2(w * sx, h * sy), imgui.Cond_.first_use_ever.value)
+
+
+@contextmanager
+def guard(viewer, name: str) -> Iterator[None]:
+    """Run a block of imgui calls; on any exception restore imgui's stacks to what they were
+    when the block began and report the error as coming from ``name``."""
+    saved = imgui.internal.ErrorRecoveryState()
+    imgui.internal.error_recovery_store_state(saved)
+    try:
+        yield
+    except Exception as exc:  # the app keeps running; the user reads what went wrong
+        imgui.internal.error_recovery_try_to_recover_state(saved)
+        viewer.report_error(name, exc)
+
+
+@contextmanager
+def panel(viewer, name: str, title: str, x: float, y: float, w: float, h: float) -> Iterator[bool]:
+    """``with panel(...) as expanded: if expanded: <body>``: the panel window (first-use
+    placement in DESIGN_SIZE pixels) with its body guarded; ``imgui.end`` is always called
+    exactly once, by the guard's recovery or here."""
+    saved = imgui.internal.ErrorRecoveryState()
+    imgui.internal.error_recovery_store_state(saved)
+    place(x, y, w, h)
+    try:
+        expanded, _ = imgui.begin(title)
+        yield expanded
+    except Exception as exc:
+        imgui.internal.error_recovery_try_to_recover_state(saved)  # ends the panel window too
+        viewer.report_error(name, exc)
+    else:
+        imgui.end()
+        viewer.panel_errors.pop(name, None)
+
+
+def error_text(text: str) -> None:
+    """A line of error-coloured wrapped text."""
+    imgui.push_style_color(imgui.Col_.text.value, imgui.ImVec4(1.0, 0.4, 0.35, 1.0))
+    imgui.text_wrapped(text)
+    imgui.pop_style_color()
+
+
+def radio_row(items: tuple[str, ...] | list[str], current: str, id_suffix: str = "") -> str:
+    """Radio buttons for ``items`` laid out left to right, wrapping to a new line instead of
+    running past the panel's edge; returns the chosen item."""
+    style = imgui.get_style()
+    right = imgui.get_cursor_screen_pos().x + imgui.get_content_region_avail().x
+    chosen = current
+    for k, item in enumerate(items):
+        width = imgui.get_frame_height() + style.item_inner_spacing.x + imgui.calc_text_size(item).x
+        if k:
+            imgui.same_line()
+            if imgui.get_cursor_screen_pos().x + width > right:
+                imgui.new_line()
+        if imgui.radio_button(f"{item}##{id_suffix}", item == current):
+            chosen = item
+    return chosen

@@ -8,7 +8,7 @@ import time
 import numpy as np
 from imgui_bundle import imgui
 
-from app.panels._layout import begin, show_error
+from app.panels._layout import panel
 
 # Re-list the cache at most this often (seconds): listing reads meta.json files from disk.
 CACHE_POLL_S = 1.0
@@ -19,13 +19,13 @@ def draw(viewer) -> None:
     src = viewer.source
     ui = viewer.__dict__.setdefault("_compare_ui", {"entries": [], "polled": -1e9, "entry": 0, "k": 0,
                                                     "mode": 0, "split": 0.5, "show_b": False, "cache": {}})
-    if begin("Compare", 300, 605, 800, 290):
-        show_error(viewer, "compare")
+    with panel(viewer, "compare", "Compare", 300, 605, 800, 290) as expanded:
+        if not expanded:
+            return
         if src.cache is None:
             imgui.text_wrapped("No restoration cache (open a run folder or queue a restoration).")
         else:
             body(viewer, ui)
-    imgui.end()
 
 
 def refresh_entries(viewer, ui: dict) -> list:

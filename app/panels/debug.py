@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
-from app.panels._layout import begin, show_error
+from app.panels._layout import panel, radio_row
 
 RESOLVE = ("color", "holes", "depth", "alpha", "blur")
 SPLAT = ("color", "speed", "temporal_opacity")
@@ -14,17 +14,16 @@ SPLAT = ("color", "speed", "temporal_opacity")
 
 def draw(viewer) -> None:
     st = viewer.state
-    ui = viewer.__dict__.setdefault("_debug_ui", {"shot": "screenshot.png", "ref": None})
-    if begin("Debug", 1105, 620, 330, 300):
-        show_error(viewer, "debug")
+    ui = viewer.__dict__.setdefault("_debug_ui", {"shot": "viewer/screenshot.png", "ref": None})
+    with panel(viewer, "debug", "Debug", 1105, 600, 330, 295) as expanded:
+        if not expanded:
+            return
         imgui.text("image")
-        for mode in RESOLVE:
-            if imgui.radio_button(mode, st.debug_mode == mode):
-                st.debug_mode = mode
-                if mode == "blur":
-                    compute_blur(viewer)
-            imgui.same_line()
-        imgui.new_line()
+        mode = radio_row(RESOLVE, st.debug_mode, "image")
+        if mode != st.debug_mode:
+            st.debug_mode = mode
+            if mode == "blur":
+                compute_blur(viewer)
         if st.debug_mode == "blur":
             if imgui.button("recompute blur map"):
                 compute_blur(viewer)
@@ -32,18 +31,13 @@ def draw(viewer) -> None:
                 imgui.same_line()
                 imgui.text(f"vs {ui['ref']}")
         imgui.text("Gaussians")
-        for mode in SPLAT:
-            if imgui.radio_button(mode + "##splat", st.splat_mode == mode):
-                st.splat_mode = mode
-            imgui.same_line()
-        imgui.new_line()
+        st.splat_mode = radio_row(SPLAT, st.splat_mode, "splat")
         s = viewer.splats.stats
         imgui.text(f"frame {viewer.frame_ms:.1f} ms   draw {s.draw_ms:.1f} ms   sort {s.sort_ms:.1f} ms")
         imgui.text(f"upload {s.upload_ms:.1f} ms   instances {s.instances}")
         _, ui["shot"] = imgui.input_text("file", ui["shot"])
         if imgui.button("save screenshot (3D view)"):
             save_view_png(viewer, ui["shot"])
-    imgui.end()
 
 
 def compute_blur(viewer) -> None:
@@ -51,7 +45,7 @@ def compute_blur(viewer) -> None:
     from app.debug_maps import blur_map, nearest_camera
 
     scene, cam = viewer.source.scene, viewer.splats.last_camera
-    ui = viewer.__dict__.setdefault("_debug_ui", {"shot": "screenshot.png", "ref": None})
+    ui = viewer.__dict__.setdefault("_debug_ui", {"shot": "viewer/screenshot.png", "ref": None})
     if scene is None or cam is None:
         viewer.state.status = "blur map needs a scene with real frames"
         return
@@ -61,11 +55,13 @@ def compute_blur(viewer) -> None:
     m = blur_map(viewer.splats.read_rgb(viewer.state.background), viewer.splats.read_depth(),
                  viewer.splats.read_alpha(), cam, scene.frame(viewer.state.frame, ref_idx), train[j])
     viewer.splats.set_scalar_map(m)
+    viewer.scalar_version += 1
     viewer.blur_max = float(max(np.percentile(m, 99), 1e-6))
     ui["ref"] = train[j].name or str(ref_idx)
 
 
-def save_view_png(viewer, path: str) -> None:
+def save_view_png(viewer, text: str) -> None:
+    """Write the 3D view's last image; a relative path lands in the run/session folder."""
     from PIL import Image
 
     from fixer4d.atomic import atomic_path
@@ -73,6 +69,8 @@ def save_view_png(viewer, path: str) -> None:
     if viewer.splats.display_texture is None:
         viewer.state.status = "nothing rendered yet"
         return
+    path = viewer.output_path(text)
+    path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
         Image.fromarray(viewer.splats.read_display()).save(tmp)
     viewer.state.status = f"wrote {path}"

@@ -7,23 +7,25 @@ import re
 
 from imgui_bundle import imgui
 
-from app.panels._layout import begin, show_error
+from app.panels._layout import panel
 
 
 def draw(viewer) -> None:
     st = viewer.state
     src = viewer.source
     ui = viewer.__dict__.setdefault("_restore_ui", {"every": 0})
-    if begin("Restore", 1105, 365, 330, 250):
-        show_error(viewer, "restore")
+    with panel(viewer, "restore", "Restore", 1105, 365, 330, 230) as expanded:
+        if not expanded:
+            return
         if src.restore is None or src.scene is None:
             imgui.text_wrapped("Restoration needs a scene and a restorer (open a run folder or a scene).")
         else:
             k = st.selected_trajectory
             name = st.trajectories[k].name if 0 <= k < len(st.trajectories) else "(select a trajectory)"
             imgui.text(f"trajectory: {name}")
+            imgui.text("frames: every n-th (0 = the current one)")
             imgui.set_next_item_width(120)
-            _, ui["every"] = imgui.input_int("every n-th frame (0 = current)", ui["every"])
+            _, ui["every"] = imgui.input_int("n", ui["every"])
             ui["every"] = max(0, ui["every"])
             queue = 0 <= k < len(st.trajectories) and imgui.button("queue")
             viewer.record_item("queue")
@@ -44,7 +46,6 @@ def draw(viewer) -> None:
                 if err:
                     imgui.text_colored(imgui.ImVec4(1.0, 0.35, 0.3, 1.0), str(err))
                 imgui.pop_id()
-    imgui.end()
 
 
 def queue_restore(viewer, k: int, frame: int):

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from app.panels._layout import begin, show_error
+from app.panels._layout import panel
 
 # Playback speeds offered (frames per second).
 FPS_RANGE = (1.0, 120.0)
@@ -11,8 +11,9 @@ FPS_RANGE = (1.0, 120.0)
 
 def draw(viewer) -> None:
     st = viewer.state
-    if begin("Timeline", 300, 505, 800, 95):
-        show_error(viewer, "timeline")
+    with panel(viewer, "timeline", "Timeline", 300, 505, 800, 95) as expanded:
+        if not expanded:
+            return
         if imgui.button("Pause" if st.playing else "Play"):
             st.playing = not st.playing
         imgui.same_line()
@@ -26,11 +27,10 @@ def draw(viewer) -> None:
         imgui.same_line()
         imgui.set_next_item_width(120)
         _, st.fps = imgui.slider_float("fps", st.fps, *FPS_RANGE, "%.0f")
-        imgui.same_line()
-        imgui.text(f"t = {st.time:.4f}")
+        imgui.same_line(0.0, 3.0 * imgui.get_style().item_spacing.x)
+        imgui.text(f"t = {st.time:.4f}   ({st.num_frames} frames)")
         imgui.set_next_item_width(-1)
         changed, f = imgui.slider_int("##frame", st.frame, 0, max(st.num_frames - 1, 0), "frame %d")
         viewer.record_item("frame_slider")
         if changed:
             st.set_frame(f)
-    imgui.end()

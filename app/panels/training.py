@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui, implot
 
-from app.panels._layout import begin, show_error
+from app.panels._layout import panel
 
 # Loss curves drawn from at most this many points (the history is decimated to it).
 PLOT_POINTS = 2000
@@ -13,8 +13,9 @@ PLOT_POINTS = 2000
 
 def draw(viewer) -> None:
     tr = viewer.source.training
-    if begin("Training", 1105, 30, 330, 330):
-        show_error(viewer, "training")
+    with panel(viewer, "training", "Training", 1105, 30, 330, 330) as expanded:
+        if not expanded:
+            return
         if tr is None:
             imgui.text_wrapped("Showing a saved model. Open a scene (fixer4d-view SCENE) to train live.")
         else:
@@ -51,4 +52,3 @@ def draw(viewer) -> None:
                         if np.isfinite(ys).any():
                             implot.plot_line(key, steps, ys)
                     implot.end_plot()
-    imgui.end()

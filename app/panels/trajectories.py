@@ -7,7 +7,7 @@ from __future__ import annotations
 from imgui_bundle import imgui
 
 from app import trajectories as traj
-from app.panels._layout import begin, show_error
+from app.panels._layout import panel
 from app.state import TrajectorySpec
 
 # Slider ranges: A in units of the rig radius, frame counts per clip.
@@ -18,11 +18,13 @@ FRAMES_RANGE = (2, 120)
 def draw(viewer) -> None:
     st = viewer.state
     scene = viewer.source.scene
-    ui = viewer.__dict__.setdefault("_traj_ui", {"preset": "trajectories.json", "camera_path": "camera_path.json",
+    ui = viewer.__dict__.setdefault("_traj_ui", {"preset": "viewer/trajectories.json",
+                                                 "camera_path": "viewer/camera_path.json",
                                                  "pending": {}})
     train = [] if scene is None else scene.train_cameras
-    if begin("Trajectories", 5, 365, 290, 430):
-        show_error(viewer, "trajectories")
+    with panel(viewer, "trajectories", "Trajectories", 5, 300, 290, 595) as expanded:
+        if not expanded:
+            return
         if scene is not None and imgui.button("add the 6 pairs + arcs"):
             st.set_trajectories(st.trajectories + traj.default_specs(scene.train_cameras, max(2, scene.num_frames)),
                                 "add default trajectories", selected=len(st.trajectories))
@@ -32,7 +34,8 @@ def draw(viewer) -> None:
             st.add_trajectory(TrajectorySpec(name=f"custom{len(st.trajectories)}", keyframes=(cam.to_dict(),)))
         imgui.begin_child("list", imgui.ImVec2(0, 110), imgui.ChildFlags_.borders.value)
         for k, spec in enumerate(st.trajectories):
-            label = f"{spec.name}  A={spec.amplitude:.2f}  {spec.n_frames}f{'  rev' if spec.reverse else ''}##{k}"
+            shape = f"A={spec.amplitude:.2f}" if spec.pair is not None else f"custom, {len(spec.keyframes)} keys"
+            label = f"{spec.name}  {shape}  {spec.n_frames} frames{'  reversed' if spec.reverse else ''}##{k}"
             if imgui.selectable(label, k == st.selected_trajectory)[0]:
                 st.selected_trajectory = k
         imgui.end_child()
@@ -40,22 +43,31 @@ def draw(viewer) -> None:
         if 0 <= k < len(st.trajectories):
             _selected(viewer, k, ui["pending"])
         imgui.separator()
-        _, ui["preset"] = imgui.input_text("preset", ui["preset"])
-        export = imgui.button("export preset")
-        viewer.record_item("export_preset")
-        if export:
-            st.status = f"wrote {traj.save_preset(ui['preset'], st.trajectories, train)}"
-        imgui.same_line()
-        if imgui.button("import preset"):
-            st.set_trajectories(traj.load_preset(ui["preset"]), f"import {ui['preset']}", selected=0)
-        _, ui["camera_path"] = imgui.input_text("camera_path", ui["camera_path"])
-        if 0 <= k < len(st.trajectories) and imgui.button("export camera_path"):
-            path = traj.save_camera_path(ui["camera_path"], st.trajectories[k], train, min(st.time, 0.999999), st.fps)
-            st.status = f"wrote {path}"
-        imgui.same_line()
-        if imgui.button("import camera_path"):
-            st.add_trajectory(traj.load_camera_path(ui["camera_path"]))
-    imgui.end()
+        for field in ("preset", "camera_path"):
+            file_row(viewer, ui, field)
+
+
+def file_row(viewer, ui: dict, field: str) -> None:
+    """A path field (relative paths under the run/session folder, the full path shown below)
+    with export and import buttons; errors go to the panel's guard."""
+    from app.panels import files
+
+    imgui.text("preset file (fixer4d JSON)" if field == "preset" else "camera_path file (nerfstudio JSON)")
+    imgui.set_next_item_width(-1)
+    _, ui[field] = imgui.input_text(f"##{field}", ui[field])
+    if ui[field].strip():
+        imgui.push_text_wrap_pos(0.0)
+        imgui.text_disabled(str(viewer.output_path(ui[field])))
+        imgui.pop_text_wrap_pos()
+    export = imgui.button(f"export##{field}")
+    viewer.record_item(f"export_{field}")
+    imgui.same_line()
+    do_import = imgui.button(f"import##{field}")
+    viewer.record_item(f"import_{field}")
+    if export:
+        viewer.state.status = files.run_action(viewer, f"export_{field}", ui[field])
+    if do_import:
+        viewer.state.status = files.run_action(viewer, f"import_{field}", ui[field])
 
 
 def _selected(viewer, k: int, pending: dict) -> None:

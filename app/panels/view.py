@@ -3,9 +3,10 @@ selection tools (box, brush), delete/isolate the selection, save as a new model 
 undo/redo."""
 from __future__ import annotations
 
+import numpy as np
 from imgui_bundle import imgui
 
-from app.panels._layout import begin, show_error
+from app.panels._layout import panel
 
 TOOLS = ("navigate", "box", "brush")
 
@@ -13,18 +14,30 @@ TOOLS = ("navigate", "box", "brush")
 def draw(viewer) -> None:
     st = viewer.state
     scene = viewer.source.scene
-    if begin("View & edit", 5, 30, 290, 330):
-        show_error(viewer, "view")
+    with panel(viewer, "view", "View & edit", 5, 30, 290, 265) as expanded:
+        if not expanded:
+            return
         imgui.text("camera")
+        imgui.same_line()
         for mode in ("orbit", "fly"):
             if imgui.radio_button(mode, st.view.mode == mode):
                 st.view.mode = mode
             imgui.same_line()
-        imgui.new_line()
+        reset = imgui.button("reset view")
+        viewer.record_item("reset_view")
+        if reset:
+            from app.camera_control import ViewCamera
+
+            st.view = ViewCamera.from_dict(viewer.home_view.to_dict())
+            st.previewing = False
         if scene is not None:
-            names = [f"{'train' if i in scene.train_ids else 'test '} {c.name or i}" for i, c in enumerate(scene.cameras)]
-            current = next((i for i, c in enumerate(scene.cameras) if st.view.snapped is c), -1)
-            changed, idx = imgui.combo("snap to", current, names)
+            names = [f"{'train' if i in scene.train_ids else 'test'} camera {c.name or i}  ({c.width}x{c.height})"
+                     for i, c in enumerate(scene.cameras)]
+            snapped = st.view.snapped
+            current = next((i for i, c in enumerate(scene.cameras) if snapped is not None and c.name == snapped.name
+                            and np.allclose(c.c2w, snapped.c2w)), -1)
+            imgui.set_next_item_width(-60)
+            changed, idx = combo_with_preview("snap to", current, names, "(free camera)")
             if changed and idx >= 0:
                 st.view.snap_to(scene.cameras[idx])
                 st.previewing = False
@@ -68,4 +81,14 @@ def draw(viewer) -> None:
         if st.undo_stack:
             imgui.same_line()
             imgui.text_disabled(st.undo_stack[-1].label)
-    imgui.end()
+
+
+def combo_with_preview(label: str, current: int, names: list[str], none_text: str) -> tuple[bool, int]:
+    """A combo showing ``none_text`` when nothing (-1) is chosen; returns (changed, index)."""
+    changed, idx = False, current
+    if imgui.begin_combo(label, names[current] if 0 <= current < len(names) else none_text):
+        for i, name in enumerate(names):
+            if imgui.selectable(name, i == current)[0]:
+                changed, idx = True, i
+        imgui.end_combo()
+    return changed, idx

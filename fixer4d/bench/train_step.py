@@ -36,14 +36,10 @@ def common_view_box(cameras) -> tuple[np.ndarray, np.ndarray]:
     The grid spans the camera centres and their mirror images through the point nearest to all
     optical axes (where the rig looks), so it covers the observed volume of an inward-facing rig.
     """
+    # One rig-focus implementation (issue 13.4): fixer4d.geometry.rig.
+    from fixer4d.geometry.rig import rig_focus
     centres = np.stack([c.center for c in cameras])
-    # least-squares point closest to every optical axis: sum (I - d d^T) (p - c) = 0
-    a, b = np.zeros((3, 3)), np.zeros(3)
-    for c in cameras:
-        proj = np.eye(3) - np.outer(c.forward, c.forward)
-        a += proj
-        b += proj @ c.center
-    focus = np.linalg.lstsq(a, b, rcond=None)[0]
+    focus = rig_focus(cameras)
     span = np.concatenate([centres, 2.0 * focus - centres])
     lo, hi = span.min(0), span.max(0)
     axes = [np.linspace(lo[i], hi[i], BOX_GRID) for i in range(3)]

@@ -6,11 +6,25 @@
   {...}}, "seconds": {"prep", "train", "eval"}, "lpips_unavailable_reason": str|null}`` (the
   issue-5 contract) plus ``per_frame`` (one entry per rendered image), ``protocol`` (frames,
   cameras, resolution, metric settings), ``timing`` and ``examples``;
-- ``metrics.md``: the paper's table layout (Method | PSNR | DSSIM1 | DSSIM2 | LPIPS | Prep. time);
+- ``metrics.md``: the paper's table layout (Method | PSNR | DSSIM1 | DSSIM2 | LPIPS | Prep. time),
+  plus PSNR over the moving / static pixels;
 - ``example_<camera>_f<frame>.png``: render | ground truth | error heatmap, for a few frames.
 
 Every file is written atomically. Renders are clamped to [0, 1] before scoring (as STGS's test
 script does); PSNR is computed per image and averaged.
+
+Dynamic-region metrics: every per-frame row, ``per_view`` and ``mean`` also hold
+``psnr_dynamic`` / ``psnr_static`` (10 log10(1 / MSE) over the held-out image's moving / static
+pixels) and ``ssim_dynamic`` / ``ssim_static`` (mean of the SSIM map, data range 1, over them),
+plus ``moving_fraction``. The moving mask of a held-out image is
+- exact on synthetic scenes: ``scene.moving_mask(frame, camera)`` (ray-caster: the pixel's first
+  hit is a moving object);
+- on real scenes, estimated from the held-out video itself by the init's estimator
+  (``fixer4d.init.masks.moving_masks_for_scene``: per-pixel temporal median of that camera's
+  clip, noise-relative threshold, cleanup; scene segmentation where the layout has one for it).
+The mask only selects pixels to score; it never feeds training. A region with no pixels in an
+image scores None there; means are over the images where the region is not empty (None when
+there is none). ``protocol.regions`` records which mask was used.
 """
 from __future__ import annotations
 
@@ -29,6 +43,10 @@ from fixer4d.eval import metrics as M
 from fixer4d.geometry.camera import Camera
 
 METRIC_KEYS = ("psnr", "dssim1", "dssim2", "lpips")
+# Scores over the held-out image's moving / static pixels (None where the region is empty).
+REGION_KEYS = ("psnr_dynamic", "psnr_static", "ssim_dynamic", "ssim_static")
+REGION_MASK_EXACT = "exact: ray-caster moving-object mask (synthetic ground truth)"
+REGION_MASK_ESTIMATED = "estimated: temporal statistics of the held-out video (fixer4d.init.masks)"
 # Absolute error (per pixel, mean over RGB) that maps to the top of the heatmap's colour scale.
 # Fixed rather than per-image so heatmaps of different frames and methods are comparable; 0.25
 # keeps typical reconstruction errors (0.02-0.2) in the visible range.
@@ -85,6 +103,23 @@ def _mean(values: list[float | None]) -> float | None:
     return float(np.mean(values))
 
 
+def _mean_present(values: list[float | None]) -> float | None:
+    """Mean of the finite values that are not None (regions empty in some images), or None."""
+    kept = [v for v in values if v is not None and math.isfinite(v)]
+    return float(np.mean(kept)) if kept else None
+
+
+def heldout_moving_masks(scene, cam_idx: int, frames: Sequence[int]) -> tuple[np.ndarray, str]:
+    """Moving-content masks (F, H, W) bool of held-out camera ``cam_idx`` at ``frames`` and the
+    rule used (REGION_MASK_EXACT or REGION_MASK_ESTIMATED; see the module docstring)."""
+    exact = getattr(scene, "moving_mask", None)
+    if callable(exact):
+        return np.stack([np.asarray(exact(f, cam_idx), bool) for f in frames]), REGION_MASK_EXACT
+    from fixer4d.init.masks import moving_masks_for_scene
+
+    return moving_masks_for_scene(scene, [cam_idx], frames)[0], REGION_MASK_ESTIMATED
+
+
 def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_") or "view"
 
@@ -132,13 +167,17 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     included, one line per row: Method | PSNR | DSSIM1 | DSSIM2 | LPIPS | Prep. time.
     A missing value (LPIPS unavailable, exact render, unknown preparation time) reads "n/a".
     """
-    lines = ["| Method | PSNR ↑ | DSSIM1 ↓ | DSSIM2 ↓ | LPIPS ↓ | Prep. time |",
-             "|---|---:|---:|---:|---:|---:|"]
+    regions = any("psnr_dynamic" in row.get("mean", {}) for row in rows)
+    extra_head, extra_rule = (" PSNR dyn. ↑ | PSNR static ↑ |", "---:|---:|") if regions else ("", "")
+    lines = [f"| Method | PSNR ↑ | DSSIM1 ↓ | DSSIM2 ↓ | LPIPS ↓ |{extra_head} Prep. time |",
+             f"|---|---:|---:|---:|---:|{extra_rule}---:|"]
     for row in rows:
         mean = row.get("mean", {})
         prep = row.get("seconds", {}).get("prep")
+        extra = (f" {_format(mean.get('psnr_dynamic'), 2)} | {_format(mean.get('psnr_static'), 2)} |"
+                 if regions else "")
         lines.append(f"| {row.get('method', '?')} | {_format(mean.get('psnr'), 2)} | {_format(mean.get('dssim1'), 4)} | "
-                     f"{_format(mean.get('dssim2'), 4)} | {_format(mean.get('lpips'), 4)} | {_format_seconds(prep)} |")
+                     f"{_format(mean.get('dssim2'), 4)} | {_format(mean.get('lpips'), 4)} |{extra} {_format_seconds(prep)} |")
     return "\n".join(lines) + "\n"
 
 
@@ -174,10 +213,16 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
     examples: list[str] = []
     render_s = 0.0
     metric_s = 0.0
+    mask_s = 0.0
+    mask_rules: set[str] = set()
     bar = tqdm(total=len(chosen) * len(test_ids), desc=f"eval {method_name}", unit="img", disable=not progress)
     for cam_idx, key in zip(test_ids, keys):
         camera = scene.cameras[cam_idx]
-        for f in chosen:
+        t0 = time.perf_counter()
+        moving, rule = heldout_moving_masks(scene, cam_idx, chosen)
+        mask_s += time.perf_counter() - t0
+        mask_rules.add(rule)
+        for j, f in enumerate(chosen):
             t = scene.time(f)
             t0 = time.perf_counter()
             pred = np.asarray(render_fn(camera, t))
@@ -191,8 +236,10 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
             pred = np.clip(pred.astype(np.float32), 0.0, 1.0)
             t0 = time.perf_counter()
             m = M.image_metrics(pred, gt)
+            m.update(M.region_metrics(pred, gt, moving[j]))
             metric_s += time.perf_counter() - t0
-            per_frame.append({"camera": key, "camera_index": cam_idx, "frame": f, "time": t, **m})
+            per_frame.append({"camera": key, "camera_index": cam_idx, "frame": f, "time": t, **m,
+                              "moving_fraction": float(moving[j].mean())})
             if f in example_frames:
                 name = f"example_{_slug(key)}_f{f:04d}.png"
                 _save_png(out_dir / name, side_by_side(pred, gt))
@@ -205,10 +252,13 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
     for cam_idx, key in zip(test_ids, keys):
         rows = [r for r in per_frame if r["camera_index"] == cam_idx]
         per_view[key] = {"camera_index": cam_idx, "frames": len(rows),
-                         **{k: _finite_or_none(_mean([r[k] for r in rows])) for k in METRIC_KEYS}}
+                         **{k: _finite_or_none(_mean([r[k] for r in rows])) for k in METRIC_KEYS},
+                         **{k: _mean_present([r[k] for r in rows]) for k in REGION_KEYS},
+                         "moving_fraction": float(np.mean([r["moving_fraction"] for r in rows]))}
     mean = {k: _finite_or_none(_mean([r[k] for r in per_frame])) for k in METRIC_KEYS}
+    mean.update({k: _mean_present([r[k] for r in per_frame]) for k in REGION_KEYS})
     for r in per_frame:
-        for k in METRIC_KEYS:
+        for k in METRIC_KEYS + REGION_KEYS:
             r[k] = _finite_or_none(r[k])
 
     seconds = dict(seconds or {})
@@ -235,8 +285,13 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
                      "gaussian_weights": False, "use_sample_covariance": True, "channel_axis": -1,
                      "dssim1_data_range": M.DSSIM1_DATA_RANGE, "dssim2_data_range": M.DSSIM2_DATA_RANGE},
             "lpips": {"net": "alex", "weights": M.lpips_weights_path()},
+            "regions": {"mask": sorted(mask_rules)[0] if len(mask_rules) == 1 else sorted(mask_rules),
+                        "psnr": "10 log10(1 / MSE) over the region's pixels, per image; mean over images "
+                                "where the region is not empty",
+                        "ssim": "mean of the SSIM map (data range 1) over the region",
+                        "moving_fraction": float(np.mean([r["moving_fraction"] for r in per_frame]))},
         },
-        "timing": {"render_seconds": render_s, "metrics_seconds": metric_s},
+        "timing": {"render_seconds": render_s, "metrics_seconds": metric_s, "mask_seconds": mask_s},
         "examples": examples,
     }
     result["seconds"]["eval"] = time.perf_counter() - t_start

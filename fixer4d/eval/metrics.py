@@ -121,6 +121,58 @@ def lpips(a: np.ndarray, b: np.ndarray) -> float | None:
         return float(module(to_tensor(a), to_tensor(b))[0])
 
 
+def masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float | None:
+    """PSNR in dB over the pixels where ``mask`` (H, W) bool is True: 10 log10(1 / MSE) with the
+    MSE over those pixels and the 3 channels; None when the mask is empty, inf if identical there."""
+    a, b = _check_pair(a, b, "masked_psnr")
+    mask = _check_mask(mask, a.shape, "masked_psnr")
+    if not mask.any():
+        return None
+    mse = float(np.mean((a[mask].astype(np.float64) - b[mask].astype(np.float64)) ** 2))
+    return math.inf if mse == 0.0 else -10.0 * math.log10(mse)
+
+
+def _check_mask(mask: np.ndarray, shape: tuple, who: str) -> np.ndarray:
+    mask = np.asarray(mask)
+    if mask.shape != tuple(shape[:2]):
+        raise InputError(f"{who}: mask shape {mask.shape} differs from the images' {tuple(shape[:2])}")
+    return mask.astype(bool, copy=False)
+
+
+def ssim_map(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(H, W) per-pixel SSIM (scikit-image, data range 1, 7x7 uniform window; channel mean).
+    Its mean without the (SSIM_WIN_SIZE - 1) / 2 pixel border (which scikit-image leaves out:
+    the window hangs over the edge there) is 1 - 2 x DSSIM1."""
+    from skimage.metrics import structural_similarity
+
+    a, b = _check_pair(a, b, "ssim_map")
+    _, full = structural_similarity(a, b, win_size=SSIM_WIN_SIZE, data_range=DSSIM1_DATA_RANGE, channel_axis=-1,
+                                    full=True)
+    return full.mean(-1)
+
+
+def region_metrics(pred: np.ndarray, gt: np.ndarray, moving: np.ndarray) -> dict[str, float | None]:
+    """PSNR and SSIM over the moving pixels and over the rest of one image.
+
+    moving: (H, W) bool mask of moving content. Returns {"psnr_dynamic", "psnr_static" (dB,
+    ``masked_psnr``), "ssim_dynamic", "ssim_static" (mean of ``ssim_map`` over the region's
+    pixels off the image border, as scikit-image's SSIM)}; a region with no pixels gives None
+    for both of its metrics (and None for SSIM if it lies entirely on the border).
+    """
+    pred, gt = _check_pair(pred, gt, "region_metrics")
+    moving = _check_mask(moving, pred.shape, "region_metrics")
+    smap = ssim_map(pred.astype(np.float32, copy=False), gt.astype(np.float32, copy=False))
+    pad = (SSIM_WIN_SIZE - 1) // 2
+    interior = np.zeros(moving.shape, bool)
+    interior[pad:moving.shape[0] - pad, pad:moving.shape[1] - pad] = True
+    out: dict[str, float | None] = {}
+    for name, region in (("dynamic", moving), ("static", ~moving)):
+        out[f"psnr_{name}"] = masked_psnr(pred, gt, region)
+        inner = region & interior
+        out[f"ssim_{name}"] = float(smap[inner].mean()) if inner.any() else None
+    return out
+
+
 def image_metrics(pred: np.ndarray, gt: np.ndarray) -> dict[str, float | None]:
     """All four metrics of one rendered image against its ground truth.
 

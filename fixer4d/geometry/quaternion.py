@@ -1,11 +1,17 @@
-"""Unit quaternions in (w, x, y, z) order, float64 numpy (DESIGN.md §3).
+"""Unit quaternions in (w, x, y, z) order, float64 numpy (DESIGN.md §3), plus the one torch
+quaternion->matrix that the renderer and densification share (``to_matrix_torch``).
 
 Every function that consumes a quaternion normalizes it first; a zero (or non-finite-norm)
 quaternion maps to the identity rather than to NaN.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:  # torch is imported by to_matrix_torch's caller; geometry stays numpy-only to import
+    import torch
 
 # Below this norm a quaternion carries no rotation we can trust; treat it as the identity.
 _ZERO_NORM = 1e-12
@@ -34,6 +40,29 @@ def to_matrix(q: np.ndarray) -> np.ndarray:
         np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
         np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
     ], -2)
+
+
+def to_matrix_torch(q: "torch.Tensor") -> "torch.Tensor":
+    """Rotation matrices (..., 3, 3) from quaternions (..., 4) as torch tensors, differentiable.
+
+    Normalized here; a quaternion with norm <= ``_ZERO_NORM`` or a non-finite norm maps to the
+    identity (as ``normalize`` does) with a zero, finite gradient: both ``torch.where`` branches stay finite, so no NaN leaks into backward.
+    Same dtype and device as ``q``. Used by the rasterizer's projection and by densification.
+    """
+    import torch  # lazily: importing fixer4d.geometry must not pull in torch
+
+    norm = q.norm(dim=-1, keepdim=True)
+    ok = (norm > _ZERO_NORM) & torch.isfinite(norm)
+    identity = torch.zeros_like(q)
+    identity[..., 0] = 1.0
+    qn = torch.where(ok, q / torch.where(ok, norm, torch.ones_like(norm)), identity)
+    w, x, y, z = qn.unbind(-1)
+    entries = [
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ]
+    return torch.stack(entries, -1).reshape(*q.shape[:-1], 3, 3)
 
 
 def from_matrix(R: np.ndarray) -> np.ndarray:

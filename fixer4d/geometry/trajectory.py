@@ -53,6 +53,9 @@ COINCIDENT_REL = 1e-9
 # same orientation: a rotation-only path between them would be a still frame. Compared on the
 # matrices because arccos-based angles cannot resolve below ~1e-8.
 SAME_ORIENTATION_TOL = 1e-12
+# Poses read back from a cache's JSON agree with the originals to ~1e-15; a clip camera within
+# this (entry-wise rotation difference) of a train camera at the same centre is that camera.
+SAME_POSE_TOL = 1e-9
 # A candidate normal direction is used only if its component orthogonal to the baseline keeps at
 # least this length (unit vectors): below it (< 0.06 degrees from the baseline) pose noise would
 # flip the arc's side.
@@ -243,6 +246,24 @@ def alphas_for(frames: int) -> np.ndarray:
     if int(frames) != frames or frames < 2:
         raise InputError(f"a trajectory needs at least 2 frames (its two endpoints), got {frames}")
     return np.linspace(0.0, 1.0, int(frames))
+
+
+def novel_frame_mask(cameras: Sequence[Camera], train_cameras: Sequence[Camera]) -> np.ndarray:
+    """(F,) bool: which cameras of a clip are novel views, i.e. not one of ``train_cameras``.
+
+    A pair trajectory's endpoints (alpha = 0 and 1) are its train cameras bit for bit; pseudo-
+    supervision there would only repeat (a restored copy of) the real frame. Same camera = same
+    size, centres coincident (``COINCIDENT_REL``) and orientations equal (``SAME_ORIENTATION_TOL``
+    scaled up to tolerate a JSON round trip of the pose).
+    """
+    out = np.ones(len(cameras), dtype=bool)
+    for k, cam in enumerate(cameras):
+        for tc in train_cameras:
+            if (cam.width, cam.height) == (tc.width, tc.height) and _coincident(cam.center, tc.center) \
+                    and np.max(np.abs(cam.R - tc.R)) <= SAME_POSE_TOL:
+                out[k] = False
+                break
+    return out
 
 
 def scene_trajectories(train_cameras: list[Camera], n_frames: int = DEFAULT_FRAMES, *,

@@ -50,12 +50,11 @@ MVS_GEO_PIXEL_TOL = 1.0
 MVS_GEO_DEPTH_TOL = 0.01
 # Views that must confirm a depth for it to stay valid after the consistency check.
 MVS_GEO_MIN_VIEWS = 1
-# Fallback depth range when neither SfM points nor scene bounds exist: around the point where
+# Fallback depth range when neither SfM points nor a common view exist: around the point where
 # the optical axes converge, from a third to three times its distance.
 MVS_DEFAULT_RANGE_FACTOR = 3.0
-# Axes closer to parallel than this (sin of the angle) do not converge: use the rig extent instead.
-MVS_PARALLEL_AXES_SIN = 0.05
-# Forward-facing rigs with no bounds: scene depth from 1x to 100x the rig radius.
+# Forward-facing rigs with no common view: scene depth from 1x to 100x the rig radius
+# (axes closer to parallel than fixer4d.geometry.rig.PARALLEL_AXES_SIN do not converge).
 MVS_PARALLEL_NEAR_EXTENT = 1.0
 MVS_PARALLEL_FAR_EXTENT = 100.0
 # Depth range from SfM points: percentiles of the points' depths, widened by this factor on
@@ -85,3 +84,40 @@ QUALITY_COMPLETENESS_REL = 0.01
 QUALITY_MAX_SURFACE_SAMPLES = 200_000
 # Relative depth bands reported for MVS depth maps.
 QUALITY_DEPTH_BANDS = (0.01, 0.05)
+
+# ---- moving-content masks (static rig, temporal statistics; init/masks.py) ---------------
+# Robust noise scale: 1.4826 x MAD estimates the standard deviation of Gaussian noise.
+MASK_MAD_TO_SIGMA = 1.4826
+# A pixel moves when its deviation from its temporal median exceeds this many noise sigmas
+# (the image's own noise level, from the MAD of every pixel's deviation: most pixels are
+# static, so the median deviation is noise). 4 sigma keeps false alarms under ~1e-4 of pixels.
+MASK_NOISE_K = 4.0
+# Floor of that threshold (RGB in [0, 1]): a noise-free render has sigma ~ 0, and 8/255 is
+# above JPEG/compression ringing while far below the contrast of real moving content.
+MASK_MIN_DIFF = 0.03
+# Seeds need a deviation this many times the threshold (hysteresis): a region is moving when
+# it contains a strong change, and it then grows through pixels above the threshold itself.
+MASK_SEED_FACTOR = 2.0
+# A pixel whose median deviation over the clip exceeds this share of the threshold changes in
+# most frames (an object spinning in place: its temporal median is no background), so it is
+# moving in every frame. Half the threshold: at least half the frames differ clearly.
+MASK_PERSIST_FACTOR = 0.5
+# Connected regions smaller than this share of the image are dropped (specks of noise); 0.0002
+# is ~12 pixels at 320x180, ~6 at 200x150.
+MASK_MIN_AREA_FRAC = 0.0002
+# Final dilation radius (pixels): a moving object's soft edge and motion blur reach about one
+# pixel past where the difference test fires.
+MASK_DILATE_PX = 1
+# Frames of the clip the temporal statistics use at most (evenly spaced, plus the requested
+# frames): a median over 32 samples is already stable; more only costs decode time.
+MASK_STAT_FRAMES_MAX = 32
+# Frames below which the statistics are too weak (a median of 2 is a mean): more frames are
+# sampled from the clip to reach it.
+MASK_STAT_FRAMES_MIN = 8
+# Scene-provided foreground segmentation (Panoptic seg/) is moving in a frame when at least
+# this share of a foreground region's pixels also moves by the temporal test: a person who
+# stands still stays static, a walking one gets the segmentation's full, crisp silhouette.
+MASK_SEG_MOVING_SHARE = 0.05
+# Rows of the image processed at once for the temporal median (bounds the F x rows x W x 3
+# working copy to a few tens of MB at 640 px wide).
+MASK_ROW_CHUNK = 64

@@ -31,6 +31,7 @@ import torch.nn.functional as F
 
 from fixer4d.errors import BackendUnavailable, InputError
 from fixer4d.geometry.camera import Camera, rig_extent
+from fixer4d.geometry.rig import axes_converge, axes_system, common_view_bounds
 from fixer4d.init import constants as C
 
 MVSANYWHERE_WEIGHTS_ENV = "FIXER4D_MVSANYWHERE_WEIGHTS"
@@ -82,34 +83,39 @@ def depth_ranges_from_points(points: np.ndarray, cameras: Sequence[Camera]) -> l
     return out
 
 
-def depth_ranges_from_bounds(bounds, cameras: Sequence[Camera]) -> list[tuple[float, float]]:
-    """Per-view (near, far) from SceneBounds: the z-range of the bounding box corners, clipped to
-    the scene's near/far."""
-    lo, hi = np.asarray(bounds.bbox_min, np.float64), np.asarray(bounds.bbox_max, np.float64)
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    out = []
-    for cam in cameras:
-        z = cam.world_to_camera(corners)[:, 2]
-        near = max(float(bounds.near), float(z.min())) if z.min() > 0 else float(bounds.near)
-        far = min(float(bounds.far), float(z.max())) if z.max() > near else float(bounds.far)
-        out.append((near, far))
-    return out
+def depth_ranges_from_rig(cameras: Sequence[Camera]) -> list[tuple[float, float]] | None:
+    """Per-view (near, far): the z-range of the cameras' common view (frustum overlap) in each
+    view; None when the frusta share no view."""
+    try:
+        vb = common_view_bounds(cameras)
+    except InputError:
+        return None
+    return [(float(a), float(b)) for a, b in vb.depth_ranges]
+
+
+def scene_depth_ranges(cameras: Sequence[Camera], sfm_points: np.ndarray | None = None
+                       ) -> tuple[list[tuple[float, float]], str]:
+    """The plane sweep's per-view depth ranges from the capture's own cues, and their source:
+    sparse SfM points when given (and seen by every view), else the common view of the (train)
+    ``cameras``, else the axis-convergence default. Never ground truth: synthetic scenes get
+    exactly what a real capture would."""
+    if sfm_points is not None:
+        ranges = depth_ranges_from_points(sfm_points, cameras)
+        if ranges is not None:
+            return ranges, "sfm points"
+    ranges = depth_ranges_from_rig(cameras)
+    if ranges is not None:
+        return ranges, "common view of the train cameras"
+    return default_depth_ranges(cameras), "axis convergence default"
 
 
 def default_depth_ranges(cameras: Sequence[Camera]) -> list[tuple[float, float]]:
-    """Without points or bounds: the least-squares point closest to all optical axes is where a
-    converging rig looks; the range spans a factor around its distance. For parallel axes
-    (forward-facing rigs) the range is a multiple of the rig radius."""
-    A = np.zeros((3, 3))
-    b = np.zeros(3)
-    for cam in cameras:
-        d = cam.forward
-        P = np.eye(3) - np.outer(d, d)
-        A += P
-        b += P @ cam.center
+    """Without points or a common view: the least-squares point closest to all optical axes is
+    where a converging rig looks; the range spans a factor around its distance. For parallel
+    axes (forward-facing rigs) the range is a multiple of the rig radius."""
+    A, b = axes_system(cameras)
     extent = rig_extent(list(cameras))
-    sv = np.linalg.svd(A, compute_uv=False)
-    converging = sv[-1] > len(cameras) * C.MVS_PARALLEL_AXES_SIN ** 2
+    converging = axes_converge(cameras)
     out = []
     if converging:
         x = np.linalg.solve(A, b)

@@ -39,6 +39,9 @@ class InitConfig:
     method: Literal["mvs", "sparse"] = "mvs"
     estimator: str = "planesweep"
     quality: bool = True
+    # MVS only: one static cloud for the clip + per-frame moving points from the moving-content
+    # masks (fixer4d.init.decompose); False = the per-frame full sweeps of the paper's recipe.
+    decompose: bool = True
     poses: PoseConfig = field(default_factory=PoseConfig)
     sparse: SparseConfig = field(default_factory=SparseConfig)
     mvs: PlaneSweepConfig = field(default_factory=PlaneSweepConfig)
@@ -126,8 +129,7 @@ def run_init(scene, method: str, out_dir: str | Path, frames: list[int] | None =
     """
     from fixer4d.init import quality as Q
     from fixer4d.init.fusion import fuse_results
-    from fixer4d.init.mvs import (default_depth_ranges, depth_ranges_from_bounds, depth_ranges_from_points,
-                                  make_estimator)
+    from fixer4d.init.mvs import make_estimator, scene_depth_ranges
     from fixer4d.init.poses import align_cameras, compare_poses, estimate_poses
     from fixer4d.init.sparse import sparse_cloud
 
@@ -177,18 +179,17 @@ def run_init(scene, method: str, out_dir: str | Path, frames: list[int] | None =
     if method == "mvs":
         t0 = time.perf_counter()
         estimator = make_estimator(config.estimator, config.mvs, config.mvsanywhere)
-        bounds = scene.bounds()
-        if bounds is not None:
-            ranges, report["depth_range_source"] = depth_ranges_from_bounds(bounds, cams), "scene bounds"
-        if ranges is None and sfm_points is not None:
-            ranges = depth_ranges_from_points(sfm_points, cams)
-            report["depth_range_source"] = "sfm points"
-        if ranges is None:
-            ranges, report["depth_range_source"] = default_depth_ranges(cams), "axis convergence default"
+        # SfM points, else the train cameras' common view; never scene ground truth (issue 11).
+        ranges, report["depth_range_source"] = scene_depth_ranges(cams, sfm_points)
         report["depth_ranges"] = [list(r) for r in ranges]
         timer.add("depth_range", t0)
 
     want_quality = config.quality and scene.has_depth
+    if method == "mvs" and config.decompose:
+        from fixer4d.init.decompose import run_decomposed
+
+        return run_decomposed(scene, cams, frames, estimator, ranges, config, out_dir, report, timer, t_start,
+                              want_quality, progress)
     clouds: list[FrameCloud] = []
     per_frame: list[dict] = []
     depth_stats: list[dict] = []
@@ -250,8 +251,21 @@ def run_init(scene, method: str, out_dir: str | Path, frames: list[int] | None =
         if depth_stats:
             quality.update(Q.summarize_depth(depth_stats))
         report["quality"] = quality
-    # a pose *check* (given poses used) is a diagnostic, not part of preparing the clouds
-    prep_stages = ("depth_range", "sparse", "mvs", "fusion") + (("poses",) if config.poses.source == "sfm" else ())
+    report["per_frame"] = per_frame
+    finish_report(report, timer, t_start, config, estimator, out_dir)
+    return clouds, report
+
+
+# Stages whose time counts as preparing the init (loading, writing and quality checks do not;
+# a pose *check* with given poses is a diagnostic, not part of preparing the clouds).
+PREP_STAGES = ("depth_range", "sparse", "mvs", "fusion", "masks", "static_median", "motion", "evidence")
+
+
+def finish_report(report: dict[str, Any], timer: _Timer, t_start: float, config: InitConfig, estimator,
+                  out_dir: Path) -> None:
+    """Add seconds (wall, CPU, "preparation" = PREP_STAGES (+ poses when SfM gives them)), the
+    estimator name and the config to ``report`` and write ``out_dir/init_report.json``."""
+    prep_stages = PREP_STAGES + (("poses",) if config.poses.source == "sfm" else ())
     seconds = dict(timer.seconds)
     seconds["preparation"] = sum(seconds.get(k, 0.0) for k in prep_stages)
     seconds["total"] = time.perf_counter() - t_start
@@ -261,7 +275,5 @@ def run_init(scene, method: str, out_dir: str | Path, frames: list[int] | None =
     report["cpu_seconds"] = cpu
     if estimator is not None:
         report["estimator"] = estimator.name
-    report["per_frame"] = per_frame
     report["config"] = config.to_dict()
     write_json(out_dir / REPORT_NAME, report)
-    return clouds, report

@@ -13,10 +13,11 @@ from typing import Callable
 
 import torch
 
+# The one torch quaternion->matrix (normalizes; zero -> identity); the name stays for callers.
+from fixer4d.geometry.quaternion import to_matrix_torch as quat_to_matrix
+
 # Adam per-parameter state entries that have one row per Gaussian.
 _ROW_STATES = ("exp_avg", "exp_avg_sq", "max_exp_avg_sq")
-# Below this quaternion norm the rotation is treated as the identity (matches the renderers).
-_QUAT_EPS = 1e-12
 
 
 @dataclass
@@ -121,20 +122,6 @@ def reset_parameter(model: torch.nn.Module, optimizer: torch.optim.Optimizer | N
 
 
 # ---- densify and prune -------------------------------------------------------------------
-
-def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
-    """(N, 4) wxyz quaternions (normalized here; zero -> identity) -> (N, 3, 3) rotations."""
-    n = q.norm(dim=-1, keepdim=True)
-    ident = torch.zeros_like(q)
-    ident[:, 0] = 1.0
-    q = torch.where(n > _QUAT_EPS, q / n.clamp_min(_QUAT_EPS), ident)
-    w, x, y, z = q.unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1).reshape(-1, 3, 3)
-
 
 def _rows(model: torch.nn.Module, index: torch.Tensor) -> dict[str, torch.Tensor]:
     """Copies of every per-Gaussian parameter (and the ``dynamic`` buffer) at ``index``."""

@@ -100,10 +100,7 @@ def _config_from_ply(names: set[str], comments: list[str], path: Path) -> ModelC
                 meta = json.loads(c[len(_COMMENT_TAG):])
             except json.JSONDecodeError as exc:
                 raise InputError(f"{path}: unreadable fixer4d header comment ({exc}); re-export the model") from exc
-            if meta.get("format") != FORMAT or int(meta.get("version", 0)) > VERSION:
-                raise InputError(f"{path}: written by a newer or different tool ({meta.get('format')} "
-                                 f"v{meta.get('version')}); update fixer4d")
-            return ModelConfig.from_dict(meta["config"])
+            return _config_from_header(meta, path)
     # Another tool's PLY: enable the effects its fields carry.
     n_rest = len([f for f in names if f.startswith("f_rest_")])
     sh_degree = {0: 0, 9: 1, 24: 2, 45: 3}.get(n_rest)
@@ -191,11 +188,29 @@ def load_npz(path: str | Path) -> SpacetimeGaussians:
         raise InputError(f"{path}: not a readable fixer4d .npz ({exc}); re-export the model") from exc
     if "format" not in arrays:
         raise InputError(f"{path}: no 'format' entry; this .npz was not written by fixer4d save_npz")
-    meta = json.loads(str(arrays.pop("format")))
-    if meta.get("format") != FORMAT or int(meta.get("version", 0)) > VERSION:
-        raise InputError(f"{path}: written by a newer or different tool ({meta.get('format')} "
-                         f"v{meta.get('version')}); update fixer4d")
-    return SpacetimeGaussians.from_tensors(ModelConfig.from_dict(meta["config"]), arrays, source=str(path))
+    try:
+        meta = json.loads(str(arrays.pop("format")))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: unreadable 'format' entry ({exc}); re-export the model") from None
+    return SpacetimeGaussians.from_tensors(_config_from_header(meta, path), arrays, source=str(path))
+
+
+def _config_from_header(meta: object, path: Path) -> ModelConfig:
+    """The ModelConfig of a fixer4d header ``{"format", "version", "config"}`` (PLY comment or npz
+    entry); one InputError sentence for a foreign, newer or malformed header."""
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        found = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
+        raise InputError(f"{path}: header format {found!r} is not {FORMAT!r}; this file was not written by "
+                         "fixer4d: re-export the model with fixer4d")
+    version = meta.get("version")
+    if not isinstance(version, int) or version > VERSION:
+        raise InputError(f"{path}: model format version {version!r}, but this fixer4d reads versions <= {VERSION}; "
+                         "update fixer4d")
+    try:
+        return ModelConfig.from_dict(meta["config"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{path}: malformed model config in the header ({type(exc).__name__}: {exc}); "
+                         "re-export the model") from None
 
 
 def save_model(model: SpacetimeGaussians, path: str | Path) -> Path:

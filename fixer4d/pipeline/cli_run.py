@@ -16,6 +16,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refresh-every", type=int, default=None, help="stage 2 cache refresh interval K (iterations)")
     parser.add_argument("--lambda-gen", type=float, default=None, help="weight of the pseudo-supervision (default 0.5)")
     parser.add_argument("--init", choices=["mvs", "sparse"], default=None, help="initialization of the main model")
+    parser.add_argument("--restorer", choices=["learned", "warp", "cogvideo"], default=None,
+                        help="stage-2 restorer (learned: trained per scene on its own train cameras)")
     parser.add_argument("--no-baseline", action="store_true", help="skip the STGS w/ COLMAP baseline row")
     parser.add_argument("--eval-stride", type=int, default=None, help="evaluate every S-th frame")
     parser.add_argument("--segment-frames", type=int, default=None,
@@ -35,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     flags = {"scene.scale": args.scale, "scene.frame_range": frame_range_override(args.frames),
              "stage1.iterations": args.iterations, "stage2.rounds": args.rounds,
              "stage2.refresh_every": args.refresh_every, "stage2.lambda_gen": args.lambda_gen,
-             "init.method": args.init, "eval.stride": args.eval_stride,
+             "init.method": args.init, "eval.stride": args.eval_stride, "restorer.kind": args.restorer,
              "baseline_sparse": False if args.no_baseline else None,
              "segments.frames": args.segment_frames, "executor.kind": args.executor,
              "executor.ray_address": args.ray_address}

@@ -6,7 +6,7 @@
       stage1        Stage1Config       (train/config.py) STGS on the four observed views
       stage2        Stage2Config       (train/config.py) restoration-guided refinement
       trajectories  TrajectoryConfig   the novel trajectories restored in stage 2
-      restorer      ReferenceWarpConfig (restore/) the restorer's settings
+      restorer      RestoreConfig      (restore/config.py) kind learned|warp|cogvideo + each kind's settings
       eval          EvalConfig         held-out evaluation
       segments      SegmentConfig      (pipeline/segments.py) long captures as temporal segments
       executor      ExecutorConfig     (pipeline/executors.py) where segments and restore jobs run
@@ -30,7 +30,7 @@ from fixer4d.init.run import InitConfig
 from fixer4d.pipeline import config_tree
 from fixer4d.pipeline.executors import ExecutorConfig
 from fixer4d.pipeline.segments import SegmentConfig
-from fixer4d.restore.reference_warp import ReferenceWarpConfig
+from fixer4d.restore.config import RestoreConfig
 from fixer4d.train.config import Stage1Config, Stage2Config
 
 # Version of the run-folder layout and config.json schema. 1: the first landing (config.json
@@ -96,7 +96,7 @@ class RunConfig:
     stage1: Stage1Config = field(default_factory=Stage1Config)
     stage2: Stage2Config = field(default_factory=Stage2Config)
     trajectories: TrajectoryConfig = field(default_factory=TrajectoryConfig)
-    restorer: ReferenceWarpConfig = field(default_factory=ReferenceWarpConfig)
+    restorer: RestoreConfig = field(default_factory=RestoreConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     segments: SegmentConfig = field(default_factory=SegmentConfig)
     executor: ExecutorConfig = field(default_factory=ExecutorConfig)
@@ -198,6 +198,7 @@ def migrate_v1(data: dict[str, Any]) -> dict[str, Any]:
             ev["restoration_rows"] = p.pop("restoration_rows")
         tree["eval"] = ev
         tree.update(p)
+        tree["restorer"] = RestoreConfig.from_dict(tree.get("restorer")).to_dict()  # flat warp keys -> warp
         return tree
     tree = {k: data[k] for k in ("scene", "init", "stage1", "stage2") if k in data}
     stage1 = dict(tree.get("stage1", {}))

@@ -36,14 +36,27 @@ def _fmt(value: float | None, digits: int) -> str:
     return "n/a" if value is None else f"{value:.{digits}f}"
 
 
+def restorer_line(summary: dict[str, Any]) -> str:
+    """'Restorer: learned (validation ...)' for the report."""
+    v = summary.get("validation")
+    if not v:
+        return f"Restorer: {summary.get('kind', 'warp')}"
+    cpu = (v.get("cpu_seconds") or {}).get("total")
+    return (f"Restorer: learned (leave-one-camera-out validation on train camera {v['held_out_fold_camera']}: "
+            f"render {v['psnr_render']:.2f} dB -> restored {v['psnr_learned']:.2f} dB, {v['gain_db']:+.2f} dB; "
+            f"warp restorer {v['psnr_warp']:.2f} dB" + (f"; {cpu:.0f} CPU s to train)" if cpu is not None else ")"))
+
+
 def write_report(run_dir: Path, scene_text: str, rows: list[dict[str, Any]], stage_seconds: dict[str, float],
                  extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """Write RUN/report.json and RUN/report.md; returns the report dict."""
     report = {"rows": rows, "stage_seconds": stage_seconds, "scene": scene_text, **(extra or {})}
     atomic.write_json(run_dir / "report.json", report)
-    lines = [f"# fixer4d report: {run_dir.name}", "", f"Scene: {scene_text}", "",
-             "| Method | PSNR | PSNR dynamic | PSNR static | DSSIM1 | DSSIM2 | LPIPS | Time (s) |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [f"# fixer4d report: {run_dir.name}", "", f"Scene: {scene_text}", ""]
+    if report.get("restorer"):
+        lines += [restorer_line(report["restorer"]), ""]
+    lines += ["| Method | PSNR | PSNR dynamic | PSNR static | DSSIM1 | DSSIM2 | LPIPS | Time (s) |",
+              "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r.get("status") == "failed":
             lines.append(f"| {r['method']} | failed: {r.get('error', '')} | | | | | | |")

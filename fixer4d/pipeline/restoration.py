@@ -15,6 +15,9 @@ import torch
 from fixer4d.geometry.camera import Camera
 from fixer4d.pipeline.config import RunConfig, TrajectoryConfig
 
+# The learned restorer's folder inside a run (weights, training pairs, validation.json).
+RESTORER_DIR = "restorer"
+
 
 def render_views(model, cameras: list[Camera], t: float, backend: str = "auto",
                  background: torch.Tensor | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -63,11 +66,12 @@ def make_request(model, scene, cameras: list[Camera], frame: int, ref_ids: tuple
         extra_depths=list(extra_depth) or None, trajectory=trajectory or {})
 
 
-def build_restorer(config: RunConfig):
-    """The restorer a run's config asks for."""
-    from fixer4d.restore.reference_warp import ReferenceWarpRestorer
+def build_restorer(config: RunConfig, run_dir: str | Path | None = None):
+    """The restorer a run's config asks for; a learned one loads its weights from RUN/restorer
+    (``restorer_stage`` trains them)."""
+    from fixer4d.restore.config import build_restorer as build
 
-    return ReferenceWarpRestorer(config.restorer)
+    return build(config.restorer, None if run_dir is None else Path(run_dir) / RESTORER_DIR)
 
 
 def scene_trajectories_for(scene, tc: TrajectoryConfig):
@@ -101,7 +105,7 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
 
     cache = RestoreCache(Path(run_dir) / "cache")
     cache.clean_temporary()  # leftovers of a killed write; complete entries are reused below
-    restorer = build_restorer(config)
+    restorer = build_restorer(config, run_dir)
     executor = executor or LocalExecutor()
     trajectories = scene_trajectories_for(scene, config.trajectories)
     frames = list(range(0, scene.num_frames, max(1, config.trajectories.time_stride)))
@@ -123,7 +127,7 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
             for (f, tr, ids), req, res in zip(batch, requests, results):
                 cache.write(round_index, cache.key(f, ids[0], ids[1], tr.arc_index), req, res,
                             {"restorer": restorer.name, "restorer_settings": restorer.settings(),
-                             "model_gaussians": int(model.num_gaussians)})
+                             "restorer_kind": config.restorer.kind, "model_gaussians": int(model.num_gaussians)})
             bar.update(len(batch))
         bar.close()
 

@@ -19,7 +19,7 @@ from fixer4d import atomic
 from fixer4d.pipeline import report as R
 from fixer4d.pipeline import stages as S
 from fixer4d.pipeline.config import RunConfig
-from fixer4d.pipeline.restoration import build_restorer, model_render_fn, restoration_render_fn
+from fixer4d.pipeline.restoration import model_render_fn, restoration_render_fn
 from fixer4d.pipeline.run_folder import RunFolder, load_scene_for, stage_key
 from fixer4d.pipeline.stage_cache import StageCache
 
@@ -64,7 +64,10 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
 
     def add(row: dict[str, Any]) -> None:
         rows.append(row)
-        R.write_report(ctx.path, ctx.scene.describe(), _ordered(rows), rec.as_seconds())
+        R.write_report(ctx.path, ctx.scene.describe(), _ordered(rows), rec.as_seconds(), extra())
+
+    def extra() -> dict[str, Any]:
+        return {"restorer": S.restorer_summary(ctx), "peak_rss_mb": peak_rss_mb()}
 
     def seconds(*stages: str) -> dict[str, float]:
         return {"prep": rec.seconds(f"init_{method}"), "train": rec.seconds(*stages)}
@@ -88,7 +91,6 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
     # -- ours: dense init + stage 1 ------------------------------------------------------------
     clouds = S.init_stage(ctx, method)
     model = S.stage1(ctx, method, clouds, ctx.path / "model_stage1.ply", "stage1")
-    del clouds
     main_row = R.ROW_MVS if method != "sparse" else R.ROW_COLMAP
     s1_key = S.stage1_key(config, method)
     m = S.evaluate_stage(ctx, main_row, model_render_fn(model, ctx.backend, config.stage1.background), s1_key,
@@ -96,12 +98,14 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
     add(R.metrics_row(main_row, m, rec.seconds(f"init_{method}", "stage1")))
     final_metrics = m
 
-    restorer = build_restorer(config) if config.eval.restoration_rows else None
-    restorer_key = stage_key("restorer", config.to_dict()["restorer"])
-    if restorer is not None:
+    needs_restorer = config.eval.restoration_rows or config.stage2.rounds > 0
+    restorer = S.restorer_stage(ctx, clouds) if needs_restorer else None
+    del clouds
+    r_key = S.restorer_key(config)
+    if restorer is not None and config.eval.restoration_rows:
         m = S.evaluate_stage(ctx, R.ROW_RESTORED_INIT, restoration_render_fn(model, ctx.scene, restorer, ctx.backend),
-                             stage_key(s1_key, restorer_key), seconds("stage1"))
-        add(R.metrics_row(R.ROW_RESTORED_INIT, m, rec.seconds(f"init_{method}", "stage1")
+                             stage_key(s1_key, r_key), seconds("stage1", "restorer"))
+        add(R.metrics_row(R.ROW_RESTORED_INIT, m, rec.seconds(f"init_{method}", "stage1", "restorer")
                           + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_INIT)}")))
 
     # -- stage 2: (restore -> refine) x R, and its matched-iterations control -------------------
@@ -113,21 +117,20 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
             add(R.metrics_row(R.ROW_MATCHED, m, rec.seconds(f"init_{method}", "stage1", "matched")))
             del matched
         model = S.stage2(ctx, model)
-        full_secs = rec.seconds(f"init_{method}", "stage1", "stage2")
+        full_secs = rec.seconds(f"init_{method}", "stage1", "restorer", "stage2")
         s2_key = S.stage2_key(config)
         m = S.evaluate_stage(ctx, R.ROW_FULL, model_render_fn(model, ctx.backend, config.stage1.background), s2_key,
-                             seconds("stage1", "stage2"))
+                             seconds("stage1", "restorer", "stage2"))
         add(R.metrics_row(R.ROW_FULL, m, full_secs))
         final_metrics = m
-        if restorer is not None:
+        if restorer is not None and config.eval.restoration_rows:
             m = S.evaluate_stage(ctx, R.ROW_RESTORED_REFINED,
                                  restoration_render_fn(model, ctx.scene, restorer, ctx.backend),
-                                 stage_key(s2_key, restorer_key), seconds("stage1", "stage2"))
+                                 stage_key(s2_key, r_key), seconds("stage1", "restorer", "stage2"))
             add(R.metrics_row(R.ROW_RESTORED_REFINED, m, full_secs
                               + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_REFINED)}")))
     atomic.write_json(ctx.path / "metrics.json", final_metrics)
-    return R.write_report(ctx.path, ctx.scene.describe(), _ordered(rows), rec.as_seconds(),
-                          {"peak_rss_mb": peak_rss_mb()})
+    return R.write_report(ctx.path, ctx.scene.describe(), _ordered(rows), rec.as_seconds(), extra())
 
 
 def peak_rss_mb() -> float:

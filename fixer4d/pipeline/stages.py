@@ -89,7 +89,17 @@ def stage1_key(config: RunConfig, method: str) -> str:
 def stage2_key(config: RunConfig) -> str:
     """Stage 2 and its pseudo-targets: the stage-1 model, stage-2 settings, restorer, trajectories."""
     d = config.to_dict()
-    return stage_key("stage2", stage1_key(config, config.init_method), d["stage2"], d["restorer"], d["trajectories"])
+    return stage_key("stage2", stage1_key(config, config.init_method), d["stage2"], restorer_key(config),
+                     d["trajectories"])
+
+
+def restorer_key(config: RunConfig) -> str:
+    """The restorer's outputs: its settings, and for the learned one what it was trained from."""
+    rc = config.restorer
+    if rc.kind != "learned":
+        return stage_key("restorer", rc.settings_key())
+    return stage_key("restorer", rc.settings_key(), init_key(config, config.init_method),
+                     _training_settings(config.to_dict()["stage1"]), config.seed)
 
 
 def matched_key(config: RunConfig) -> str:
@@ -163,6 +173,46 @@ def stage1_trainer(ctx: StageContext, clouds, run_dir: Path | None):
 
     cfg = ctx.stage1_config()
     return Trainer(model_from_clouds(clouds, ctx.scene, cfg), ctx.scene, cfg, run_dir=run_dir)
+
+
+def restorer_stage(ctx: StageContext, clouds):
+    """The run's restorer; the learned one is first trained on the scene's own train cameras
+    (leave-one-camera-out, ``train_scene_restorer``) into RUN/restorer/ (resumable: finished folds
+    are reused). Other kinds are built as they are (no stage record)."""
+    from fixer4d.pipeline.restoration import RESTORER_DIR, build_restorer
+
+    rc = ctx.config.restorer
+    if rc.kind != "learned":
+        return build_restorer(ctx.config, ctx.path)
+    from fixer4d.train.restorer_pairs import train_scene_restorer
+
+    key = restorer_key(ctx.config)
+    if ctx.run.records.done("restorer", key):
+        return build_restorer(ctx.config, ctx.path)
+    if ctx.run.records.begin("restorer", key):
+        _clear(ctx.path / RESTORER_DIR)
+    t0 = time.perf_counter()
+    restorer = train_scene_restorer(ctx.scene, clouds, ctx.stage1_config(), ctx.path / RESTORER_DIR, rc,
+                                    progress=ctx.progress)
+    ctx.run.records.finish("restorer", key, time.perf_counter() - t0)
+    return restorer
+
+
+def restorer_summary(ctx: StageContext) -> dict[str, Any]:
+    """{"kind", "validation"?}: what the report says about the restorer (the learned one's own
+    leave-one-camera-out validation: render vs restored PSNR on the held-back train camera)."""
+    import json
+
+    from fixer4d.pipeline.restoration import RESTORER_DIR
+    from fixer4d.restore.config import VALIDATION_FILE
+
+    out: dict[str, Any] = {"kind": ctx.config.restorer.kind}
+    val = ctx.path / RESTORER_DIR / VALIDATION_FILE
+    if ctx.config.restorer.kind == "learned" and val.is_file():
+        v = json.loads(val.read_text())
+        out["validation"] = {k: v[k] for k in ("held_out_fold_camera", "psnr_render", "psnr_warp", "psnr_learned",
+                                               "gain_db", "gain_over_warp_db", "cpu_seconds") if k in v}
+    return out
 
 
 def stage2(ctx: StageContext, model, refresh: Callable[[Any, int], None] | None = None):

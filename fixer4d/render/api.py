@@ -9,38 +9,18 @@ CUDA tensors when it is installed, else cpu, else reference).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 
 from fixer4d.errors import BackendUnavailable, InputError
 from fixer4d.geometry.camera import Camera
 from fixer4d.model.snapshot import Snapshot
 from fixer4d.render.constants import ALPHA_MIN
+from fixer4d.render.output import RenderOutput  # re-exported: fixer4d.render.api.RenderOutput
 from fixer4d.render.project import project_gaussians
 
 BACKENDS = ("auto", "reference", "cpu", "gsplat")
 
-
-@dataclass
-class RenderOutput:
-    """One rendered view. Tensors live on the snapshot's device.
-
-    rgb: (H, W, 3) colour composited over the background. alpha: (H, W) accumulated opacity.
-    depth: (H, W) expected camera z-depth = sum_i w_i z_i / alpha, 0 where nothing was blended.
-    radii: (N,) int32 splat radius in pixels, 0 = not drawn. means2d: (N, 2) projected centres
-    in pixels; after backward its ``.grad`` holds dL/dmeans2d (densification statistics).
-    n_fragments: number of (Gaussian, pixel) pairs blended (-1 when the backend cannot count).
-    backend: the backend that actually rendered.
-    """
-
-    rgb: torch.Tensor
-    alpha: torch.Tensor
-    depth: torch.Tensor
-    radii: torch.Tensor
-    means2d: torch.Tensor
-    n_fragments: int
-    backend: str
+__all__ = ["BACKENDS", "RenderOutput", "render", "resolve_backend"]
 
 
 def resolve_backend(backend: str, device: torch.device) -> str:

@@ -148,14 +148,14 @@ if numba is not None:
             y = float(my[g])
             rx = r
             ry = r
-            a, b, c = float(ca[g]), float(cb[g]), float(cc[g])
-            det = a * c - b * b
+            a, rr, q = float(ca[g]), float(cb[g]), float(cc[g])
             level = min(_POWER_MAX64, np.log(float(op[g]) / _ALPHA_MIN64))
-            if det > 0.0 and a > 0.0 and c > 0.0 and np.isfinite(det):
+            if a > 0.0 and q > 0.0:
                 level = level * (1.0 + _BOX_REL_MARGIN) + _BOX_REL_MARGIN
-                # half-extents of {d : 0.5 d^T conic d <= level} are sqrt(2 level Sigma_xx), ...
-                ex = np.sqrt(2.0 * level * c / det) * (1.0 + _BOX_REL_MARGIN) + _BOX_ABS_MARGIN
-                ey = np.sqrt(2.0 * level * a / det) * (1.0 + _BOX_REL_MARGIN) + _BOX_ABS_MARGIN
+                # half-extents of {d : 0.5 d^T conic d <= level} are sqrt(2 level Sigma_xx), ...;
+                # from the LDL form Sigma_xx = r^2 / q + 1 / a, Sigma_yy = 1 / q (no cancellation)
+                ex = np.sqrt(2.0 * level * (rr * rr / q + 1.0 / a)) * (1.0 + _BOX_REL_MARGIN) + _BOX_ABS_MARGIN
+                ey = np.sqrt(2.0 * level / q) * (1.0 + _BOX_REL_MARGIN) + _BOX_ABS_MARGIN
                 if np.isfinite(ex) and ex < rx:
                     rx = ex
                 if np.isfinite(ey) and ey < ry:
@@ -247,7 +247,7 @@ if numba is not None:
                 if n_live == 0:
                     break
             smx, smy = sp[_S_MX, i], sp[_S_MY, i]
-            a, b, c, o = sp[_S_A, i], sp[_S_B, i], sp[_S_C, i], sp[_S_O, i]
+            a, r, q, o = sp[_S_A, i], sp[_S_B, i], sp[_S_C, i], sp[_S_O, i]
             sr, sg, sb, sz = sp[_S_R, i], sp[_S_G, i], sp[_S_BL, i], sp[_S_Z, i]
             fi = np.float32(i + 1)
             g = ids[start + i]
@@ -258,7 +258,8 @@ if numba is not None:
                 p = np.uint64(pi)  # unsigned: no negative-index wraparound, so LLVM vectorizes
                 dx = px[p] - smx
                 dy = py[p] - smy
-                power = _HALF * (a * dx * dx + c * dy * dy) + b * dx * dy
+                e = dx + r * dy
+                power = _HALF * (a * e * e + q * dy * dy)
                 alpha = o * _exp_neg(power)
                 alpha = _ALPHA_MAX if alpha > _ALPHA_MAX else alpha
                 t = tr[p]
@@ -338,7 +339,7 @@ if numba is not None:
                 max_cnt = max(max_cnt, count[v, u])
         for i in range(max_cnt - 1, -1, -1):
             smx, smy = sp[_S_MX, i], sp[_S_MY, i]
-            a, b, c, o = sp[_S_A, i], sp[_S_B, i], sp[_S_C, i], sp[_S_O, i]
+            a, r, q, o = sp[_S_A, i], sp[_S_B, i], sp[_S_C, i], sp[_S_O, i]
             sr, sg, sb, sz = sp[_S_R, i], sp[_S_G, i], sp[_S_BL, i], sp[_S_Z, i]
             fi = np.float32(i)
             g = ids[start + i]
@@ -353,7 +354,8 @@ if numba is not None:
                 p = np.uint64(pi)
                 dx = st[_BU_PX * L + p] - smx
                 dy = st[_BU_PY * L + p] - smy
-                power = _HALF * (a * dx * dx + c * dy * dy) + b * dx * dy
+                e = dx + r * dy
+                power = _HALF * (a * e * e + q * dy * dy)
                 gauss = _exp_neg(power)
                 raw = o * gauss
                 alpha = _ALPHA_MAX if raw > _ALPHA_MAX else raw
@@ -380,10 +382,11 @@ if numba is not None:
                 st[(_B_C0_U + np.uint64(_G_BL)) * L + p] = w * g2 if valid else _ZERO
                 st[(_B_C0_U + np.uint64(_G_Z)) * L + p] = w * g3 if valid else _ZERO
                 st[(_B_C0_U + np.uint64(_G_O)) * L + p] = gauss * g_alpha if free else _ZERO
-                st[(_B_C0_U + np.uint64(_G_MX)) * L + p] = -(g_power * (a * dx + b * dy)) if free else _ZERO
-                st[(_B_C0_U + np.uint64(_G_MY)) * L + p] = -(g_power * (b * dx + c * dy)) if free else _ZERO
-                st[(_B_C0_U + np.uint64(_G_A)) * L + p] = g_power * _HALF * dx * dx if free else _ZERO
-                st[(_B_C0_U + np.uint64(_G_B)) * L + p] = g_power * dx * dy if free else _ZERO
+                ae = a * e
+                st[(_B_C0_U + np.uint64(_G_MX)) * L + p] = -(g_power * ae) if free else _ZERO
+                st[(_B_C0_U + np.uint64(_G_MY)) * L + p] = -(g_power * (ae * r + q * dy)) if free else _ZERO
+                st[(_B_C0_U + np.uint64(_G_A)) * L + p] = g_power * _HALF * e * e if free else _ZERO
+                st[(_B_C0_U + np.uint64(_G_B)) * L + p] = g_power * ae * dy if free else _ZERO
                 st[(_B_C0_U + np.uint64(_G_C)) * L + p] = g_power * _HALF * dy * dy if free else _ZERO
             # pairwise sum over the lanes: constant-length elementwise halvings (vectorized)
             for j in range(_N_GRAD):
@@ -513,6 +516,6 @@ def rasterize_cpu(proj: Projection, width: int, height: int) -> tuple[torch.Tens
         raise BackendUnavailable(_IMPORT_ERROR)
     f32 = torch.float32
     color, trans, depth, n_frag = _RasterizeCPU.apply(
-        proj.means2d.to(f32), proj.conics.to(f32), proj.opacities.to(f32), proj.colors.to(f32),
+        proj.means2d.to(f32), proj.conic_ldl.to(f32), proj.opacities.to(f32), proj.colors.to(f32),
         proj.depths.to(f32), proj.radii, int(width), int(height))
     return color, trans, depth, int(n_frag)

@@ -15,6 +15,7 @@ from fixer4d.errors import BackendUnavailable
 from fixer4d.geometry.camera import Camera
 from fixer4d.model.snapshot import Snapshot
 from fixer4d.render.constants import LOWPASS_2D, NEAR_PLANE
+from fixer4d.render.output import RenderOutput
 
 
 def unavailable_reason() -> str | None:
@@ -29,7 +30,7 @@ def unavailable_reason() -> str | None:
 
 
 def render(snapshot: Snapshot, camera: Camera, background: torch.Tensor):
-    """Rasterize with ``gsplat.rasterization``; returns fixer4d.render.api.RenderOutput."""
+    """Rasterize with ``gsplat.rasterization``; returns fixer4d.render.output.RenderOutput."""
     reason = unavailable_reason()
     if reason is not None:
         raise BackendUnavailable(f"render backend 'gsplat' unavailable: {reason}")
@@ -37,8 +38,6 @@ def render(snapshot: Snapshot, camera: Camera, background: torch.Tensor):
         raise BackendUnavailable(f"render backend 'gsplat' needs CUDA tensors; the snapshot is on "
                                  f"{snapshot.means.device} (use snapshot.to('cuda') or backend='cpu')")
     from gsplat import rasterization
-
-    from fixer4d.render.api import RenderOutput
 
     snap = snapshot.to(dtype=torch.float32)
     device = snap.means.device

@@ -11,12 +11,11 @@ from dataclasses import dataclass
 import torch
 
 from fixer4d.geometry.camera import Camera
+# The one torch quaternion->matrix (normalizes; zero -> identity); the name stays for callers.
+from fixer4d.geometry.quaternion import to_matrix_torch as quat_to_rotmat
 from fixer4d.model.snapshot import Snapshot
 from fixer4d.render.constants import DET_MIN, LOWPASS_2D, NEAR_PLANE, SIGMA_EXTENT, TAN_FOV_MARGIN
 
-# Below this norm a quaternion is treated as zero and maps to the identity rotation
-# (DESIGN.md §3); far below any quaternion an optimizer produces from a unit initialisation.
-QUAT_NORM_MIN = 1e-12
 # Largest stored radius (pixels), far below int32 overflow.
 RADIUS_MAX = float(2 ** 30)
 
@@ -26,7 +25,10 @@ class Projection:
     """N projected splats in one camera.
 
     means2d: (N, 2) pixel coordinates of the projected means (pixel (i, j) centre = (i+.5, j+.5)).
-    conics: (N, 3) inverse 2D covariance (a, b, c) = [[a, b], [b, c]], pixels^-2.
+    conic_ldl: (N, 3) the inverse 2D covariance in LDL form (a, r, q): the exponent at pixel
+        offset (dx, dy) from the mean is power = 0.5 (a (dx + r dy)^2 + q dy^2), i.e. the conic
+        [[a, a r], [a r, a r^2 + q]]; a, q in pixels^-2, r unitless. Every rasterizer evaluates
+        this form (see ``stable_conic``): unlike (a, b, c) it keeps long thin splats in float32.
     depths: (N,) camera-frame z of the means (world units).
     radii: (N,) int32 pixel radius of the 3-sigma extent; 0 = culled (behind the near plane,
         degenerate covariance or off-screen). Not differentiable.
@@ -34,27 +36,44 @@ class Projection:
     """
 
     means2d: torch.Tensor
-    conics: torch.Tensor
+    conic_ldl: torch.Tensor
     depths: torch.Tensor
     radii: torch.Tensor
     opacities: torch.Tensor
     colors: torch.Tensor
 
+    @property
+    def conics(self) -> torch.Tensor:
+        """(N, 3) the conic as (a, b, c) = [[a, b], [b, c]] (pixels^-2), for display and probes;
+        in float32 it loses the long axis of thin splats, so no rasterizer uses it."""
+        a, r, q = self.conic_ldl.unbind(-1)
+        return torch.stack([a, a * r, a * r * r + q], -1)
 
-def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
-    """(N, 4) wxyz quaternions, any norm -> (N, 3, 3) rotation matrices; zero -> identity."""
-    norm = quats.norm(dim=-1, keepdim=True)
-    ok = norm > QUAT_NORM_MIN
-    identity = torch.zeros_like(quats)
-    identity[:, 0] = 1.0
-    q = torch.where(ok, quats / torch.where(ok, norm, torch.ones_like(norm)), identity)
-    w, x, y, z = q.unbind(-1)
-    rows = [
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ]
-    return torch.stack(rows, -1).reshape(-1, 3, 3)
+
+def stable_conic(t0: torch.Tensor, t1: torch.Tensor, lowpass: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """(conic_ldl (N, 3), det (N,)) of the 2D covariance [[|t0|^2 + l, t0.t1], [t0.t1, |t1|^2 + l]].
+
+    t0, t1: (N, 3) rows of T = J W R S (pixels per unit of the Gaussian's scaled axes); l: the
+    low-pass (pixels^2). Written to stay accurate in float32 for splats whose long axis projects
+    to thousands of pixels, where the textbook form fails: det = ca cc - cb^2 cancels (two
+    terms ~L^4 for a result ~0.3 L^2, so it goes negative and the splat is culled), and the
+    conic (a, b, c) = (cc, -cb, ca) / det has condition number ~L^2 / 0.3, beyond float32's
+    1/eps ~ 1.7e7 once L is a few hundred pixels, so 0.5 (a dx^2 + c dy^2) + b dx dy along the
+    long axis is mostly round-off (the splat deforms). Instead:
+
+    * det by Lagrange's identity, a sum of non-negative terms (no cancellation):
+      det = |t0 x t1|^2 + l (|t0|^2 + |t1|^2) + l^2.
+    * the conic in LDL form around cc (>= l > 0): with a = cc / det, r = -cb / cc, q = 1 / cc,
+      power = 0.5 (a (dx + r dy)^2 + q dy^2). Each of a, r, q has a relative error of a few
+      ulp, and power's sensitivity to them is bounded by the pixel offsets themselves, so the
+      error along the long axis is ~eps * extent (1e-3 px at 10^4 px), not eps * L^2.
+    """
+    ca = (t0 * t0).sum(-1) + lowpass
+    cb = (t0 * t1).sum(-1)
+    cc = (t1 * t1).sum(-1) + lowpass
+    cross = torch.linalg.cross(t0, t1, dim=-1)
+    det = (cross * cross).sum(-1) + lowpass * (ca + cc) - lowpass * lowpass
+    return torch.stack([cc / det, -cb / cc, 1.0 / cc], -1), det
 
 
 def project_gaussians(snapshot: Snapshot, camera: Camera) -> Projection:
@@ -63,7 +82,8 @@ def project_gaussians(snapshot: Snapshot, camera: Camera) -> Projection:
     2D covariance = J W R S (J W R S)^T + LOWPASS_2D I, with W the world-to-camera rotation, R S
     the Gaussian's rotation and scales and J the perspective Jacobian at the mean (tangent
     clamped to the widened field of view, like 3DGS). Writing it as a Gram matrix keeps it
-    positive semi-definite in floating point.
+    positive semi-definite in floating point; its determinant and inverse come from
+    ``stable_conic``, exact enough in float32 for splats thousands of pixels long.
     """
     means, dtype, device = snapshot.means, snapshot.means.dtype, snapshot.means.device
     w2c = torch.tensor(camera.w2c.copy(), dtype=dtype, device=device)
@@ -91,16 +111,13 @@ def project_gaussians(snapshot: Snapshot, camera: Camera) -> Projection:
     j_xz, j_yz = (-fx * tx * inv_z * inv_z)[:, None], (-fy * ty * inv_z * inv_z)[:, None]
     t0 = (fx * inv_z)[:, None] * world_rs[:, 0] + j_xz * world_rs[:, 2]
     t1 = (fy * inv_z)[:, None] * world_rs[:, 1] + j_yz * world_rs[:, 2]
-    cov = torch.stack([(t0 * t0).sum(-1), (t0 * t1).sum(-1), (t1 * t1).sum(-1)], -1)
-    ca = cov[:, 0] + LOWPASS_2D
-    cb = cov[:, 1]
-    cc = cov[:, 2] + LOWPASS_2D
-    det = ca * cc - cb * cb
+    conic_ldl, det = stable_conic(t0, t1, LOWPASS_2D)
     ok = in_front & (det > DET_MIN) & torch.isfinite(det)
-    det_safe = torch.where(ok, det, torch.ones_like(det))
-    conics = torch.stack([cc / det_safe, -cb / det_safe, ca / det_safe], -1)
+    conic_ldl = torch.where(ok[:, None], conic_ldl, torch.ones_like(conic_ldl))
 
     with torch.no_grad():
+        ca = (t0 * t0).sum(-1) + LOWPASS_2D
+        cc = (t1 * t1).sum(-1) + LOWPASS_2D
         mid = 0.5 * (ca + cc)
         lam_max = mid + torch.sqrt(torch.clamp(mid * mid - det, min=0.0))
         radius = torch.ceil(SIGMA_EXTENT * torch.sqrt(torch.clamp(lam_max, min=0.0)))
@@ -110,5 +127,5 @@ def project_gaussians(snapshot: Snapshot, camera: Camera) -> Projection:
         # int32 headroom only: binning clips the extent to the image, so any radius this large
         # already covers every pixel it can reach
         radii = torch.where(keep, torch.clamp(radius, max=RADIUS_MAX), torch.zeros_like(radius)).to(torch.int32)
-    return Projection(means2d=means2d, conics=conics, depths=z, radii=radii,
+    return Projection(means2d=means2d, conic_ldl=conic_ldl, depths=z, radii=radii,
                       opacities=snapshot.opacities, colors=snapshot.colors)

@@ -6,7 +6,8 @@ only the splats whose extent overlaps that tile (never a pixels x Gaussians tens
 image). Runs in the dtype of its inputs (float32 or float64).
 
 Blending rule, per pixel, walking splats front to back (identical in every backend):
-    power_i = 0.5 (a dx^2 + c dy^2) + b dx dy          (dx, dy = pixel centre - mean)
+    power_i = 0.5 (a e^2 + q dy^2), e = dx + r dy      (dx, dy = pixel centre - mean; the
+                                                        conic in LDL form, see project.py)
     skip i if power_i > POWER_MAX                       (outside the 3-sigma ellipse)
     alpha_i = min(ALPHA_MAX, opacity_i exp(-power_i)); skip i if alpha_i < ALPHA_MIN
     stop before i if T (1 - alpha_i) < T_MIN, else blend: w_i = alpha_i T, T <- T (1 - alpha_i)
@@ -38,7 +39,7 @@ def rasterize_reference(proj: Projection, width: int, height: int,
     grad_on = torch.is_grad_enabled()
     visible = torch.nonzero(proj.radii > 0).squeeze(1)
     order = visible[torch.argsort(proj.depths.detach()[visible], stable=True)]
-    m2d, con, op = proj.means2d[order], proj.conics[order], proj.opacities[order]
+    m2d, con, op = proj.means2d[order], proj.conic_ldl[order], proj.opacities[order]
     col, dep = proj.colors[order], proj.depths[order]
     with torch.no_grad():
         r = proj.radii[order].to(torch.float64)
@@ -81,8 +82,9 @@ def _composite_tile(m2d, con, op, col, dep, x0, x1, y0, y1, dtype, device):
     py = (torch.arange(y0, y1, dtype=dtype, device=device) + 0.5).repeat_interleave(w)
     dx = px[:, None] - m2d[None, :, 0]  # (P, G)
     dy = py[:, None] - m2d[None, :, 1]
-    a, b, c = con[None, :, 0], con[None, :, 1], con[None, :, 2]
-    power = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
+    a, r, q = con[None, :, 0], con[None, :, 1], con[None, :, 2]
+    e = dx + r * dy
+    power = 0.5 * (a * e * e + q * dy * dy)
     alpha = torch.clamp(op[None, :] * torch.exp(-power), max=ALPHA_MAX)
     candidate = (power <= POWER_MAX) & (alpha >= ALPHA_MIN)
     one = torch.ones((), dtype=dtype, device=device)

@@ -11,13 +11,28 @@ Layout under the run folder (DESIGN.md §4)::
 Every entry is written with ``fixer4d.atomic.atomic_dir``: the files go to a hidden temporary
 sibling which replaces the entry whole once complete, so a killed write leaves the previous
 entry (or none), never half of one, and a refreshed entry never mixes old and new frames.
-Readers skip hidden/temporary directories and entries without a complete meta.json.
+Readers skip hidden temporary directories (``clean_temporary`` deletes them).
+
+Every visible entry directory is checked when it is read (meta.json parses and has this
+layout's ``format``, every frame is a complete PNG, confidence.npz holds its two arrays). One
+that fails is never silently skipped: a warning names the entry and the reason, the directory
+is moved aside whole to ``cache/corrupt/round_<r>/<key>-<n>`` and the entry counts as missing,
+so the pipeline restores it again. An entry of an older cache format, or one whose settings
+``fingerprint`` differs from the cache's (the pipeline's key of every setting that changes a
+pseudo-target), is moved to ``cache/stale/round_<r>/<key>-<n>`` the same way (one sentence per
+cache for an older format). An entry of a newer format is refused with an InputError: it
+belongs to a newer fixer4d and is left untouched.
 """
 from __future__ import annotations
 
+import hashlib
 import json
+import logging
+import os
 import re
 import shutil
+import threading
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,8 +50,16 @@ CONFIDENCE_FILE = "confidence.npz"
 FRAME_FILE = "frame_{:04d}.png"
 ROUND_DIR = "round_{}"
 _ROUND_RE = re.compile(r"^round_(\d+)$")
+CORRUPT_DIR = "corrupt"  # cache/corrupt/round_<r>/<key>-<n>: unreadable or foreign entries, set aside
+STALE_DIR = "stale"  # cache/stale/round_<r>/<key>-<n>: older-format or other-settings entries, set aside
 # Version of the entry layout written into meta.json, bumped when the files change meaning.
-CACHE_FORMAT = 1
+# 1: frames + confidence.npz + meta.json; 2: meta.json also carries the settings "fingerprint".
+CACHE_FORMAT = 2
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_END = b"IEND\xaeB`\x82"  # the IEND chunk type + CRC: the last 8 bytes of every complete PNG
+_CONFIDENCE_ARRAYS = ("confidence.npy", "frame_confidence.npy")
+
+log = logging.getLogger("fixer4d.restore")
 # Render alpha below this counts as a hole when scoring how much an entry repaired
 # (the same threshold as the restorer's trusted-depth alpha).
 SCORE_HOLE_ALPHA = 0.5
@@ -76,20 +99,49 @@ class CacheEntry:
 
     def confidence(self) -> np.ndarray:
         """(F, H, W) float32 in [0, 1]: per-pixel confidence of the restored clip."""
-        with np.load(self.path / CONFIDENCE_FILE) as data:
+        with np.load(self.path / CONFIDENCE_FILE, allow_pickle=False) as data:
             return data["confidence"].astype(np.float32)
 
     def frame_confidence(self) -> np.ndarray:
         """(F,) float32 per-frame confidence."""
-        with np.load(self.path / CONFIDENCE_FILE) as data:
+        with np.load(self.path / CONFIDENCE_FILE, allow_pickle=False) as data:
             return data["frame_confidence"].astype(np.float32)
 
 
-class RestoreCache:
-    """Restored clips by round and key under ``root`` (``runs/<name>/cache``)."""
+def settings_fingerprint(settings: Any) -> str:
+    """A short stable key of JSON-able ``settings`` (every setting that changes a pseudo-target:
+    restorer and its settings, trajectories, model state, ...): entries written under another
+    fingerprint are stale for a cache opened with this one."""
+    text = json.dumps(settings, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha1(text.encode("utf-8")).hexdigest()[:16]
 
-    def __init__(self, root: str | Path) -> None:
+
+class _Unusable(Exception):
+    """An entry directory that cannot be used; ``kind`` is CORRUPT_DIR or STALE_DIR."""
+
+    def __init__(self, kind: str, reason: str, reported: bool = False) -> None:
+        super().__init__(reason)
+        self.kind = kind
+        self.reason = reason
+        self.reported = reported  # already said once for the whole cache (an older format)
+
+
+class RestoreCache:
+    """Restored clips by round and key under ``root`` (``runs/<name>/cache``).
+
+    fingerprint: the key of the settings this cache serves (``settings_fingerprint``); written
+    into every entry, and entries carrying another one are set aside as stale. None accepts
+    entries of any settings (a viewer inspecting a run folder).
+    ``set_aside`` lists (entry path before the move, where it went, reason) of every entry this
+    instance moved aside, for reports.
+    """
+
+    def __init__(self, root: str | Path, fingerprint: str | None = None) -> None:
         self.root = Path(root)
+        self.fingerprint = fingerprint
+        self.set_aside: list[tuple[Path, Path, str]] = []
+        self._told_older = False
+        self._lock = threading.Lock()  # moving aside from restore-job threads and the trainer at once
 
     # ---- naming ------------------------------------------------------------------------
     @staticmethod
@@ -124,7 +176,8 @@ class RestoreCache:
         scores.update(self._scores(request, result))
         record = dict(meta)
         record.update({
-            "format": CACHE_FORMAT, "key": key, "round": int(round), "frame": request.frame, "time": request.time,
+            "format": CACHE_FORMAT, "fingerprint": self.fingerprint,
+            "key": key, "round": int(round), "frame": request.frame, "time": request.time,
             "num_frames": F, "width": W, "height": H,
             "trajectory": {**request.trajectory, "cameras": [c.to_dict() for c in request.cameras]},
             "scores": scores,
@@ -207,21 +260,96 @@ class RestoreCache:
             return []
         return sorted(d for d in round_dir.iterdir() if d.is_dir() and not d.name.startswith("."))
 
-    @staticmethod
-    def _load(path: Path, round: int) -> CacheEntry | None:
-        """The entry at ``path`` if it is complete (meta.json parses, every file present), else None."""
+    def _load(self, path: Path, round: int) -> CacheEntry | None:
+        """The complete, current entry at ``path``; None when there is none. An entry directory
+        that cannot be used is reported and moved aside (see the module doc), then None."""
+        if not path.is_dir():
+            return None
+        try:
+            return self._check(path, round)
+        except _Unusable as bad:
+            self._move_aside(path, round, bad)
+            return None
+
+    def _check(self, path: Path, round: int) -> CacheEntry:
+        """Validate the entry directory ``path``; raises _Unusable saying why it cannot be used."""
         try:
             meta = json.loads((path / META_FILE).read_text())
+        except FileNotFoundError:
+            raise _Unusable(CORRUPT_DIR, f"no {META_FILE} (an entry copied in half, or not a cache entry)") from None
+        except (OSError, ValueError) as exc:
+            raise _Unusable(CORRUPT_DIR, f"unreadable {META_FILE} ({type(exc).__name__}: {exc})") from None
+        if not isinstance(meta, dict):
+            raise _Unusable(CORRUPT_DIR, f"{META_FILE} holds a {type(meta).__name__}, not an object")
+        fmt = meta.get("format")
+        if not isinstance(fmt, int) or isinstance(fmt, bool):
+            raise _Unusable(CORRUPT_DIR, f"{META_FILE} has no cache format version (a foreign folder)")
+        if fmt > CACHE_FORMAT:
+            raise InputError(f"restore cache entry {path}: cache format {fmt}, but this fixer4d reads format "
+                             f"{CACHE_FORMAT}; open the run with the newer fixer4d that wrote it, or use a new --out")
+        if fmt < CACHE_FORMAT:
+            if not self._told_older:
+                self._told_older = True
+                log.warning("restore cache %s: written in cache format %d, this fixer4d writes format %d; its "
+                            "entries are moved to %s/ and restored again", self.root, fmt, CACHE_FORMAT,
+                            self.root / STALE_DIR)
+            raise _Unusable(STALE_DIR, f"older cache format {fmt} (now {CACHE_FORMAT})", reported=True)
+        if self.fingerprint is not None and meta.get("fingerprint") != self.fingerprint:
+            raise _Unusable(STALE_DIR, f"written for other settings (fingerprint {meta.get('fingerprint')!r}, "
+                                       f"now {self.fingerprint!r})")
+        try:
             cameras = [Camera.from_dict(c) for c in meta["trajectory"]["cameras"]]
-            if len(cameras) != int(meta["num_frames"]):
-                return None
-        except (OSError, ValueError, KeyError, TypeError, InputError):
-            return None
-        if not (path / CONFIDENCE_FILE).is_file():
-            return None
-        if not all((path / FRAME_FILE.format(k)).is_file() for k in range(len(cameras))):
-            return None
-        return CacheEntry(path, path.name, round, meta, cameras, float(meta["time"]), int(meta["frame"]))
+            num_frames, time, frame = int(meta["num_frames"]), float(meta["time"]), int(meta["frame"])
+        except (KeyError, TypeError, ValueError, InputError) as exc:
+            raise _Unusable(CORRUPT_DIR, f"malformed {META_FILE} ({type(exc).__name__}: {exc})") from None
+        if len(cameras) != num_frames:
+            raise _Unusable(CORRUPT_DIR, f"{META_FILE} lists {len(cameras)} cameras for {num_frames} frames")
+        for k in range(num_frames):
+            name = FRAME_FILE.format(k)
+            if not _complete_png(path / name):
+                raise _Unusable(CORRUPT_DIR, f"{name} is missing or not a complete PNG")
+        try:
+            with zipfile.ZipFile(path / CONFIDENCE_FILE) as z:
+                names = set(z.namelist())
+        except (OSError, zipfile.BadZipFile) as exc:
+            raise _Unusable(CORRUPT_DIR, f"{CONFIDENCE_FILE} is missing or unreadable ({exc})") from None
+        missing = [a for a in _CONFIDENCE_ARRAYS if a not in names]
+        if missing:
+            raise _Unusable(CORRUPT_DIR, f"{CONFIDENCE_FILE} lacks {missing}")
+        return CacheEntry(path, path.name, round, meta, cameras, time, frame)
+
+    def _move_aside(self, path: Path, round: int, bad: _Unusable) -> None:
+        """Move the entry directory ``path`` to cache/<kind>/round_<r>/<key>-<n> and report it."""
+        with self._lock:
+            dest_dir = self.root / bad.kind / ROUND_DIR.format(int(round))
+            dest_dir.mkdir(parents=True, exist_ok=True)
+            n = 0
+            while (dest_dir / f"{path.name}-{n}").exists():
+                n += 1
+            dest = dest_dir / f"{path.name}-{n}"
+            try:
+                os.replace(path, dest)
+            except FileNotFoundError:  # another reader moved it first
+                return
+        self.set_aside.append((path, dest, bad.reason))
+        if not bad.reported:
+            log.warning("restore cache entry %s: %s; moved to %s, it will be restored again", path, bad.reason, dest)
+
+
+def _complete_png(path: Path) -> bool:
+    """Whether ``path`` starts with the PNG signature and ends with the IEND chunk (a write that
+    stopped early, or a file cut short, does not)."""
+    try:
+        with open(path, "rb") as fh:
+            if fh.read(len(_PNG_SIGNATURE)) != _PNG_SIGNATURE:
+                return False
+            fh.seek(0, os.SEEK_END)
+            if fh.tell() < len(_PNG_SIGNATURE) + len(_PNG_END):
+                return False
+            fh.seek(-len(_PNG_END), os.SEEK_END)
+            return fh.read(len(_PNG_END)) == _PNG_END
+    except OSError:
+        return False
 
 
 def _write_png(path: Path, rgb8: np.ndarray) -> None:

@@ -75,3 +75,31 @@ TEMPORAL_NEIGHBOR_WEIGHT = 0.5
 # ---- validation -----------------------------------------------------------------------
 # Depth values are z-depths in world units; anything non-finite or <= this is "no depth".
 MIN_VALID_DEPTH = 1e-6
+
+# ---- learned restorer (restore/learned.py, train/restorer_pairs.py) --------------------
+# Base channel width of the restorer CNN (a 3-level U-Net; ~62 k parameters at 16): wide enough
+# to learn blend maps and a small residual from a few dozen pairs, small enough to train in
+# about a minute of one CPU core; its inference costs about as much as the warp restorer itself.
+LEARNED_WIDTH = 16
+# The residual added after blending is bounded to +-this (tanh): it corrects colour shifts and
+# blend seams; anything larger would be the network inventing content it cannot know.
+LEARNED_RESIDUAL_BOUND = 0.1
+# Logit bias of the "reference-warp output" candidate at initialization: the untrained network
+# reproduces the warp restorer (softmax weight 0.83 at 3.0 over 5 candidates), so training
+# starts from the geometric restorer and learns where to depart from it.
+LEARNED_INIT_WARP_LOGIT = 3.0
+# Per-pixel error (mean |restored - real| over channels) at which the confidence target is
+# exp(-1): 0.05 ~ the colour noise of a well-reconstructed real view.
+LEARNED_CONF_ERROR_SCALE = 0.05
+# Weights of the loss terms: L1 + 0.2 D-SSIM (the STGS image loss) + 0.1 confidence BCE (the
+# confidence head must not steer the colour output).
+LEARNED_SSIM_WEIGHT = 0.2
+LEARNED_CONF_WEIGHT = 0.1
+# Per-channel colour correction of a warped reference onto the render (gain, bias by least
+# squares over pixels visible in both): only where the render is solid, gains clamped to this
+# range so that a wrong render cannot recolour a real image.
+COLOR_FIT_ALPHA_MIN = 0.9
+COLOR_GAIN_RANGE = (0.8, 1.25)
+COLOR_BIAS_MAX = 0.1
+# Fewer matched pixels than this: no colour correction (the fit would be noise).
+COLOR_FIT_MIN_PIXELS = 64

@@ -90,12 +90,18 @@ class _Source:
 
 
 @dataclass
-class _FrameState:
+class FrameWarp:
+    """What the restorer computed for one novel frame (the learned restorer's inputs reuse it)."""
+
     depth: np.ndarray      # (H, W) float64 novel depth used for warping, 0 = unknown
     warp: np.ndarray       # (H, W, 3) fused warped colour
     blend: np.ndarray      # (H, W) weight of the warp against the render in [0, 1] (ref support x trust)
     blur: np.ndarray       # (H, W) how much blurrier the render is than the warp, [0, 1]
     hole: np.ndarray       # (H, W) 1 where the render is a hole
+    # per source (the two endpoint references first, then the extra views): the source's image
+    # warped into the frame (H, W, 3) and its visibility after the occlusion test (H, W) in {0, 1}
+    colors: list[np.ndarray] = dataclasses.field(default_factory=list)
+    visible: list[np.ndarray] = dataclasses.field(default_factory=list)
 
 
 def sanitize_depth(depth: np.ndarray) -> np.ndarray:
@@ -165,6 +171,39 @@ def _detail_energy(img: np.ndarray, sigma: float) -> np.ndarray:
     return _gauss(lap * lap, sigma)
 
 
+def smooth_along_clip(cameras: list[Camera], depths: list[np.ndarray], maps: list[np.ndarray], radius: int,
+                      neighbor_weight: float, rel_tol: float) -> list[np.ndarray]:
+    """Temporal consistency along a clip: each frame's per-pixel maps (H, W, C) averaged with its
+    ``radius`` neighbours' maps warped into it through its depth (H, W, 0 = unknown), a neighbour
+    counting with ``neighbor_weight`` where it sees the same surface (depth within ``rel_tol``)."""
+    F = len(maps)
+    out = []
+    for k in range(F):
+        cam = cameras[k]
+        H, W = cam.height, cam.width
+        depth = np.asarray(depths[k], np.float64)
+        points = backproject(cam, depth)
+        num = maps[k].astype(np.float64).copy()
+        den = np.ones((H, W, 1))
+        for j in range(max(0, k - radius), min(F, k + radius + 1)):
+            if j == k:
+                continue
+            uv, z = project(cameras[j], points)
+            with np.errstate(invalid="ignore"):
+                inside = (np.isfinite(uv).all(axis=2) & (uv[..., 0] >= 0) & (uv[..., 0] <= W)
+                          & (uv[..., 1] >= 0) & (uv[..., 1] <= H) & (depth > 0))
+            uv = np.where(inside[..., None], uv, 0.5)
+            dj = _remap(np.asarray(depths[j], np.float32), uv, cv2.INTER_NEAREST)
+            with np.errstate(invalid="ignore"):
+                same = inside & (np.abs(z - dj) <= rel_tol * np.maximum(dj, C.MIN_VALID_DEPTH))
+            wgt = (neighbor_weight * same)[..., None]
+            warped = _remap(np.ascontiguousarray(maps[j], dtype=np.float32), uv, cv2.INTER_LINEAR)
+            num += wgt * warped.reshape(H, W, -1)
+            den += wgt
+        out.append((num / den).astype(np.float32))
+    return out
+
+
 def push_pull_fill(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """Fill (H, W, C) ``values`` where ``weights`` (H, W) in [0, 1] are small, from the known pixels.
 
@@ -211,10 +250,16 @@ class ReferenceWarpRestorer:
     # ---- public ------------------------------------------------------------------------
     def restore(self, request: RestoreRequest, progress: ProgressFn | None = None) -> RestoreResult:
         """Restore every frame of ``request``; returns rgb (F, H, W, 3), confidence (F, H, W), (F,)."""
+        return self.restore_detailed(request, progress)[0]
+
+    def restore_detailed(self, request: RestoreRequest,
+                         progress: ProgressFn | None = None) -> tuple[RestoreResult, list[FrameWarp]]:
+        """``restore`` plus, per frame, the warps, visibilities and weights it used (``FrameWarp``;
+        ``blend`` is the temporally smoothed one)."""
         cfg = self.config
         sources = self._sources(request)
         F = request.num_frames
-        states: list[_FrameState] = []
+        states: list[FrameWarp] = []
         for k in range(F):
             states.append(self._fuse_frame(request, k, sources))
             if progress is not None:
@@ -229,7 +274,9 @@ class ReferenceWarpRestorer:
             if progress is not None:
                 progress(0.8 + 0.2 * (k + 1) / F)
         frame_conf = conf_out.reshape(F, -1).mean(axis=1)
-        return RestoreResult(rgb_out, conf_out, frame_conf)
+        for state, blend in zip(states, blends):
+            state.blend = blend
+        return RestoreResult(rgb_out, conf_out, frame_conf), states
 
     # ---- sources -----------------------------------------------------------------------
     def _sources(self, request: RestoreRequest) -> list[_Source]:
@@ -297,7 +344,7 @@ class ReferenceWarpRestorer:
             splat = np.where(np.isinf(splat), cv2.erode(splat, kernel, borderType=cv2.BORDER_REPLICATE), splat)
         return splat
 
-    def _fuse_frame(self, request: RestoreRequest, k: int, sources: list[_Source]) -> _FrameState:
+    def _fuse_frame(self, request: RestoreRequest, k: int, sources: list[_Source]) -> FrameWarp:
         cfg = self.config
         cam = request.cameras[k]
         H, W = request.height, request.width
@@ -356,40 +403,19 @@ class ReferenceWarpRestorer:
         blur = np.clip(1.0 - (e_render + cfg.detail_energy_floor) / (e_warp + cfg.detail_energy_floor), 0.0, 1.0)
         trust = np.maximum(np.maximum(hole, blur), cfg.ref_base_trust)
         blend = (ref_conf * trust).astype(np.float32)
-        return _FrameState(depth, warp.astype(np.float32), blend, blur.astype(np.float32),
-                           hole.astype(np.float32))
+        return FrameWarp(depth, warp.astype(np.float32), blend, blur.astype(np.float32),
+                         hole.astype(np.float32), [c.astype(np.float32) for c in colors], visible)
 
     # ---- temporal consistency ----------------------------------------------------------
-    def _temporal_smooth(self, request: RestoreRequest, states: list[_FrameState]) -> list[np.ndarray]:
+    def _temporal_smooth(self, request: RestoreRequest, states: list[FrameWarp]) -> list[np.ndarray]:
         """Average each frame's blend weight with its neighbours' warped into it (H, W) per frame."""
         cfg = self.config
-        F, H, W = request.num_frames, request.height, request.width
-        blends = []
-        for k in range(F):
-            cam = request.cameras[k]
-            depth = states[k].depth
-            points = backproject(cam, depth)
-            num_b = states[k].blend.astype(np.float64).copy()
-            den = np.ones((H, W))
-            for j in range(max(0, k - cfg.temporal_radius), min(F, k + cfg.temporal_radius + 1)):
-                if j == k:
-                    continue
-                uv, z = project(request.cameras[j], points)
-                with np.errstate(invalid="ignore"):
-                    inside = (np.isfinite(uv).all(axis=2) & (uv[..., 0] >= 0) & (uv[..., 0] <= W)
-                              & (uv[..., 1] >= 0) & (uv[..., 1] <= H) & (depth > 0))
-                uv = np.where(inside[..., None], uv, 0.5)
-                dj = _remap(states[j].depth.astype(np.float32), uv, cv2.INTER_NEAREST)
-                with np.errstate(invalid="ignore"):
-                    same = inside & (np.abs(z - dj) <= cfg.occlusion_rel_tol * np.maximum(dj, C.MIN_VALID_DEPTH))
-                wgt = cfg.temporal_neighbor_weight * same
-                num_b += wgt * _remap(states[j].blend, uv, cv2.INTER_LINEAR)
-                den += wgt
-            blends.append((num_b / den).astype(np.float32))
-        return blends
+        maps = smooth_along_clip(request.cameras, [s.depth for s in states], [s.blend[..., None] for s in states],
+                                 cfg.temporal_radius, cfg.temporal_neighbor_weight, cfg.occlusion_rel_tol)
+        return [m[..., 0] for m in maps]
 
     # ---- compositing -------------------------------------------------------------------
-    def _composite(self, render: np.ndarray, state: _FrameState,
+    def _composite(self, render: np.ndarray, state: FrameWarp,
                    blend: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Blend render and warp, inpaint the unsupported rest; returns rgb (H, W, 3), confidence (H, W)."""
         cfg = self.config

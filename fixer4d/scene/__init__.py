@@ -1,18 +1,38 @@
 """fixer4d.scene: multi-view video sources (synthetic, Neural3DV, Panoptic) behind one loader.
 
 ``load_scene(source)`` is the only entry most code needs; the classes are exported for typing
-and for callers that want a specific layout.
+and for callers that want a specific layout. ``parse_frame_range`` is the one ``a:b`` frame
+range syntax (half-open); ``validate_scene`` decodes the first and last frame of every camera
+so that damaged input files fail before training starts.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
+import difflib
+
 from fixer4d.errors import InputError
 from fixer4d.scene.base import MultiViewVideo, SceneBounds
+from fixer4d.scene.frames import check_frame_range, parse_frame_range
 from fixer4d.scene.synthetic import SyntheticScene, builtin_spec_path, is_builtin_name
+from fixer4d.scene.validate import validate_scene
 
-__all__ = ["load_scene", "detect_layout", "MultiViewVideo", "SceneBounds", "SyntheticScene",
-           "Neural3DVScene", "PanopticScene"]
+__all__ = ["load_scene", "detect_layout", "builtin_scene_names", "parse_frame_range", "check_frame_range",
+           "validate_scene", "MultiViewVideo", "SceneBounds", "SyntheticScene", "Neural3DVScene", "PanopticScene"]
+
+
+def builtin_scene_names() -> list[str]:
+    """Names of the bundled synthetic scene specs ("demo", "tiny", ...), sorted."""
+    return sorted(p.stem for p in builtin_spec_path("demo").parent.glob("*.json"))
+
+
+def _no_such_scene(source: str | Path) -> InputError:
+    names = builtin_scene_names()
+    close = difflib.get_close_matches(Path(str(source)).name, names, n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    what = "spec file not found" if Path(str(source)).suffix == ".json" else "no such file, folder or bundled scene"
+    return InputError(f"scene {str(source)!r}: {what}{hint}; pass a bundled name ({', '.join(names)}), "
+                      f"a spec .json or a Neural3DV/Panoptic scene folder")
 
 
 def detect_layout(path: str | Path) -> str:
@@ -45,11 +65,13 @@ def load_scene(source: str | Path, *, scale: float = 1.0, frame_range: tuple[int
       camera index) overriding the layout's default split.
     """
     if frame_range is not None:
-        frame_range = (int(frame_range[0]), int(frame_range[1]))
+        frame_range = check_frame_range(frame_range)  # 0 <= a < b here; each layout checks b <= its length
     if is_builtin_name(source):
         return SyntheticScene(builtin_spec_path(str(source)), scale=scale, frame_range=frame_range,
                               train_ids=train_ids, test_ids=test_ids)
     src = Path(source)
+    if not src.exists():
+        raise _no_such_scene(source)
     if src.is_dir():
         layout = detect_layout(src)
         if layout == "n3dv":
@@ -61,8 +83,6 @@ def load_scene(source: str | Path, *, scale: float = 1.0, frame_range: tuple[int
         return PanopticScene(src, scale=scale, frame_range=frame_range, train_ids=train_ids, test_ids=test_ids)
     if src.suffix == ".json":
         return SyntheticScene(src, scale=scale, frame_range=frame_range, train_ids=train_ids, test_ids=test_ids)
-    if not src.exists():
-        raise InputError(f"scene {source!s}: no such file or directory; pass 'demo', a spec .json or a scene folder")
     raise InputError(f"scene {source!s}: not a directory or a .json spec; pass 'demo', a spec .json or a scene folder")
 
 

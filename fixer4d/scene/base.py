@@ -18,6 +18,7 @@ import numpy as np
 
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
+from fixer4d.geometry.rig import common_view_bounds
 
 
 def read_json_object(path: Path, label: str, fix: str) -> dict:
@@ -93,6 +94,7 @@ class MultiViewVideo(abc.ABC):
 
     def __init__(self, cache_frames: int = 64) -> None:
         self._cache = LRUCache(cache_frames)
+        self._common_bounds: SceneBounds | None = None
 
     # -- what implementations provide --------------------------------------------------
     @abc.abstractmethod
@@ -107,9 +109,15 @@ class MultiViewVideo(abc.ABC):
         """(H, W) bool foreground mask, or None if the scene has none."""
         return None
 
-    def bounds(self) -> SceneBounds | None:
-        """Known scene bounds (synthetic scenes, LLFF bounds), or None."""
-        return None
+    def bounds(self) -> SceneBounds:
+        """Scene bounds from the capture's own cues, never from ground truth: layouts that store
+        bounds (LLFF poses_bounds) override this; otherwise the train cameras' common view
+        (``fixer4d.geometry.rig.common_view_bounds``: frustum overlap, near/far over the train
+        cameras). Raises InputError when the train cameras share no view."""
+        if self._common_bounds is None:
+            vb = common_view_bounds(self.train_cameras)
+            self._common_bounds = SceneBounds(vb.near, vb.far, vb.bbox_min, vb.bbox_max)
+        return self._common_bounds
 
     # -- public API --------------------------------------------------------------------
     def time(self, frame: int) -> float:

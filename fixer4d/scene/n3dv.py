@@ -245,7 +245,7 @@ class Neural3DVScene(MultiViewVideo):
                 if not path.is_file():
                     raise InputError(f"{path}: ground-truth depth listed in scene.json is missing; "
                                      f"rewrite the scene with `fixer4d make-scene` or remove 'depth' from scene.json")
-                with np.load(path) as z:
+                with np.load(path, allow_pickle=False) as z:
                     self._depth_cache[cam] = z["depth"]
                 while len(self._depth_cache) > DEPTH_CACHE_CAMERAS:
                     self._depth_cache.popitem(last=False)

@@ -505,3 +505,20 @@ def render(world: World, camera: Camera, s: float, supersample: int = 1,
             depth[a:a + m] = _nearest(posed, origin, dc)[0]
     depth = depth.reshape(H, W)
     return (rgb.reshape(H, W, 3) if with_rgb else None), depth
+
+
+def hit_objects(world: World, camera: Camera, s: float, chunk_rays: int = CHUNK_RAYS) -> np.ndarray:
+    """Index into ``world.objects`` (H, W) int64 of the first surface hit by the ray through
+    each pixel centre at time ``s`` seconds, -1 where the ray hits nothing."""
+    posed = world.posed(s)
+    centres = camera.pixel_centers().reshape(-1, 2)
+    out = np.empty(centres.shape[0], dtype=np.int64)
+    for a in range(0, centres.shape[0], chunk_rays):
+        out[a:a + chunk_rays] = _nearest(posed, camera.center, _camera_rays(camera, centres[a:a + chunk_rays]))[1]
+    return out.reshape(camera.height, camera.width)
+
+
+def moving_object_mask(world: World, camera: Camera, s: float) -> np.ndarray:
+    """(H, W) bool: the first hit through the pixel centre is an object with a motion."""
+    moving = np.array([bool(o.motions) for o in world.objects] + [False])  # index -1: a miss
+    return moving[hit_objects(world, camera, s)]

@@ -198,7 +198,7 @@ class _Spec:
 
 def read_spec(source: str | Path | dict) -> tuple[dict, str]:
     """A spec dict and a label for messages from a dict, a .json path or a bundled name
-    ("demo", "tiny", "static_matte": assets/scenes/<name>.json)."""
+    ("demo", "tiny", "static_matte", "slow_rigid", "fast_thin": assets/scenes/<name>.json)."""
     if isinstance(source, dict):
         return copy.deepcopy(source), str(source.get("name", "<dict>"))
     path = Path(source)
@@ -411,7 +411,7 @@ class SyntheticScene(MultiViewVideo):
                 raise InputError(f"scene {where}: camera id {i} outside [0, {len(self.cameras)}); "
                                  f"valid ids are 0..{len(self.cameras) - 1}")
         self.center_id = centre_camera(self.cameras)
-        self._bounds: SceneBounds | None = None
+        self._true_bounds: SceneBounds | None = None
 
     @property
     def effects(self) -> frozenset[str]:
@@ -441,10 +441,19 @@ class SyntheticScene(MultiViewVideo):
     def _load_depth(self, frame: int, cam: int) -> np.ndarray:
         return raycast.render(self.world, self.cameras[cam], self.seconds(self.time(frame)), with_rgb=False)[1]
 
-    def bounds(self) -> SceneBounds:
-        """Depth range and box of everything the rig sees at the first, middle and last frame
-        (measured by ray-casting every camera at BOUNDS_RENDER_SCALE resolution)."""
-        if self._bounds is None:
+    def moving_mask(self, frame: int, cam_index: int) -> np.ndarray:
+        """Exact moving-content mask (H, W) bool of camera ``cam_index`` at ``frame``: pixels
+        whose first hit (ray through the pixel centre) is an object with a motion. Ground truth:
+        for tests and metrics only, never for training."""
+        self._check(frame, cam_index)
+        return raycast.moving_object_mask(self.world, self.cameras[cam_index], self.seconds(self.time(frame)))
+
+    def true_bounds(self) -> SceneBounds:
+        """Ground truth: depth range and box of everything the rig (held-out cameras included)
+        sees at the first, middle and last frame, measured by ray-casting every camera at
+        BOUNDS_RENDER_SCALE resolution. For tests and metrics only; ``bounds()`` (the train
+        cameras' common view) is what reconstruction uses."""
+        if self._true_bounds is None:
             depths, points = [], []
             for f in sorted({0, self.num_frames // 2, self.num_frames - 1}):
                 s = self.seconds(self.time(f))
@@ -458,6 +467,6 @@ class SyntheticScene(MultiViewVideo):
             pts = np.concatenate(points)
             if z.size == 0:
                 raise InputError(f"scene {self.source}: no camera sees any object; check the rig and objects")
-            self._bounds = SceneBounds(float(z.min() * BOUNDS_NEAR_MARGIN), float(z.max() * BOUNDS_FAR_MARGIN),
+            self._true_bounds = SceneBounds(float(z.min() * BOUNDS_NEAR_MARGIN), float(z.max() * BOUNDS_FAR_MARGIN),
                                        pts.min(0), pts.max(0))
-        return self._bounds
+        return self._true_bounds

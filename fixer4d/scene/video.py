@@ -29,8 +29,9 @@ READER_CACHE_FRAMES = 32
 SEEK_AHEAD_FRAMES = 48
 
 
-def _corrupt(path: Path, detail: str) -> InputError:
-    return InputError(f"{path}: cannot decode the video ({detail}); the file is corrupt or truncated: "
+def _corrupt(path: Path, detail: str, frame: int | None = None) -> InputError:
+    where = "the video" if frame is None else f"frame {frame} (its header reads, its frames do not)"
+    return InputError(f"{path}: cannot decode {where}: {detail}; the file is corrupt or truncated: "
                       f"re-download it or re-encode it (e.g. ffmpeg -i in.mp4 -c:v libx264 out.mp4)")
 
 
@@ -148,7 +149,7 @@ class VideoReader:
             self._decoder = self._container.decode(stream)
         except av.error.FFmpegError as exc:
             self._close()
-            raise _corrupt(self.path, str(exc)) from None
+            raise _corrupt(self.path, str(exc), index) from None
 
     def _index_of(self, frame) -> int:
         start = self._stream.start_time or 0
@@ -176,14 +177,14 @@ class VideoReader:
                     try:
                         fr = next(self._decoder)
                     except StopIteration:
-                        raise _corrupt(self.path, f"the stream ended before frame {index} "
-                                                  f"of the {self.info.num_frames} its header declares") from None
+                        raise _corrupt(self.path, f"the stream ended before it, though the header declares "
+                                                  f"{self.info.num_frames} frames", index) from None
                     if fr.pts is not None:
                         i = self._index_of(fr)
                     elif self._next >= 0:
                         i = self._next
                     else:
-                        raise _corrupt(self.path, "frames carry no timestamps, so a seek cannot be resolved")
+                        raise _corrupt(self.path, "frames carry no timestamps, so a seek cannot be resolved", index)
                     self._next = i + 1
                     if i >= index - self._cache_frames:
                         self._put(i, fr.to_ndarray(format="rgb24"))
@@ -191,7 +192,23 @@ class VideoReader:
                         break
             except av.error.FFmpegError as exc:
                 self._close()
-                raise _corrupt(self.path, str(exc)) from None
+                raise _corrupt(self.path, str(exc), index) from None
             if index not in self._cache:
-                raise _corrupt(self.path, f"no decoded frame has index {index} (variable frame rate or a gap)")
+                raise _corrupt(self.path, "no decoded frame has this index (variable frame rate or a gap)", index)
             return self._cache[index]
+
+
+def validate_video(path: str | Path, frames: Iterable[int] | None = None) -> VideoInfo:
+    """Decode ``frames`` of the video at ``path`` (default: its first and last frame) with a
+    fresh reader; InputError naming the file and the first frame that does not decode.
+
+    A probe that reads only the header accepts a file whose frame data is damaged; this is the
+    fast check to run before training (a seek to the last frame decodes at most one GOP)."""
+    reader = VideoReader(path, cache_frames=1)
+    try:
+        wanted = [0, reader.info.num_frames - 1] if frames is None else list(frames)
+        for f in dict.fromkeys(int(i) for i in wanted):
+            reader.frame(f)
+        return reader.info
+    finally:
+        reader.close()

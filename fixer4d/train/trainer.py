@@ -6,8 +6,9 @@
     trainer.snapshot(t)                  # a detached Snapshot, safe to read between steps
 
 Stage 2 is the same trainer with a ``Stage2Config``, a restoration cache and (optionally) a
-refresh callback: L = L_STG(observed views) + lambda_gen * L1(render at a cached pseudo-view,
-its restored frame), the pseudo-view rendered at its clip's time.
+refresh callback: L = mean over the observed views of L_STG + lambda_gen * mean over the cached
+pseudo-views of the confidence-weighted L1(render, restored frame), each pseudo-view rendered at
+its clip's time; a clip's frames at the train cameras themselves (alpha = 0 and 1) are skipped.
 
 Everything random draws from the trainer's own generators (numpy for frames/views/pseudo
 batches, a torch.Generator for split sampling) whose states live in the checkpoints, so a run
@@ -31,6 +32,7 @@ from fixer4d.atomic import atomic_path
 from fixer4d.errors import InputError, NumericalError
 from fixer4d.geometry.camera import Camera, rig_extent
 from fixer4d.model.densify import DensifyStats, densify_and_prune, reset_parameter
+from fixer4d.model.effects import EffectsConfig, EffectsDecision, TemporalStats, revise_effects
 from fixer4d.model.snapshot import Snapshot
 from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians, knn_scales
 from fixer4d.render.api import RenderOutput, render
@@ -41,8 +43,13 @@ from fixer4d.train.schedule import exponential_lr
 
 log = logging.getLogger("fixer4d.train")
 
+# Version of the checkpoint layout (the keys of Trainer.state_dict()), bumped when they change meaning.
+# Checkpoints hold tensors, numbers, strings and containers only, so that they load with
+# torch.load(weights_only=True).
 CHECKPOINT_FORMAT = 1
 _CKPT_NAME = re.compile(r"^stage(\d)_(\d{7})\.pt$")
+# The temporary that fixer4d.atomic.atomic_path writes a checkpoint to before the rename.
+_CKPT_TEMP = re.compile(r"^\.stage(\d)_\d{7}\.pt\..+$")
 # 3DGS's scene radius is 1.1 x the largest camera distance from the rig centre.
 EXTENT_MARGIN = 1.1
 # Floor of the extent (a single point seen by coincident cameras).
@@ -144,6 +151,25 @@ def _fallback_points(scene: MultiViewVideo, rng: np.random.Generator) -> tuple[n
     return pts, frames / float(scene.num_frames)
 
 
+def model_from_init(init: Any, scene: MultiViewVideo, config: Stage1Config,
+                    effects: EffectsConfig | None = None) -> tuple[SpacetimeGaussians, EffectsDecision | None]:
+    """The model of an init and the effect decision behind it.
+
+    init: a DecomposedInit (fixer4d.init.decompose) -> effects decided by evidence
+    (fixer4d.model.effects.decide_effects; ``effects`` picks auto | all | static and forced
+    switches), or per-frame clouds -> ``model_from_clouds`` with the default effects on every
+    Gaussian (decision None; e.g. the sparse baseline).
+    """
+    from fixer4d.model.effects import decide_effects, model_from_decomposed
+
+    if isinstance(init, (list, tuple)):
+        return model_from_clouds(init, scene, config), None
+    decision = decide_effects(init, effects)
+    model = model_from_decomposed(init, decision, opacity=config.init_opacity, max_points=config.init_max_points,
+                                  seed=config.seed)
+    return model, decision
+
+
 def scene_extent(cameras: Sequence[Camera], means: torch.Tensor) -> float:
     """The length every size threshold and the position learning rate scale with:
     EXTENT_MARGIN x the larger of the rig radius (3DGS's camera extent) and the init cloud's
@@ -177,7 +203,8 @@ class Trainer:
 
     def __init__(self, model: SpacetimeGaussians, scene: MultiViewVideo, config: Stage1Config, *,
                  run_dir: str | Path | None = None, stage2: Stage2Config | None = None,
-                 cache: PseudoCache | None = None, refresh_cache: RefreshFn | None = None) -> None:
+                 cache: PseudoCache | None = None, refresh_cache: RefreshFn | None = None,
+                 effects: EffectsConfig | None = None) -> None:
         if len(scene.train_ids) < 1:
             raise InputError(f"{scene.name}: no train cameras to optimize on")
         if stage2 is not None and cache is None:
@@ -205,10 +232,15 @@ class Trainer:
         self.round = -1  # stage 2: index of the cache round in use (-1 = none loaded yet)
         self.optimizer = self._make_optimizer()
         self.stats = DensifyStats.zeros(model.num_gaussians, model.means.device)
+        # effects revised during stage 1 (auto mode): demote / split on the density schedule
+        self.revise = stage2 is None and effects is not None and effects.mode == "auto" and effects.revise
+        self.temporal_stats = TemporalStats.zeros(model.num_gaussians if self.revise else 0, device=model.means.device)
+        self.revisions: dict[str, int] = {"demoted": 0, "split_dynamic": 0}
         self.history: list[dict[str, float]] = []
         self.train_seconds = 0.0  # wall time spent in train(), summed over resumed sessions
         self._entries: list[PseudoEntry] = []
         self._entry_offsets = np.zeros(1, np.int64)
+        self._entry_frames: list[np.ndarray] = []  # per entry: the clip frames used as pseudo-views
         self._clips: OrderedDict[str, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
         self._lock = threading.RLock()
         self._stop = threading.Event()
@@ -289,6 +321,12 @@ class Trainer:
             timing["t_loss"] += time.perf_counter() - tic
             outputs.append((out, cam))
 
+        # L = mean_v L_STG(view v) + lambda_gen * mean_p L1(pseudo p): both per-view means, as the
+        # paper states it. The gradient taken is that of V x L: Adam is invariant to the overall
+        # scale, and each observed view keeps the gradient of its own loss, on which the
+        # densification threshold (3DGS: one view per step) is calibrated.
+        n_views = max(len(views), 1)
+        loss_stg = loss_stg / n_views
         loss_gen = torch.zeros(())
         if self.stage2 is not None and self.stage2.lambda_gen > 0 and self.stage2.batch_pseudo > 0:
             loss_gen = self._pseudo_loss(outputs, timing)
@@ -299,7 +337,7 @@ class Trainer:
             raise NumericalError(f"stage {self.stage} step {self.step_count}: the loss is {float(loss)}; "
                                  "lower the learning rates or resume from the last checkpoint")
         tic = time.perf_counter()
-        loss.backward()
+        (loss * n_views).backward()
         timing["t_backward"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
@@ -308,6 +346,8 @@ class Trainer:
             for out, cam in outputs:
                 if out.means2d.grad is not None:
                     self.stats.update(out.means2d.grad, out.radii, cam.width, cam.height)
+                    if self.revise:
+                        self.temporal_stats.update(out.means2d.grad, out.radii, cam.width, cam.height, t)
         timing["t_densify"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
@@ -344,15 +384,26 @@ class Trainer:
             # 3DGS applies the size prunes only after the first opacity reset; stage 2 never does
             # (its pseudo-views are less trustworthy than the real views that shaped the model).
             first_reset_done = self.stage2 is None and s > cfg.opacity_reset_every
-            counts = densify_and_prune(
+            if self.revise:
+                rev = revise_effects(self.model, self.optimizer, self.temporal_stats,
+                                     grad_threshold=cfg.densify_grad_threshold, max_gaussians=cfg.max_gaussians)
+                for k, v in rev.items():
+                    self.revisions[k] += v
+                    counts[k] = v
+                if rev["split_dynamic"]:  # the new rows have no statistics yet
+                    self.stats = DensifyStats(*(torch.cat([x, x.new_zeros(rev["split_dynamic"])])
+                                                for x in (self.stats.grad_accum, self.stats.denom, self.stats.max_radii)))
+            counts.update(densify_and_prune(
                 self.model, self.optimizer, self.stats, extent=self.extent,
                 grad_threshold=cfg.densify_grad_threshold, percent_dense=cfg.percent_dense,
                 max_gaussians=cfg.max_gaussians, prune_opacity=cfg.prune_opacity,
                 prune_world_scale=cfg.prune_world_scale if first_reset_done else None,
                 prune_screen_fraction=cfg.prune_screen_fraction if first_reset_done else None,
                 generator=self.generator, split_children=cfg.split_children,
-                split_scale_divisor=cfg.split_scale_divisor)
+                split_scale_divisor=cfg.split_scale_divisor))
             self.stats = DensifyStats.zeros(self.model.num_gaussians, self.model.means.device)
+            if self.revise:
+                self.temporal_stats = TemporalStats.zeros(self.model.num_gaussians, device=self.model.means.device)
         if self.stage2 is None and s < d_until and s % cfg.opacity_reset_every == 0:
             cap = math.log(cfg.opacity_reset_value / (1.0 - cfg.opacity_reset_value))
             reset_parameter(self.model, self.optimizer, "opacity_logits",
@@ -379,13 +430,24 @@ class Trainer:
             self._load_round(self.round if self.round >= 0 else self.cache.latest_round())
 
     def _load_round(self, r: int | None) -> None:
-        entries = [] if r is None else [e for e in self.cache.entries(r) if len(e.cameras) > 0]
+        """Load round ``r``'s entries; only their novel frames are pseudo-views (a trajectory's
+        endpoints at alpha = 0 and 1 are the train cameras themselves, supervised by real frames)."""
+        from fixer4d.geometry.trajectory import novel_frame_mask
+
+        train_cams = self.scene.train_cameras
+        entries, frames = [], []
+        for e in ([] if r is None else self.cache.entries(r)):
+            novel = np.flatnonzero(novel_frame_mask(e.cameras, train_cams)) if len(e.cameras) else []
+            if len(novel):
+                entries.append(e)
+                frames.append(novel.astype(np.int64))
         if not entries:
-            raise InputError(f"stage 2: the restoration cache has no entries for round {r}; run the restore step "
-                             "(`fixer4d run`, or a refresh callback) before refining")
+            raise InputError(f"stage 2: the restoration cache has no entries with novel views for round {r}; run "
+                             "the restore step (`fixer4d run`, or a refresh callback) before refining")
         self.round = int(r)
         self._entries = entries
-        self._entry_offsets = np.concatenate([[0], np.cumsum([len(e.cameras) for e in entries])]).astype(np.int64)
+        self._entry_frames = frames
+        self._entry_offsets = np.concatenate([[0], np.cumsum([len(f) for f in frames])]).astype(np.int64)
         self._clips.clear()
 
     def _clip(self, entry: PseudoEntry) -> tuple[torch.Tensor, torch.Tensor]:
@@ -404,8 +466,8 @@ class Trainer:
         return rgb, conf
 
     def _pseudo_loss(self, outputs: list[tuple[RenderOutput, Camera]], timing: dict[str, float]) -> torch.Tensor:
-        """Mean over ``batch_pseudo`` cached frames of the (confidence-weighted) L1 between the model
-        rendered at the frame's camera *and its clip's time* and the restored frame."""
+        """Mean over ``batch_pseudo`` cached novel frames of the (confidence-weighted) L1 between the
+        model rendered at the frame's camera *and its clip's time* and the restored frame."""
         s2 = self.stage2
         assert s2 is not None
         total = int(self._entry_offsets[-1])
@@ -414,7 +476,7 @@ class Trainer:
         for flat in picks:
             e_idx = int(np.searchsorted(self._entry_offsets, flat, side="right") - 1)
             entry = self._entries[e_idx]
-            f = int(flat - self._entry_offsets[e_idx])
+            f = int(self._entry_frames[e_idx][int(flat - self._entry_offsets[e_idx])])
             cam = entry.cameras[f]
             tic = time.perf_counter()
             snap = self.model.at(float(entry.time), camera_center=cam.center)
@@ -502,6 +564,7 @@ class Trainer:
                 "model": {k: v.detach().clone() for k, v in self.model.state_dict().items()},
                 "optimizer": self.optimizer.state_dict(),
                 "stats": self.stats.state_dict(),
+                "temporal_stats": self.temporal_stats.state_dict(), "revisions": dict(self.revisions),
                 "numpy_rng": self.rng.bit_generator.state,
                 "torch_generator": self.generator.get_state(),
                 "config": _comparable(self.config.to_dict()),
@@ -512,9 +575,14 @@ class Trainer:
 
     def load_state_dict(self, state: dict[str, Any], source: str = "checkpoint") -> None:
         """Restore a ``state_dict()`` (model, optimizer, statistics, RNG states, step)."""
-        if state.get("format") != CHECKPOINT_FORMAT or state.get("stage") != self.stage:
-            raise InputError(f"{source}: not a stage-{self.stage} checkpoint of this fixer4d version; delete it "
-                             "or train into a new run folder")
+        fmt = state.get("format")
+        if fmt != CHECKPOINT_FORMAT:
+            raise InputError(f"{source}: checkpoint format {fmt!r}, but this fixer4d reads format "
+                             f"{CHECKPOINT_FORMAT}; delete RUN/checkpoints to retrain this stage, or use the "
+                             "fixer4d version that wrote it")
+        if state.get("stage") != self.stage:
+            raise InputError(f"{source}: a stage-{state.get('stage')} checkpoint where stage {self.stage} was "
+                             "expected; delete it or train into a new run folder")
         mine = (_comparable(self.config.to_dict()), None if self.stage2 is None else self.stage2.to_dict())
         if (state["config"], state["stage2"]) != mine:
             raise InputError(f"{source}: written with another training config; resume with the same options, "
@@ -528,6 +596,9 @@ class Trainer:
             self.optimizer = self._make_optimizer()
             self.optimizer.load_state_dict(state["optimizer"])
             self.stats = DensifyStats.from_state_dict(state["stats"])
+            if "temporal_stats" in state:
+                self.temporal_stats = TemporalStats.from_state_dict(state["temporal_stats"])
+                self.revisions = dict(state.get("revisions", self.revisions))
             self.rng.bit_generator.state = state["numpy_rng"]
             self.generator.set_state(state["torch_generator"])
             self.history = list(state.get("history", []))
@@ -558,23 +629,67 @@ class Trainer:
         return [p for _, p in sorted(found)]
 
     def load_checkpoint(self, path: str | Path) -> None:
-        path = Path(path)
-        try:
-            state = torch.load(path, map_location="cpu", weights_only=False)
-        except Exception as exc:  # a truncated or foreign file: say which and what to do
-            raise InputError(f"{path}: unreadable checkpoint ({exc}); delete it to resume from an older one") from exc
-        self.load_state_dict(state, source=str(path))
+        """Load ``path`` with ``torch.load(weights_only=True)``: only tensors and plain containers
+        are rebuilt, so a checkpoint that carries pickled code or objects is refused, never run."""
+        self.load_state_dict(read_checkpoint(path), source=str(path))
+
+    def _remove_partial_checkpoints(self) -> int:
+        """Delete this stage's checkpoint temporaries (``.stage{S}_{STEP}.pt.*``) that a process
+        killed inside ``save_checkpoint`` left; the complete checkpoints are never touched."""
+        d = self.checkpoint_dir
+        if d is None or not d.is_dir():
+            return 0
+        partial = [p for p in d.iterdir() if (m := _CKPT_TEMP.match(p.name)) and int(m.group(1)) == self.stage]
+        for p in partial:
+            p.unlink(missing_ok=True)
+        return len(partial)
 
     def resume(self) -> bool:
         """Load the newest checkpoint of this stage from ``run_dir`` if there is one."""
         if self.run_dir is None:
             return False
+        self._remove_partial_checkpoints()
         found = self.list_checkpoints(self.run_dir, self.stage)
         if not found:
             return False
         self.load_checkpoint(found[-1])
         log.info("resumed stage %d from %s (step %d)", self.stage, found[-1], self.step_count)
         return True
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """The state dict stored in checkpoint ``path``, read without unpickling code.
+
+    ``torch.load(weights_only=True)`` rebuilds tensors, numbers, strings and containers only; a
+    file whose pickle names any other global (a ``__reduce__`` payload, a pickled class) is
+    refused with an InputError before anything in it runs. Truncated or foreign files get an
+    InputError naming the file and the fix.
+    """
+    import pickle
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such checkpoint; list RUN/checkpoints or start the stage over")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        # torch wraps the unpickler's complaint in a long advisory; keep its "WeightsUnpickler error"
+        detail = str(exc).partition("WeightsUnpickler error:")[2].partition("Check the documentation")[0]
+        detail = " ".join(detail.split()) or type(exc).__name__
+        if "Unsupported global" in detail:  # a global other than tensors/containers: code or an object
+            name = detail.partition("GLOBAL ")[2].partition(" ")[0] or "?"
+            raise InputError(f"{path}: refused to load: the checkpoint contains pickled code or objects ({name}), "
+                             "not only tensors; fixer4d never executes a checkpoint; delete it (fixer4d did not "
+                             "write it) to resume from an older one") from None
+        raise InputError(f"{path}: unreadable checkpoint ({detail[:200]}); delete it to resume from an older "
+                         "one") from None
+    except Exception as exc:  # a truncated or foreign file: say which and what to do
+        raise InputError(f"{path}: unreadable checkpoint ({type(exc).__name__}: {str(exc)[:200]}); delete it to "
+                         "resume from an older one") from None
+    if not isinstance(state, dict):
+        raise InputError(f"{path}: not a fixer4d checkpoint (holds a {type(state).__name__}, not a state dict); "
+                         "delete it to resume from an older one")
+    return state
 
 
 def _comparable(cfg: dict[str, Any]) -> dict[str, Any]:

@@ -11,7 +11,7 @@ from app.session import RestoreQueue
 from app.state import TrajectorySpec
 from app.viewer import COLOR_SELECTED, ViewerSource
 from fixer4d.scene import load_scene
-from viewer_helpers import gl_ctx, make_viewer, scene_gaussians  # noqa: F401 (fixtures)
+from viewer_helpers import DEFAULT_WINDOW, gl_ctx, make_viewer, scene_gaussians  # noqa: F401 (fixtures)
 
 pytestmark = pytest.mark.gl
 
@@ -33,9 +33,10 @@ def test_export_preset_loads_back_equal(make_viewer, tiny, tmp_path):
     st.trajectories = st.trajectories + [TrajectorySpec(name="custom", keyframes=keys, n_frames=9, reverse=True)]
     st.trajectories[2] = TrajectorySpec(**{**st.trajectories[2].to_dict(), "pair": (0, 3), "amplitude": 0.4,
                                            "n_frames": 5, "keyframes": ()})
-    d = make_viewer(st, src)
+    d = make_viewer(st, src, size=DEFAULT_WINDOW)
     path = tmp_path / "preset.json"
     d.viewer._traj_ui["preset"] = str(path)
+    d.frame()  # the panel shows the typed path in full: the buttons below it move
     d.click_item("export_preset")
     assert path.is_file()
     assert traj.load_preset(path) == st.trajectories
@@ -61,7 +62,7 @@ def test_trajectory_overlay_projects_at_the_trajectory_cameras(make_viewer, tiny
     rig = np.mean([c.center for c in tiny.train_cameras], axis=0)
     st.view.look_from(rig + np.array([0.0, 2.5, 3.0]), np.array([0.0, 0.6, 0.0]))
     d = make_viewer(st, src)
-    d.frame()
+    d.settle()
     shot = d.viewer.splats.read_display().astype(float)
     cam = d.viewer.render_camera
     cams = d.viewer.trajectory_cameras(st.trajectories[arc])[1:-1]  # interior: only this path passes there

@@ -32,7 +32,7 @@ def test_scrubbing_changes_moving_object_not_background(make_viewer):
     assert v.state.frame == 0
     d.click_item("frame_slider", fx=0.95)
     assert v.state.frame >= 15, v.state.frame
-    d.frame()
+    d.settle()
     after = v.splats.read_rgb()
     assert v.render_camera.c2w.tobytes() == cam.c2w.tobytes()  # only the time changed
     t0, t1 = 0.0, v.state.time

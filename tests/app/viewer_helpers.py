@@ -8,6 +8,8 @@ import pytest
 from app.gaussians import GaussianArrays
 
 WINDOW = (1152, 720)
+# The viewer's default window size (app.main.DEFAULT_SIZE): the layout is designed for it.
+DEFAULT_WINDOW = (1440, 900)
 
 
 @pytest.fixture(scope="session")
@@ -53,6 +55,13 @@ class Driver:
         for _ in range(n):
             self.viewer.frame(dt, self.fbo)
 
+    def settle(self, max_frames: int = 8) -> None:
+        """Run frames until the 3D view rests at full size (adaptive resolution refined)."""
+        for _ in range(max_frames):
+            self.frame()
+            if self.viewer.state.gaussians is None or self.viewer.adaptive.final:
+                return
+
     def _io(self):
         from imgui_bundle import imgui
 
@@ -90,10 +99,10 @@ def make_viewer(gl_ctx, tmp_path):
 
     made = []
 
-    def make(state, source, **kw):
+    def make(state, source, size=WINDOW, **kw):
         viewer = Viewer(gl_ctx, state, source, **kw)
         made.append(viewer)
-        driver = Driver(viewer, gl_ctx)
+        driver = Driver(viewer, gl_ctx, size)
         driver.frame(2)
         return driver
 

@@ -57,3 +57,27 @@ def test_bad_inputs_raise_clear_errors():
     bad[0, 0, 0] = np.nan
     with pytest.raises(InputError, match="NaN"):
         M.dssim1(bad, b)
+
+
+def test_masked_psnr_and_region_metrics():
+    rng = np.random.default_rng(0)
+    gt = rng.uniform(0.2, 0.8, (40, 50, 3)).astype(np.float32)
+    mask = np.zeros((40, 50), bool)
+    mask[10:20, 5:25] = True
+    pred = gt + np.where(mask[..., None], 0.1, 0.01).astype(np.float32)
+    assert M.masked_psnr(pred, gt, mask) == pytest.approx(20.0, abs=1e-4)
+    assert M.masked_psnr(pred, gt, ~mask) == pytest.approx(40.0, abs=1e-4)
+    assert M.masked_psnr(pred, gt, np.zeros_like(mask)) is None
+    assert M.masked_psnr(gt, gt, mask) == math.inf
+    assert M.masked_psnr(pred, gt, np.ones_like(mask)) == pytest.approx(M.psnr(pred, gt))
+    r = M.region_metrics(pred, gt, mask)
+    assert r["psnr_dynamic"] == pytest.approx(20.0, abs=1e-4) and r["psnr_static"] == pytest.approx(40.0, abs=1e-4)
+    assert r["ssim_dynamic"] < r["ssim_static"] < 1.0
+    # The SSIM map's mean is the image SSIM that DSSIM1 reports.
+    assert 1.0 - 2.0 * M.dssim1(pred, gt) == pytest.approx(float(M.ssim_map(pred, gt)[3:-3, 3:-3].mean()), abs=1e-6)
+    everything = M.region_metrics(pred, gt, np.ones_like(mask))
+    assert everything["ssim_dynamic"] == pytest.approx(1.0 - 2.0 * M.dssim1(pred, gt), abs=1e-6)
+    empty = M.region_metrics(pred, gt, np.zeros_like(mask))
+    assert empty["psnr_dynamic"] is None and empty["ssim_dynamic"] is None
+    with pytest.raises(InputError, match="mask shape"):
+        M.masked_psnr(pred, gt, mask[:, :10])

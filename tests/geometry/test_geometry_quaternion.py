@@ -89,3 +89,34 @@ def test_slerp_zero_quaternion_is_identity():
     np.testing.assert_array_equal(out[0], [1.0, 0, 0, 0])
     np.testing.assert_allclose(out[2], [np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)], atol=1e-12)
     assert np.all(np.isfinite(out))
+
+
+def test_torch_matrix_matches_numpy_and_keeps_batch_shape():
+    import torch
+
+    q = np.random.default_rng(3).normal(size=(2, 5, 4))
+    q[0, 0] = 0.0
+    q[1, 1] = [np.inf, 0, 0, 0]
+    ours = quat.to_matrix_torch(torch.tensor(q))
+    assert ours.shape == (2, 5, 3, 3) and ours.dtype == torch.float64
+    np.testing.assert_allclose(ours.numpy(), quat.to_matrix(q), atol=1e-12)
+    np.testing.assert_array_equal(ours[0, 0].numpy(), np.eye(3))
+    np.testing.assert_array_equal(ours[1, 1].numpy(), np.eye(3))
+
+
+def test_torch_matrix_zero_quaternion_has_a_finite_gradient():
+    import torch
+
+    q = torch.tensor([[0.0, 0.0, 0.0, 0.0], [0.3, -1.0, 2.0, 0.5]], dtype=torch.float64, requires_grad=True)
+    (quat.to_matrix_torch(q) * torch.arange(9.0, dtype=torch.float64).reshape(3, 3)).sum().backward()
+    assert torch.isfinite(q.grad).all()
+    assert torch.equal(q.grad[0], torch.zeros(4, dtype=torch.float64))
+    assert q.grad[1].abs().sum() > 0
+
+
+def test_renderer_and_densify_use_the_one_torch_implementation():
+    from fixer4d.model import densify
+    from fixer4d.render import project
+
+    assert project.quat_to_rotmat is quat.to_matrix_torch
+    assert densify.quat_to_matrix is quat.to_matrix_torch

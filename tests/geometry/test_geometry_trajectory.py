@@ -288,3 +288,21 @@ def test_bundled_demo_preset_matches_the_demo_rig():
     fresh = scene_trajectories(train)  # the preset is `fixer4d trajectories demo` with its defaults
     assert [t.to_dict() for t in trajs] == [t.to_dict() for t in fresh], \
         "assets/presets/demo.json is stale: rerun `fixer4d trajectories demo --out assets/presets/demo.json`"
+
+
+def test_novel_frame_mask_flags_exactly_the_train_cameras():
+    from fixer4d.geometry.camera import Camera
+    from fixer4d.geometry.trajectory import novel_frame_mask, scene_trajectories
+
+    rig = [Camera.look_at(np.array([x, 0.0, -4.0]), np.zeros(3), width=32, height=24) for x in (-1.0, -0.3, 0.4, 1.1)]
+    for tr in scene_trajectories(rig, 5, arcs=True, seed=0):
+        # endpoints are train cameras, interior frames are not, also after a JSON round trip of the poses
+        expect = [False, True, True, True, False]
+        assert list(novel_frame_mask(tr.cameras, rig)) == expect
+        reread = [Camera.from_dict(json.loads(json.dumps(c.to_dict()))) for c in tr.cameras]
+        assert list(novel_frame_mask(reread, rig)) == expect
+    # a camera at a train camera's centre but turned is a novel view; so is the same pose at another size
+    turned = rig[0].with_pose(rig[1].c2w.copy())
+    turned_c2w = rig[0].c2w.copy()
+    turned_c2w[:3, :3] = rig[1].c2w[:3, :3]
+    assert list(novel_frame_mask([rig[0].with_pose(turned_c2w), rig[0].scaled(0.5), turned], rig)) == [True, True, False]

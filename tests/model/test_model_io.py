@@ -152,3 +152,34 @@ def test_export_verb_converts_files_and_runs(tmp_path):
     save_ply(m, run / "model_final.ply")  # the latest model wins
     assert main(["export", str(run), "--out", str(tmp_path / "final.npz")]) == 0
     assert_same(m, load_npz(tmp_path / "final.npz"))
+
+
+@pytest.mark.parametrize("header, message", [
+    ('"just a string"', "header format 'str' is not 'fixer4d-stgs'"),
+    ('{"format": "other-tool", "version": 1, "config": {}}', "header format 'other-tool'"),
+    ('{"format": "fixer4d-stgs", "version": 99, "config": {}}', "version 99, but this fixer4d reads versions <= 1"),
+    ('{"format": "fixer4d-stgs", "version": 1}', "malformed model config"),
+    ('{"format": "fixer4d-stgs", "version": 1, "config": {"sh_degree": "x"}}', None),
+    ("{not json", "unreadable 'format' entry"),
+])
+def test_foreign_or_newer_npz_header_is_one_clear_error(tmp_path, header, message):
+    m = random_model(4, ModelConfig())
+    arrays = {k: v.numpy().copy() for k, v in m.tensors().items()}
+    arrays["format"] = np.array(header)
+    np.savez(tmp_path / "h.npz", **arrays)
+    with pytest.raises(InputError) as info:
+        load_npz(tmp_path / "h.npz")
+    assert "h.npz" in str(info.value)
+    if message is not None:
+        assert message in str(info.value)
+
+
+def test_npz_with_pickled_objects_is_refused_without_unpickling(tmp_path):
+    class Payload:
+        def __reduce__(self):
+            return (open, (str(tmp_path / "pwned"), "w"))
+
+    np.savez(tmp_path / "evil.npz", format=np.array([Payload()], dtype=object))
+    with pytest.raises(InputError, match="evil.npz"):
+        load_npz(tmp_path / "evil.npz")
+    assert not (tmp_path / "pwned").exists()

@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import json
+import logging
+import zipfile
 
 import numpy as np
 import pytest
@@ -10,7 +12,7 @@ import fixer4d.restore.cache as cache_mod
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
 from fixer4d.restore.base import RestoreResult
-from fixer4d.restore.cache import RestoreCache
+from fixer4d.restore.cache import CACHE_FORMAT, RestoreCache, settings_fingerprint
 
 from .conftest import tiny_request
 
@@ -124,6 +126,9 @@ def test_killed_process_leftovers_are_skipped_and_cleaned(tmp_path):
     assert [e.key for e in cache.entries(0)] == ["t0003_0-1"]
     assert not cache.has(0, "t0003_2-3") and not cache.has(0, "t0003_1-2")
     assert cache.clean_temporary() == 1 and not tmp.exists()
+    # the half entry was not skipped silently: it was reported and moved aside
+    assert not half.exists() and (tmp_path / "corrupt" / "round_0" / "t0003_1-2-0" / "frame_0000.png").is_file()
+    assert [(p.name, d.name) for p, d, _ in cache.set_aside] == [("t0003_1-2", "t0003_1-2-0")]
 
 
 def test_resume_reuses_complete_entries(tmp_path):
@@ -147,3 +152,102 @@ def test_bad_keys_and_mismatched_result_are_rejected(tmp_path):
             cache.write(0, bad, request, _result(request), META)
     with pytest.raises(InputError, match="shape"):
         cache.write(0, "k", request, _result(tiny_request(frames=2)), META)
+
+
+def _damage_png(entry_dir):
+    p = entry_dir / "frame_0001.png"
+    p.write_bytes(p.read_bytes()[:-20])  # cut short: no IEND chunk
+
+
+def _damage_meta(entry_dir):
+    (entry_dir / "meta.json").write_text('{"format": 2, "key": ')
+
+
+def _foreign_meta(entry_dir):
+    (entry_dir / "meta.json").write_text('{"hello": "world"}')
+
+
+def _drop_confidence_array(entry_dir):
+    with zipfile.ZipFile(entry_dir / "confidence.npz", "w") as z:
+        z.writestr("confidence.npy", b"")
+
+
+def _camera_count(entry_dir):
+    meta = json.loads((entry_dir / "meta.json").read_text())
+    meta["num_frames"] = 7
+    (entry_dir / "meta.json").write_text(json.dumps(meta))
+
+
+@pytest.mark.parametrize("damage, reason", [
+    (_damage_png, "frame_0001.png is missing or not a complete PNG"),
+    (_damage_meta, "unreadable meta.json"),
+    (_foreign_meta, "no cache format version"),
+    (_drop_confidence_array, "confidence.npz lacks ['frame_confidence.npy']"),
+    (_camera_count, "lists 3 cameras for 7 frames"),
+])
+def test_corrupt_entry_is_reported_moved_aside_and_recomputed(tmp_path, caplog, damage, reason):
+    cache = RestoreCache(tmp_path)
+    request = tiny_request()
+    for k in ("t0003_0-1", "t0003_0-2"):
+        cache.write(0, k, request, _result(request), META)
+    damage(tmp_path / "round_0" / "t0003_0-1")
+    with caplog.at_level(logging.WARNING, logger="fixer4d.restore"):
+        assert [e.key for e in cache.entries(0)] == ["t0003_0-2"]
+    aside = tmp_path / "corrupt" / "round_0" / "t0003_0-1-0"
+    assert aside.is_dir() and not (tmp_path / "round_0" / "t0003_0-1").exists()
+    [record] = [r for r in caplog.records if r.name == "fixer4d.restore"]
+    assert "t0003_0-1" in record.getMessage() and reason in record.getMessage() and str(aside) in record.getMessage()
+    # treated as missing, so the refresh restores it again; a second damage goes to -1
+    assert not cache.has(0, "t0003_0-1")
+    cache.write(0, "t0003_0-1", request, _result(request), META)
+    assert cache.has(0, "t0003_0-1")
+    damage(tmp_path / "round_0" / "t0003_0-1")
+    assert cache.get(0, "t0003_0-1") is None and (tmp_path / "corrupt" / "round_0" / "t0003_0-1-1").is_dir()
+    assert cache.rounds() == [0]  # the corrupt/ folder is not a round
+
+
+def test_older_format_cache_gets_one_sentence_and_is_recomputed(tmp_path, caplog):
+    cache = RestoreCache(tmp_path)
+    request = tiny_request()
+    for k in ("t0003_0-1", "t0003_0-2", "t0003_1-2"):
+        entry = cache.write(0, k, request, _result(request), META)
+        meta = json.loads((entry.path / "meta.json").read_text())
+        meta["format"] = CACHE_FORMAT - 1
+        (entry.path / "meta.json").write_text(json.dumps(meta))
+    with caplog.at_level(logging.WARNING, logger="fixer4d.restore"):
+        assert cache.entries(0) == [] and cache.latest_round() is None
+    messages = [r.getMessage() for r in caplog.records if r.name == "fixer4d.restore"]
+    assert len(messages) == 1
+    assert f"cache format {CACHE_FORMAT - 1}, this fixer4d writes format {CACHE_FORMAT}" in messages[0]
+    assert sorted(p.name for p in (tmp_path / "stale" / "round_0").iterdir()) == ["t0003_0-1-0", "t0003_0-2-0",
+                                                                                  "t0003_1-2-0"]
+
+
+def test_newer_format_entry_is_refused_and_left_alone(tmp_path):
+    cache = RestoreCache(tmp_path)
+    request = tiny_request()
+    entry = cache.write(0, "t0003_0-1", request, _result(request), META)
+    meta = json.loads((entry.path / "meta.json").read_text())
+    meta["format"] = CACHE_FORMAT + 1
+    (entry.path / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match=f"cache format {CACHE_FORMAT + 1}, but this fixer4d reads format"):
+        cache.get(0, "t0003_0-1")
+    assert entry.path.is_dir() and not (tmp_path / "corrupt").exists()
+
+
+def test_entries_of_other_settings_are_stale_not_served(tmp_path, caplog):
+    old_settings = settings_fingerprint({"restorer": {"angle_sigma": 0.1}, "frames": 3})
+    new_settings = settings_fingerprint({"restorer": {"angle_sigma": 0.2}, "frames": 3})
+    assert old_settings != new_settings
+    assert settings_fingerprint({"frames": 3, "restorer": {"angle_sigma": 0.1}}) == old_settings  # key order
+    request = tiny_request()
+    RestoreCache(tmp_path, fingerprint=old_settings).write(0, "t0003_0-1", request, _result(request), META)
+    assert RestoreCache(tmp_path, fingerprint=old_settings).has(0, "t0003_0-1")
+    assert RestoreCache(tmp_path).has(0, "t0003_0-1")  # no fingerprint (a viewer): any settings
+    cache = RestoreCache(tmp_path, fingerprint=new_settings)
+    with caplog.at_level(logging.WARNING, logger="fixer4d.restore"):
+        assert not cache.has(0, "t0003_0-1") and cache.entries(0) == []
+    assert (tmp_path / "stale" / "round_0" / "t0003_0-1-0").is_dir()
+    assert any("other settings" in r.getMessage() for r in caplog.records)
+    entry = cache.write(0, "t0003_0-1", request, _result(request), META)
+    assert entry.meta["fingerprint"] == new_settings and cache.has(0, "t0003_0-1")

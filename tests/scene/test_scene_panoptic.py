@@ -95,3 +95,22 @@ def test_panoptic_bad_metadata(tmp_path):
 def test_panoptic_unknown_camera_id(tmp_path):
     with pytest.raises(InputError, match=r"camera ids \[99\]"):
         load_scene(make_panoptic(tmp_path), train_ids=[3, 99])
+
+
+def test_panoptic_bounds_from_the_train_cameras(panoptic_dir):
+    """Panoptic stores no bounds: they come from the train cameras' common view, around the point
+    the dome cameras look at, independent of the image scale and of the held-out cameras."""
+    from fixer4d.geometry.rig import rig_focus
+
+    scene = load_scene(panoptic_dir, scale=0.5)
+    b = scene.bounds()
+    focus = rig_focus(scene.train_cameras)
+    assert 0 < b.near < b.far
+    assert np.all(b.bbox_min < focus) and np.all(focus < b.bbox_max)
+    for cam in scene.train_cameras:
+        z = cam.world_to_camera(focus[None])[0, 2]
+        assert b.near < z < b.far
+    full = load_scene(panoptic_dir, test_ids=[])
+    np.testing.assert_allclose(full.bounds().bbox_min, b.bbox_min, rtol=1e-6, atol=1e-9)
+    # Its seg/ masks are foreground (people), used by the moving-content masks.
+    assert scene.mask(0, scene.train_ids[0]) is not None

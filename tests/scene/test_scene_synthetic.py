@@ -73,8 +73,35 @@ def test_frame_range_and_scale():
         SyntheticScene("tiny", frame_range=(2, 9))
 
 
-def test_bounds_contain_the_content(tiny_scene):
-    b = tiny_scene.bounds()
+def test_bounds_come_from_the_train_cameras_not_ground_truth(tiny_scene, monkeypatch):
+    """bounds() is the train cameras' common view: no ray is cast, held-out cameras play no part."""
+    from fixer4d.scene.synthetic import SyntheticScene
+
+    scene = SyntheticScene("tiny")
+    monkeypatch.setattr(raycast, "render", lambda *a, **k: (_ for _ in ()).throw(AssertionError("ray-cast")))
+    b = scene.bounds()
+    moved = SyntheticScene("tiny", test_ids=[scene.test_ids[0]])
+    moved.cameras[scene.test_ids[0]] = moved.cameras[scene.test_ids[0]].with_pose(np.eye(4))
+    b2 = moved.bounds()
+    assert (b.near, b.far) == (b2.near, b2.far)
+    np.testing.assert_array_equal(b.bbox_min, b2.bbox_min)
+    monkeypatch.undo()
+    # The true surface points every train camera sees lie inside it.
+    cams = scene.train_cameras
+    pts = np.concatenate([c.backproject_depth(np.where(np.isfinite(d), d, 0.0))[np.isfinite(d)]
+                          for c, d in ((scene.cameras[i], scene.depth(0, i)) for i in scene.train_ids)])
+    seen = np.ones(len(pts), bool)
+    for c in cams:
+        uv, z = c.project(pts)
+        with np.errstate(invalid="ignore"):
+            seen &= (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= c.width) & (uv[:, 1] >= 0) & (uv[:, 1] <= c.height)
+    assert seen.sum() > 100
+    tol = 0.02 * (b.bbox_max - b.bbox_min)
+    assert np.all(pts[seen] >= b.bbox_min - tol) and np.all(pts[seen] <= b.bbox_max + tol)
+
+
+def test_true_bounds_contain_the_content(tiny_scene):
+    b = tiny_scene.true_bounds()
     assert 0 < b.near < b.far
     for f in range(tiny_scene.num_frames):
         d = tiny_scene.depth(f, 0)

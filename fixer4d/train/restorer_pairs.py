@@ -1,0 +1,280 @@
+"""Training pairs for the learned restorer, from the scene's own train cameras, and its training.
+
+    restorer = train_scene_restorer(scene, clouds, stage1_config, run_dir / "restorer", RestoreConfig(kind="learned"))
+
+Pairs (issue 12, in the spirit of Difix3D+ / 3DGS-Enhancer and of FVS / Deep Blending): for each
+train camera c, a short stage 1 (``loo_iterations`` at ``loo_scale`` of the resolution) on the
+*other* train cameras. At ``pair_frames`` timestamps:
+
+* leave-one-out case: the render of c from that model (a model that never saw c) is the degraded
+  input, c's real frame the target; the references are the two train cameras nearest to c, the
+  remaining one is an extra view;
+* milder cases: at the ``early_fraction`` checkpoint of the same training, the renders of the
+  cameras it trains on, against their real frames (references: the two nearest other train
+  cameras).
+
+Every camera used is one of ``scene.train_ids`` (asserted: ``_TrainViews.frame`` refuses any
+other camera); held-out cameras are never read. The fold of train camera
+``train_ids[validation_fold]`` is held back from training; its leave-one-out pairs score the
+restorer (PSNR of the render, the warp restorer and the learned restorer vs the real frame) in
+``validation.json`` with the CPU seconds spent. Each fold's pairs are saved as they are made
+(``pairs/fold_<cam>.npz``), so a killed run resumes after its last finished fold.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import cv2
+import numpy as np
+import torch
+
+from fixer4d.atomic import atomic_path, write_json
+from fixer4d.errors import InputError
+from fixer4d.geometry.camera import Camera
+from fixer4d.render.api import render
+from fixer4d.restore.base import RestoreRequest
+from fixer4d.restore.config import META_FILE, VALIDATION_FILE, WEIGHTS_FILE, RestoreConfig
+from fixer4d.restore.learned import LearnedRestorer, request_features, restore_features, train_network
+from fixer4d.restore.reference_warp import ReferenceWarpRestorer
+from fixer4d.scene.base import MultiViewVideo
+from fixer4d.train.config import Stage1Config
+from fixer4d.train.trainer import Trainer, model_from_clouds
+
+log = logging.getLogger("fixer4d.train")
+
+PAIRS_FORMAT = 1
+# Stage-1 fields that ``Stage1Config.for_iterations`` derives from the iteration count (the
+# leave-one-out trainings get their own short schedule) or that do not change a result.
+_SCHEDULE_FIELDS = ("iterations", "densify_every", "densify_from", "densify_until", "opacity_reset_every",
+                    "checkpoint_every", "progress")
+
+
+class _TrainViews:
+    """A scene restricted to some of its train cameras, optionally at a lower resolution.
+
+    ``train_ids`` are the cameras a leave-one-out stage 1 trains on; ``frame`` serves only the
+    scene's own train cameras (anything else is a programming error: held-out cameras are for
+    evaluation only) and resizes to the scaled cameras.
+    """
+
+    def __init__(self, base: MultiViewVideo, train_ids: Sequence[int], scale: float) -> None:
+        allowed = set(base.train_ids)
+        if not set(train_ids) <= allowed:
+            raise InputError(f"restorer pairs: cameras {sorted(set(train_ids) - allowed)} are not train cameras")
+        self._base = base
+        self._allowed = allowed
+        self.name = f"{base.name}[{','.join(map(str, train_ids))}]"
+        self.train_ids = list(train_ids)
+        self.test_ids: list[int] = []
+        self.num_frames = base.num_frames
+        self.fps = base.fps
+        self.cameras = [c.scaled(scale) if scale != 1.0 else c for c in base.cameras]
+        self._frames: dict[tuple[int, int], np.ndarray] = {}
+
+    @property
+    def train_cameras(self) -> list[Camera]:
+        return [self.cameras[i] for i in self.train_ids]
+
+    def time(self, frame: int) -> float:
+        return self._base.time(frame)
+
+    def bounds(self):
+        return self._base.bounds()
+
+    def frame(self, frame: int, cam: int) -> np.ndarray:
+        assert cam in self._allowed, f"restorer pairs: camera {cam} is not a train camera and must never be read"
+        key = (frame, cam)
+        if key not in self._frames:
+            img = self._base.frame(frame, cam)
+            c = self.cameras[cam]
+            if img.shape[:2] != (c.height, c.width):
+                img = cv2.resize(img, (c.width, c.height), interpolation=cv2.INTER_AREA)
+            self._frames[key] = np.ascontiguousarray(img, dtype=np.float32)
+        return self._frames[key]
+
+
+def _render(model, cam: Camera, t: float, backend: str, background) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    with torch.no_grad():
+        out = render(model.at(t, camera_center=cam.center), cam, background=background, backend=backend)
+    return (out.rgb.clamp(0, 1).numpy().astype(np.float32), out.depth.numpy().astype(np.float32),
+            out.alpha.numpy().astype(np.float32))
+
+
+def _nearest(views: _TrainViews, target: int, candidates: Sequence[int]) -> list[int]:
+    c = views.cameras[target].center
+    return sorted(candidates, key=lambda i: (float(np.linalg.norm(views.cameras[i].center - c)), i))
+
+
+def _pair_request(model, views: _TrainViews, target: int, frame: int, backend: str, background) -> RestoreRequest:
+    """A one-frame request at train camera ``target`` with references and extras from the other train cameras."""
+    others = _nearest(views, target, [i for i in views._allowed if i != target])
+    if len(others) < 2:
+        raise InputError("restorer pairs: need at least 3 train cameras (a target and two references)")
+    refs, extras = others[:2], others[2:]
+    t = views.time(frame)
+    cam = views.cameras[target]
+    rgb, depth, alpha = _render(model, cam, t, backend, background)
+    ref_r = [_render(model, views.cameras[i], t, backend, background) for i in refs]
+    ext_r = [_render(model, views.cameras[i], t, backend, background) for i in extras]
+    return RestoreRequest(
+        rgb=rgb[None], depth=depth[None], alpha=alpha[None], cameras=[cam], time=t, frame=frame,
+        ref_images=[views.frame(frame, i) for i in refs], ref_cameras=[views.cameras[i] for i in refs],
+        ref_depths=[r[1] for r in ref_r], ref_alphas=[r[2] for r in ref_r],
+        extra_images=[views.frame(frame, i) for i in extras] or None,
+        extra_cameras=[views.cameras[i] for i in extras] or None, extra_depths=[r[1] for r in ext_r] or None,
+        trajectory={"name": f"pair-target-{target}", "target": int(target)})
+
+
+def _init_model(init: Any, views: _TrainViews, cfg: Stage1Config):
+    """The leave-one-out model from the run's init: per-frame clouds, or a decomposed init
+    (static + moving parts, fixer4d.init.decompose) built with the default effects."""
+    if isinstance(init, (list, tuple)):
+        return model_from_clouds(list(init), views, cfg)
+    from fixer4d.train.trainer import model_from_init
+
+    return model_from_init(init, views, cfg)[0]
+
+
+def _loo_config(stage1: Stage1Config, iterations: int) -> Stage1Config:
+    keep = {k: v for k, v in stage1.to_dict().items() if k not in _SCHEDULE_FIELDS}
+    keep["background"] = tuple(keep["background"])
+    return Stage1Config.for_iterations(iterations, **keep, progress=False)
+
+
+def pair_frames(num_frames: int, count: int) -> list[int]:
+    """``count`` timestamps spread evenly over the video (unique, sorted)."""
+    return sorted({int(round(x)) for x in np.linspace(0, num_frames - 1, max(1, count))})
+
+
+def build_fold(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Config, left_out: int,
+               config: RestoreConfig, progress: bool = False) -> dict[str, np.ndarray]:
+    """The pairs of the fold leaving out train camera ``left_out``: arrays feats (N, C, H, W)
+    float16, targets (N, H, W, 3) float16, cams (N,), frames (N,), loo (N,) bool (True = the
+    left-out camera's render, False = an early-checkpoint render of a trained camera)."""
+    if left_out not in scene.train_ids:
+        raise InputError(f"restorer pairs: camera {left_out} is not a train camera of {scene.name}")
+    lc = config.learned
+    trained = [i for i in scene.train_ids if i != left_out]
+    views = _TrainViews(scene, trained, lc.loo_scale)
+    cfg = _loo_config(stage1, lc.loo_iterations)
+    trainer = Trainer(_init_model(clouds, views, cfg), views, cfg, run_dir=None)
+    warp = ReferenceWarpRestorer(config.warp)
+    frames = pair_frames(scene.num_frames, lc.pair_frames)
+    backend, background = cfg.backend, trainer.background
+    samples: list[tuple[np.ndarray, np.ndarray, int, int, bool]] = []
+
+    def add(target: int, loo: bool) -> None:
+        for f in frames:
+            req = _pair_request(trainer.model, views, target, f, backend, background)
+            feats, _ = request_features(req, warp)
+            samples.append((feats[0], views.frame(f, target), target, f, loo))
+
+    trainer.train(max(1, int(round(lc.early_fraction * cfg.iterations))), progress=progress)
+    for cam in trained:
+        add(cam, False)
+    trainer.train(progress=progress)
+    add(left_out, True)
+    return {"feats": np.stack([s[0] for s in samples]).astype(np.float16),
+            "targets": np.stack([s[1] for s in samples]).astype(np.float16),
+            "cams": np.array([s[2] for s in samples], np.int64), "frames": np.array([s[3] for s in samples], np.int64),
+            "loo": np.array([s[4] for s in samples], bool)}
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return float(10.0 * np.log10(1.0 / max(mse, 1e-12)))
+
+
+def _key(scene: MultiViewVideo, stage1: Stage1Config, config: RestoreConfig) -> str:
+    parts = {"format": PAIRS_FORMAT, "scene": scene.describe(), "train_ids": list(scene.train_ids),
+             "stage1": {k: v for k, v in stage1.to_dict().items() if k not in _SCHEDULE_FIELDS},
+             "warp": dataclasses.asdict(config.warp), "learned": config.learned.training_key()}
+    return hashlib.sha1(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def train_scene_restorer(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Config, out_dir: str | Path,
+                         config: RestoreConfig, progress: bool = True) -> LearnedRestorer:
+    """Build the leave-one-camera-out pairs, train the learned restorer, validate it on the held-back
+    fold; returns it. Writes into ``out_dir``: pairs/fold_<cam>.npz (+ key), WEIGHTS_FILE,
+    META_FILE and VALIDATION_FILE (validation gain and CPU seconds). Resumes: finished folds are
+    reused, and finished weights with the same settings are loaded instead of retrained.
+    clouds: the init's per-frame point clouds (``model_from_clouds`` input)."""
+    out_dir = Path(out_dir)
+    key = _key(scene, stage1, config)
+    if (out_dir / WEIGHTS_FILE).is_file() and (out_dir / VALIDATION_FILE).is_file():
+        meta = json.loads((out_dir / META_FILE).read_text()) if (out_dir / META_FILE).is_file() else {}
+        if meta.get("pairs_key") == key:
+            return LearnedRestorer.load(out_dir, config)
+    lc = config.learned
+    train_ids = list(scene.train_ids)
+    if len(train_ids) < 3:
+        raise InputError(f"{scene.name}: the learned restorer needs >= 3 train cameras (has {len(train_ids)}); "
+                         "use --restorer warp")
+    held = train_ids[lc.validation_fold % len(train_ids)]
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    folds: dict[int, dict[str, np.ndarray]] = {}
+    pair_cpu = 0.0
+    for cam in train_ids:
+        path = out_dir / "pairs" / f"fold_{cam}.npz"
+        key_path = path.with_suffix(".json")
+        if path.is_file() and key_path.is_file() and json.loads(key_path.read_text()).get("key") == key:
+            with np.load(path, allow_pickle=False) as data:
+                folds[cam] = {k: np.array(data[k]) for k in data.files}
+            pair_cpu += float(json.loads(key_path.read_text()).get("cpu_seconds", 0.0))
+            continue
+        if progress:
+            print(f"[fixer4d] learned restorer: leave-one-out fold without camera {cam}", flush=True)
+        c0 = time.process_time()
+        folds[cam] = build_fold(scene, clouds, stage1, cam, config, progress=progress)
+        with atomic_path(path, suffix=".npz") as tmp:
+            np.savez(tmp, **folds[cam])
+        pair_cpu += time.process_time() - c0
+        write_json(key_path, {"key": key, "cpu_seconds": time.process_time() - c0})
+
+    def samples(cams: Sequence[int], loo_only: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
+        out = []
+        for cam in cams:
+            d = folds[cam]
+            for n in range(len(d["cams"])):
+                if loo_only and not d["loo"][n]:
+                    continue
+                out.append((d["feats"][n].astype(np.float32), d["targets"][n].astype(np.float32)))
+        return out
+
+    train_set = samples([c for c in train_ids if c != held])
+    if progress:
+        print(f"[fixer4d] learned restorer: training on {len(train_set)} pairs ({lc.steps} steps)", flush=True)
+    net, stats = train_network(train_set, lc)
+    val = samples([held], loo_only=True)
+    scores = {"render": [], "warp": [], "learned": []}
+    for feats, target in val:
+        restored, _ = restore_features(net, feats)
+        scores["render"].append(_psnr(feats[0:3].transpose(1, 2, 0), target))
+        scores["warp"].append(_psnr(feats[12:15].transpose(1, 2, 0), target))
+        scores["learned"].append(_psnr(restored, target))
+    mean = {k: float(np.mean(v)) for k, v in scores.items()}
+    validation = {
+        "held_out_fold_camera": int(held), "validation_pairs": len(val), "training_pairs": len(train_set),
+        "psnr_render": mean["render"], "psnr_warp": mean["warp"], "psnr_learned": mean["learned"],
+        "gain_db": mean["learned"] - mean["render"], "gain_over_warp_db": mean["learned"] - mean["warp"],
+        "per_pair_psnr": scores,
+        "cpu_seconds": {"pairs": pair_cpu, "training": stats["cpu_seconds"],
+                        "total": pair_cpu + stats["cpu_seconds"]},
+        "wall_seconds_this_session": time.perf_counter() - wall0,
+        "cpu_seconds_this_session": time.process_time() - cpu0,
+        "network": stats, "settings": {"warp": dataclasses.asdict(config.warp), "learned": dataclasses.asdict(lc)},
+    }
+    restorer = LearnedRestorer(net, config)
+    restorer.save(out_dir, extra={"pairs_key": key, "validation_gain_db": validation["gain_db"]})
+    write_json(out_dir / VALIDATION_FILE, validation)
+    if progress:
+        print(f"[fixer4d] learned restorer: validation (camera {held}) render {mean['render']:.2f} dB, warp "
+              f"{mean['warp']:.2f} dB, learned {mean['learned']:.2f} dB; {validation['cpu_seconds']['total']:.0f} CPU s",
+              flush=True)
+    return restorer

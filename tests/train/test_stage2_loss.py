@@ -1,0 +1,112 @@
+"""Stage 2 as the paper states it: L = mean over observed views of L_STG + lambda_gen x mean over
+pseudo-views of the confidence-weighted L1, and pseudo-views never at the train cameras themselves."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+import torch
+
+from fixer4d.geometry.camera import Camera
+from fixer4d.geometry.trajectory import interpolate_pair
+from fixer4d.train import trainer as trainer_module
+from fixer4d.train.config import Stage2Config
+from fixer4d.train.trainer import Trainer, model_from_clouds
+
+
+
+@dataclass
+class FakeEntry:
+    key: str
+    cameras: list[Camera]
+    time: float
+    frames: np.ndarray
+    conf: np.ndarray
+
+    def rgb(self) -> np.ndarray:
+        return self.frames
+
+    def confidence(self) -> np.ndarray:
+        return self.conf
+
+
+class FakeCache:
+    """In-memory stand-in for RestoreCache: round -> entries."""
+
+    def __init__(self, rounds: dict[int, list[FakeEntry]]) -> None:
+        self.rounds = rounds
+
+    def entries(self, round: int | None = None) -> list[FakeEntry]:
+        return list(self.rounds.get(self.latest_round() if round is None else round, []))
+
+    def latest_round(self) -> int | None:
+        return max(self.rounds) if self.rounds else None
+
+
+def _model(scene, clouds, make_config, **overrides):
+    cfg = make_config(10, init_max_points=400, **overrides)
+    return model_from_clouds(clouds, scene, cfg), cfg
+
+
+def _endpoint_clip(scene, frame: int = 1, conf: float = 1.0, nan_endpoints: bool = True) -> FakeEntry:
+    """A 3-frame pair clip (alpha 0, 0.5, 1): its endpoints ARE train cameras. Their targets are NaN
+    when ``nan_endpoints``, so a pseudo loss that used them would not be finite."""
+    i, j = sorted(scene.train_ids)[:2]
+    cams = interpolate_pair(scene.cameras[i], scene.cameras[j], np.array([0.0, 0.5, 1.0]))
+    frames = np.stack([scene.render_gt(c, scene.time(frame))[0] for c in cams]).astype(np.float32)
+    if nan_endpoints:
+        frames[0] = np.nan
+        frames[2] = np.nan
+    h, w = frames.shape[1:3]
+    return FakeEntry(f"t{frame:04d}_{i}-{j}", cams, scene.time(frame), frames, np.full((3, h, w), conf, np.float32))
+
+
+def test_observed_loss_is_a_per_view_mean(small_scene, small_clouds, make_config, monkeypatch):
+    # every view's L_STG is made exactly 1: a sum over the 2 views of a step would report 2
+    monkeypatch.setattr(trainer_module, "stg_loss", lambda render, target: (render * 0.0).sum() + 1.0)
+    model, cfg = _model(small_scene, small_clouds, make_config, views_per_step=2)
+    rec = Trainer(model, small_scene, cfg).step()
+    assert rec["loss_stg"] == pytest.approx(1.0)
+    model, cfg = _model(small_scene, small_clouds, make_config, views_per_step=2)
+    trainer = Trainer(model, small_scene, cfg, stage2=Stage2Config(refresh_every=5, rounds=1, lambda_gen=0.5),
+                      cache=FakeCache({0: [_endpoint_clip(small_scene, nan_endpoints=False)]}))
+    rec = trainer.step()
+    assert rec["loss_stg"] == pytest.approx(1.0)
+    assert rec["loss"] == pytest.approx(1.0 + 0.5 * rec["loss_gen"], rel=1e-6)
+
+
+def test_pseudo_views_skip_the_train_cameras(small_scene, small_clouds, make_config):
+    model, cfg = _model(small_scene, small_clouds, make_config)
+    trainer = Trainer(model, small_scene, cfg, stage2=Stage2Config(refresh_every=20, rounds=1, batch_pseudo=2),
+                      cache=FakeCache({0: [_endpoint_clip(small_scene)]}))
+    for _ in range(8):  # 16 picks: with the endpoints in the pool one would be drawn (p = 1 - (1/3)^16)
+        rec = trainer.step()
+        assert np.isfinite(rec["loss"]) and rec["loss_gen"] > 0
+    assert [list(f) for f in trainer._entry_frames] == [[1]]
+
+
+def test_a_round_of_endpoints_only_is_refused(small_scene, small_clouds, make_config):
+    from fixer4d.errors import InputError
+
+    model, cfg = _model(small_scene, small_clouds, make_config)
+    entry = _endpoint_clip(small_scene)
+    only_ends = FakeEntry(entry.key, [entry.cameras[0], entry.cameras[2]], entry.time, entry.frames[[0, 2]],
+                          entry.conf[[0, 2]])
+    trainer = Trainer(model, small_scene, cfg, stage2=Stage2Config(refresh_every=5, rounds=1),
+                      cache=FakeCache({0: [only_ends]}))
+    with pytest.raises(InputError, match="novel views"):
+        trainer.step()
+
+
+def test_confidence_weights_the_pseudo_loss(small_scene, small_clouds, make_config):
+    losses = []
+    for conf in (1.0, 0.25, 0.0):
+        model, cfg = _model(small_scene, small_clouds, make_config)
+        trainer = Trainer(model, small_scene, cfg, stage2=Stage2Config(refresh_every=5, rounds=1),
+                          cache=FakeCache({0: [_endpoint_clip(small_scene, conf=conf)]}))
+        torch.manual_seed(0)
+        losses.append(trainer.step()["loss_gen"])
+    assert losses[0] > 0
+    assert losses[1] == pytest.approx(0.25 * losses[0], rel=1e-5)
+    assert losses[2] == 0.0
