@@ -20,7 +20,6 @@ three and the validation; the resolved tree is what ``config.json`` stores, with
 from __future__ import annotations
 
 import copy
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -167,13 +166,12 @@ def _read_config_file(config_file: str | Path | dict[str, Any]) -> dict[str, Any
     if isinstance(config_file, dict):
         data = config_file
     else:
+        from fixer4d.scene.base import read_json_object
+
         path = Path(config_file)
         if not path.is_file():
             raise InputError(f"--config {path}: no such file")
-        try:
-            data = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
-            raise InputError(f"--config {path}: not valid JSON ({exc})") from None
+        data = read_json_object(path, f"--config {path}", "write a JSON config such as `fixer4d run SCENE --print-config` shows")
     if not isinstance(data, dict):
         raise InputError("a config file must hold a JSON object")
     if "format_version" in data and "config" in data:  # a run folder's config.json

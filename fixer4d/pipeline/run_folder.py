@@ -20,6 +20,7 @@ from fixer4d import atomic
 from fixer4d.errors import InputError
 from fixer4d.pipeline import config_tree
 from fixer4d.pipeline.config import FORMAT_VERSION, RunConfig, migrate_v1
+from fixer4d.scene.base import read_json_object
 
 CONFIG_NAME = "config.json"
 STAGES_NAME = "stages.json"
@@ -130,12 +131,7 @@ class RunFolder:
             raise InputError(f"{path}: no such run folder")
         if not cfg_path.is_file():
             raise InputError(f"{path}: not a fixer4d run folder (no {CONFIG_NAME}); make one with `fixer4d run`")
-        try:
-            data = json.loads(cfg_path.read_text())
-        except json.JSONDecodeError as exc:
-            raise InputError(f"{cfg_path}: not valid JSON ({exc}); the run folder is damaged") from None
-        if not isinstance(data, dict):
-            raise InputError(f"{cfg_path}: not a fixer4d run config")
+        data = read_json_object(cfg_path, str(cfg_path), "the run folder is damaged; start a new run")
         version = data.get("format_version")
         if version is None:
             if "scene" not in data:
