@@ -103,7 +103,10 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
     from fixer4d.pipeline.executors import LocalExecutor
     from fixer4d.restore.cache import RestoreCache
 
-    cache = RestoreCache(Path(run_dir) / "cache")
+    from fixer4d.pipeline.keys import stage2_key
+
+    # entries written under other settings (restorer, trajectories, stage-1 model) are set aside
+    cache = RestoreCache(Path(run_dir) / "cache", fingerprint=stage2_key(config))
     cache.clean_temporary()  # leftovers of a killed write; complete entries are reused below
     restorer = build_restorer(config, run_dir)
     executor = executor or LocalExecutor()

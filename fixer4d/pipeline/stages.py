@@ -32,6 +32,7 @@ import numpy as np
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
 from fixer4d.pipeline.config import RunConfig
+from fixer4d.pipeline.keys import init_key, matched_key, restorer_key, stage1_key, stage2_key
 from fixer4d.pipeline.run_folder import RunFolder, stage_key
 from fixer4d.pipeline.stage_cache import StageCache
 
@@ -67,43 +68,6 @@ class StageContext:
 
     def stage1_config(self, **changes: Any):
         return dataclasses.replace(self.config.stage1, progress=self.progress, **changes)
-
-
-# ---------------------------------------------------------------------------------------------
-# keys: everything a stage's output depends on
-# ---------------------------------------------------------------------------------------------
-def _training_settings(stage1_dict: dict[str, Any]) -> dict[str, Any]:
-    """Stage-1 settings that change the trained model (not progress display or checkpoint cadence)."""
-    return {k: v for k, v in stage1_dict.items() if k not in ("progress", "checkpoint_every", "keep_checkpoints")}
-
-
-def init_key(config: RunConfig, method: str) -> str:
-    d = config.to_dict()
-    return stage_key("init", method, d["scene"], {**d["init"], "method": method}, config.init_frame_stride)
-
-
-def stage1_key(config: RunConfig, method: str) -> str:
-    return stage_key("stage1", init_key(config, method), _training_settings(config.to_dict()["stage1"]), config.seed)
-
-
-def stage2_key(config: RunConfig) -> str:
-    """Stage 2 and its pseudo-targets: the stage-1 model, stage-2 settings, restorer, trajectories."""
-    d = config.to_dict()
-    return stage_key("stage2", stage1_key(config, config.init_method), d["stage2"], restorer_key(config),
-                     d["trajectories"])
-
-
-def restorer_key(config: RunConfig) -> str:
-    """The restorer's outputs: its settings, and for the learned one what it was trained from."""
-    rc = config.restorer
-    if rc.kind != "learned":
-        return stage_key("restorer", rc.settings_key())
-    return stage_key("restorer", rc.settings_key(), init_key(config, config.init_method),
-                     _training_settings(config.to_dict()["stage1"]), config.seed)
-
-
-def matched_key(config: RunConfig) -> str:
-    return stage_key("matched", stage1_key(config, config.init_method), config.to_dict()["stage2"])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -240,7 +204,7 @@ def stage2(ctx: StageContext, model, refresh: Callable[[Any, int], None] | None 
         refresh = make_refresh_callback(ctx.path, ctx.scene, ctx.config, progress=ctx.progress, backend=ctx.backend,
                                         executor=executor_for(ctx.config.executor))
     trainer = Trainer(model, ctx.scene, ctx.stage1_config(), run_dir=ctx.path, stage2=ctx.config.stage2,
-                      cache=RestoreCache(ctx.path / "cache"), refresh_cache=refresh)
+                      cache=RestoreCache(ctx.path / "cache", fingerprint=key), refresh_cache=refresh)
     prior = trainer.train_seconds if trainer.resume() else 0.0
     trainer.train()
     save_ply(trainer.model, final)

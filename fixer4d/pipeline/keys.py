@@ -1,0 +1,48 @@
+"""The keys of the stages: a short hash of everything a stage's output depends on.
+
+A finished stage is reused only under the same key; the stage-2 key is also the restoration
+cache's fingerprint, so a pseudo-target made under other settings is never served.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from fixer4d.pipeline.config import RunConfig
+from fixer4d.pipeline.run_folder import stage_key
+
+__all__ = ["init_key", "stage1_key", "restorer_key", "stage2_key", "matched_key", "training_settings"]
+
+
+# ---------------------------------------------------------------------------------------------
+def training_settings(stage1_dict: dict[str, Any]) -> dict[str, Any]:
+    """Stage-1 settings that change the trained model (not progress display or checkpoint cadence)."""
+    return {k: v for k, v in stage1_dict.items() if k not in ("progress", "checkpoint_every", "keep_checkpoints")}
+
+
+def init_key(config: RunConfig, method: str) -> str:
+    d = config.to_dict()
+    return stage_key("init", method, d["scene"], {**d["init"], "method": method}, config.init_frame_stride)
+
+
+def stage1_key(config: RunConfig, method: str) -> str:
+    return stage_key("stage1", init_key(config, method), training_settings(config.to_dict()["stage1"]), config.seed)
+
+
+def stage2_key(config: RunConfig) -> str:
+    """Stage 2 and its pseudo-targets: the stage-1 model, stage-2 settings, restorer, trajectories."""
+    d = config.to_dict()
+    return stage_key("stage2", stage1_key(config, config.init_method), d["stage2"], restorer_key(config),
+                     d["trajectories"])
+
+
+def restorer_key(config: RunConfig) -> str:
+    """The restorer's outputs: its settings, and for the learned one what it was trained from."""
+    rc = config.restorer
+    if rc.kind != "learned":
+        return stage_key("restorer", rc.settings_key())
+    return stage_key("restorer", rc.settings_key(), init_key(config, config.init_method),
+                     training_settings(config.to_dict()["stage1"]), config.seed)
+
+
+def matched_key(config: RunConfig) -> str:
+    return stage_key("matched", stage1_key(config, config.init_method), config.to_dict()["stage2"])
