@@ -34,6 +34,11 @@ DEFAULT_SWEEP: list[dict[str, Any]] = [
     {"name": "rounds-3", "stage2.rounds": 3},
     {"name": "K-0.5x", "stage2.refresh_every": 0.5},
     {"name": "restorer-refs-only", "restorer.warp.use_extra_views": False},
+    # the restorer axis: geometric warp vs the learned per-scene prior at two training budgets
+    {"name": "restorer-warp", "restorer.kind": "warp"},
+    {"name": "restorer-learned", "restorer.kind": "learned"},
+    {"name": "restorer-learned-2x", "restorer.kind": "learned", "restorer.learned.steps": 2.0,
+     "restorer.learned.loo_iterations": 2.0},
     {"name": "sparse-init", "init.method": "sparse"},
     {"name": "res-0.5", "scene.scale": 0.5},
     {"name": "iters-0.5x", "stage1.iterations": 0.5},
@@ -46,7 +51,8 @@ DEFAULT_SWEEP: list[dict[str, Any]] = [
 # Knobs whose override is a multiplier of the base value rather than an absolute value, so one
 # sweep file serves every scene size.
 RELATIVE_KNOBS = {"scene.scale", "stage1.iterations", "stage1.max_gaussians", "init.mvs.planes", "init.mvs.scale",
-                  "stage2.refresh_every", "stage2.iterations"}
+                  "stage2.refresh_every", "stage2.iterations", "restorer.learned.steps",
+                  "restorer.learned.loo_iterations"}
 
 
 @dataclass
