@@ -79,6 +79,9 @@ class PipelineConfig:
     init_frame_stride: int = 4
     eval_stride: int = 5
     restoration_rows: bool = True  # evaluate restored renders at the held-out cameras
+    # [B2 effects] effects by evidence (fixer4d.model.effects.EffectsConfig as a dict: mode
+    # auto | all | static + forced overrides); applies to the decomposed MVS init.
+    effects: dict[str, Any] = field(default_factory=lambda: {"mode": "auto"})
     seed: int = 0
 
     def to_dict(self) -> dict[str, Any]:
@@ -359,10 +362,10 @@ def _init_clouds(scene, run_dir: Path, init_cfg: dict[str, Any], method: str, ti
     out = run_dir / f"init_{method}"
     stage = f"init_{method}"
     if times.done(stage) and (out / "init_report.json").exists():
-        return load_frame_clouds(out)
+        return _decomposed_or(out, load_frame_clouds(out))
     if cache is not None and (seconds := cache.fetch(cache_key, out)) is not None:
         times.record(stage, seconds)
-        return load_frame_clouds(out)
+        return _decomposed_or(out, load_frame_clouds(out))
     cfg = InitConfig.from_dict({k: v for k, v in init_cfg.items() if k != "method"})
     t0 = time.perf_counter()
     frames = list(range(0, scene.num_frames, max(1, frame_stride)))
@@ -370,7 +373,14 @@ def _init_clouds(scene, run_dir: Path, init_cfg: dict[str, Any], method: str, ti
     times.record(stage, time.perf_counter() - t0)
     if cache is not None:
         cache.store(cache_key, [out / p.name for p in out.iterdir()], times.seconds[stage])
-    return clouds
+    return _decomposed_or(out, clouds)
+
+
+def _decomposed_or(out: Path, clouds):
+    """[B2 effects] The DecomposedInit of an init folder when it has one, else its clouds."""
+    from fixer4d.init.decompose import DecomposedInit, has_decomposed
+
+    return DecomposedInit.load(out) if has_decomposed(out) else clouds
 
 
 def stage1_config(stage1: dict[str, Any], progress: bool = True):
@@ -384,9 +394,10 @@ def stage1_config(stage1: dict[str, Any], progress: bool = True):
 
 
 def _stage1(scene, clouds, stage1: dict[str, Any], model_path: Path, times: StageTimes, stage: str, progress: bool,
-            cache: StageCache | None, cache_key: str):
+            cache: StageCache | None, cache_key: str, effects: dict[str, Any] | None = None):
+    from fixer4d.model.effects import EffectsConfig, effects_report
     from fixer4d.model.io import load_ply, save_ply
-    from fixer4d.train.trainer import Trainer, model_from_clouds
+    from fixer4d.train.trainer import Trainer, model_from_init
 
     if times.done(stage) and model_path.exists():
         return load_ply(model_path)
@@ -395,11 +406,13 @@ def _stage1(scene, clouds, stage1: dict[str, Any], model_path: Path, times: Stag
         return load_ply(model_path)
     cfg = stage1_config(stage1, progress)
     t0 = time.perf_counter()
-    model = model_from_clouds(clouds, scene, cfg)
-    trainer = Trainer(model, scene, cfg, run_dir=model_path.parent)
+    eff = EffectsConfig.from_dict(effects)  # [B2 effects] decided by evidence, recorded
+    model, decision = model_from_init(clouds, scene, cfg, eff)
+    trainer = Trainer(model, scene, cfg, run_dir=model_path.parent, effects=eff if decision is not None else None)
     trainer.resume()
     trainer.train()
     save_ply(trainer.model, model_path)
+    atomic.write_json(model_path.parent / "model_effects.json", effects_report(trainer.model, decision, trainer.revisions))
     times.record(stage, time.perf_counter() - t0)
     if cache is not None:
         cache.store(cache_key, [model_path], times.seconds[stage])
@@ -467,7 +480,7 @@ def run_pipeline(config: PipelineConfig, run_dir: str | Path, *, progress: bool 
                               config.init_frame_stride)
 
     def stage1_key(m: str) -> str:
-        return StageCache.key("stage1", init_key(m), config.stage1, config.seed)
+        return StageCache.key("stage1", init_key(m), config.stage1, config.seed, config.effects)  # [B2 effects]
     # -- baseline: STGS from the sparse (COLMAP) init -----------------------------------------
     if config.baseline_sparse and method != "sparse":
         sparse = _init_clouds(scene, run_dir, config.init, "sparse", times, progress, config.init_frame_stride,
@@ -484,7 +497,7 @@ def run_pipeline(config: PipelineConfig, run_dir: str | Path, *, progress: bool 
     clouds = _init_clouds(scene, run_dir, config.init, method, times, progress, config.init_frame_stride,
                           cache, init_key(method))
     model = _stage1(scene, clouds, config.stage1, run_dir / "model_stage1.ply", times, "stage1", progress,
-                    cache, stage1_key(method))
+                    cache, stage1_key(method), config.effects)
     init_name = ROW_NAMES[1] if method != "sparse" else ROW_NAMES[0]
     m = _evaluate(_model_render_fn(model, backend), scene, run_dir, init_name, config.eval_stride,
                   {"prep": times.get(f"init_{method}"), "train": times.get("stage1")}, times, progress)
@@ -558,6 +571,8 @@ def _fmt(value: float | None, digits: int) -> str:
 
 def _write_report(run_dir: Path, config: PipelineConfig, scene, rows: list[dict[str, Any]], times: StageTimes) -> dict[str, Any]:
     report = {"rows": rows, "stage_seconds": times.seconds, "scene": scene.describe()}
+    if (run_dir / "model_effects.json").exists():  # [B2 effects] the stage-1 model's effects and why
+        report["model"] = json.loads((run_dir / "model_effects.json").read_text())
     atomic.write_json(run_dir / "report.json", report)
     lines = [f"# fixer4d report: {run_dir.name}", "", f"Scene: {scene.describe()}", "", _restorer_line(run_dir, config), "",
              "| Method | PSNR | DSSIM1 | DSSIM2 | LPIPS | Time (s) |", "|---|---|---|---|---|---|"]

@@ -18,6 +18,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--restorer", choices=["learned", "warp", "cogvideo"], default=None,
                         help="restorer of stage 2 (learned: trained per scene on its train cameras)")
     parser.add_argument("--eval-stride", type=int, default=None, help="evaluate every S-th frame")
+    # [B2 effects] effects decided by evidence (auto), every effect (all) or none (static)
+    parser.add_argument("--effects", choices=["auto", "all", "static"], default=None,
+                        help="spacetime effects: decided by evidence (auto, default), all, or static only; "
+                             "force one with --set effects.motion_degree=N (sh_degree, rotation_velocity, temporal_opacity)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="any config override by dotted key, e.g. --set trajectories.frames=6 (JSON values)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -37,7 +41,8 @@ def run(args: argparse.Namespace) -> int:
         overrides["scene.frame_range"] = [int(a), int(b)]
     for flag, key in (("iterations", "stage1.iterations"), ("rounds", "stage2.rounds"),
                       ("refresh_every", "stage2.refresh_every"), ("lambda_gen", "stage2.lambda_gen"),
-                      ("init", "init.method"), ("eval_stride", "eval_stride"), ("restorer", "restorer.kind")):
+                      ("init", "init.method"), ("eval_stride", "eval_stride"), ("restorer", "restorer.kind"),
+                      ("effects", "effects.mode")):
         if getattr(args, flag) is not None:
             overrides[key] = getattr(args, flag)
     if args.no_baseline:
