@@ -162,3 +162,92 @@ def main(argv: list[str] | None = None) -> int:
     write_json(Path(args.out), result)
     print(f"wrote {args.out}")
     return 0
+
+
+def demo_surface_gaussians(scene, target: int = 30_000, frame: int = 0):
+    """A stand-in for the demo's trained model when no run folder is given: about ``target``
+    static Gaussians on the scene's true surfaces (every k-th pixel of each train view at
+    ``frame`` back-projected with its depth, coloured by the pixel, sized to the sample
+    spacing), so the splat count, sizes and screen coverage are those of a trained model."""
+    from app.gaussians import GaussianArrays
+    from fixer4d.model.spacetime import SH_C0
+
+    pixels = sum(scene.cameras[i].width * scene.cameras[i].height for i in scene.train_ids)
+    stride = max(1, int(round(np.sqrt(pixels / target))))
+    pts, cols, sizes = [], [], []
+    for i in scene.train_ids:
+        cam = scene.cameras[i]
+        depth = scene.depth(frame, i)
+        ok = np.isfinite(depth)
+        xyz = cam.backproject_depth(np.where(ok, depth, 0.0))
+        sel = np.zeros(depth.shape, bool)
+        sel[::stride, ::stride] = True
+        sel &= ok
+        pts.append(xyz[sel])
+        cols.append(scene.frame(frame, i)[sel])
+        sizes.append(depth[sel] * stride / cam.fx / 2.0)
+    p, c, s = np.concatenate(pts), np.concatenate(cols), np.concatenate(sizes)
+    n = p.shape[0]
+    return GaussianArrays(means=p, log_scales=np.log(np.repeat(s[:, None], 3, 1)), quats=np.tile([1.0, 0, 0, 0], (n, 1)),
+                          opacity_logits=np.full(n, 3.0), colors=(c - 0.5) / SH_C0, t_center=np.zeros(n),
+                          t_log_scale=np.zeros(n), motion=np.zeros((n, 9)), omega=np.zeros((n, 4)),
+                          dynamic=np.zeros(n, bool), model_config={"motion_degree": 3, "rotation_velocity": True,
+                                                                   "temporal_opacity": True, "sh_degree": 0})
+
+
+def bench_orbit(ctx, model: str | None, frames: int, window: tuple[int, int]) -> dict:
+    """The whole viewer (panels + 3D view) on the demo while the mouse orbits the camera (a
+    steady left-drag fed through imgui's io, one step per frame): frames per second with
+    adaptive resolution and with it off, each frame finished on the GPU before the next."""
+    from imgui_bundle import imgui
+
+    from app.main import initial_state, open_source
+    from app.viewer import Viewer, ViewerSource
+    from fixer4d.scene import load_scene
+
+    if model:
+        src, g, _ = open_source(model)
+        label = model
+    else:
+        scene = load_scene("demo")
+        g = demo_surface_gaussians(scene)
+        src = ViewerSource(scene=scene, label="demo (surface model)")
+        label = f"demo scene surfaces, {g.n} static Gaussians (no run folder given)"
+    fbo = ctx.simple_framebuffer(window)
+    out = {"model": label, "gaussians": int(g.n), "window": list(window)}
+    for adaptive in (True, False):
+        state = initial_state(src, g)
+        state.show_frusta = state.show_trajectories = False
+        viewer = Viewer(ctx, state, src)
+        viewer.adaptive.enabled = adaptive
+        try:
+            for _ in range(3):  # layout, first sort, shader warm-up
+                viewer.frame(1 / 60, fbo)
+            x0, y0, w, h = viewer.viewport_rect
+            io = imgui.get_io()
+            io.add_mouse_pos_event(x0 + w / 2, y0 + h / 2)
+            viewer.frame(1 / 60, fbo)
+            io.add_mouse_button_event(0, True)
+            viewer.frame(1 / 60, fbo)
+            times, scales = [], []
+            for k in range(frames):
+                io.add_mouse_pos_event(x0 + w / 2 + 4.0 * (k + 1), y0 + h / 2)
+                tic = time.perf_counter()
+                viewer.frame(1 / 60, fbo)
+                ctx.finish()
+                times.append(time.perf_counter() - tic)
+                scales.append(viewer.adaptive.scale)
+            io.add_mouse_button_event(0, False)
+            viewer.frame(1 / 60, fbo)
+        finally:
+            viewer.close()
+        key = "adaptive" if adaptive else "full_resolution"
+        out[f"orbit_fps_{key}"] = len(times) / sum(times)
+        out[f"orbit_frame_ms_{key}_median"] = 1e3 * statistics.median(times)
+        if adaptive:
+            out["orbit_render_scale_median"] = statistics.median(scales)
+    out["orbit_fps"] = out["orbit_fps_adaptive"]
+    print(f"  orbit ({label}, {window[0]}x{window[1]} window): {out['orbit_fps_adaptive']:.1f} fps adaptive "
+          f"(median scale {out['orbit_render_scale_median']:.2f}), {out['orbit_fps_full_resolution']:.1f} fps "
+          f"at full resolution", flush=True)
+    return out
