@@ -370,6 +370,9 @@ def _init_clouds(scene, run_dir: Path, init_cfg: dict[str, Any], method: str, ti
     t0 = time.perf_counter()
     frames = list(range(0, scene.num_frames, max(1, frame_stride)))
     clouds, _report = run_init(scene, method, out, frames=frames, config=cfg, progress=progress)
+    # [A2 fault injection] Train from the clouds as stored (colours are uint8 on disk): a resumed
+    # run loads them from disk, so the in-memory float colours made stage 1 differ after a kill.
+    clouds = load_frame_clouds(out)
     times.record(stage, time.perf_counter() - t0)
     if cache is not None:
         cache.store(cache_key, [out / p.name for p in out.iterdir()], times.seconds[stage])
