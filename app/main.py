@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from app.camera_control import ViewCamera, rig_up
-from app.session import RestoreQueue, TrainingSession
+from app.session import RestoreQueue, TrainingSession, live_stage1_trainer
 from app.state import AppState
 from app.viewer import Viewer, ViewerSource
 from fixer4d.errors import Fixer4DError, InputError
@@ -43,6 +43,12 @@ SCREENSHOT_MODEL_TIMEOUT_S = 900.0
 # Gaussians spans the gaps and training fills in the rest.
 LIVE_INIT_METHOD = "mvs"
 LIVE_INIT_FRAMES = 3
+# While live training runs the UI draws at most this many frames per second: on a CPU the
+# window's drawing (software GL) competes with the trainer for the same cores, and 10 frames a
+# second keeps orbiting usable while leaving the cores to training.
+TRAINING_UI_FPS = 10.0
+# With nothing moving, playing or training, the loop sleeps until an input event or this long.
+IDLE_WAIT_S = 0.25
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -85,7 +91,7 @@ def open_source(source: str, *, scale: float = 1.0, iterations: int | None = Non
     if path.is_file() and is_model_file(path):
         return open_model(path.resolve())
     scene = load_scene(source, scale=scale)
-    training = TrainingSession(lambda: live_trainer(scene, iterations, init, init_frames))
+    training = TrainingSession(lambda report: live_stage1_trainer(scene, iterations, init, init_frames, report))
     session_dir = _config_dir() / _slug(str(path.resolve()) if path.exists() else source)
     cache, restore = make_restore(session_dir / "cache")
     src = ViewerSource(scene=scene, label=f"{scene.name} (live training)", training=training, cache=cache,
@@ -140,24 +146,6 @@ def make_restore(cache_dir: Path) -> tuple[Any, RestoreQueue]:
     cache = RestoreCache(cache_dir)
     jobs = RestoreJobs(ReferenceWarpRestorer(), cache)
     return cache, RestoreQueue(jobs, lambda: cache.latest_round() or 0)
-
-
-def live_trainer(scene: Any, iterations: int | None, method: str = LIVE_INIT_METHOD,
-                 init_frames: int = LIVE_INIT_FRAMES) -> Any:
-    """Init clouds (``method`` on ``init_frames`` evenly spaced frames) + model + stage-1
-    Trainer for a scene (runs on the training thread)."""
-    import tempfile
-
-    from fixer4d.init import run_init
-    from fixer4d.train.config import Stage1Config
-    from fixer4d.train.trainer import Trainer, model_from_clouds
-
-    config = Stage1Config(progress=False) if iterations is None else Stage1Config(progress=False, iterations=iterations)
-    count = int(np.clip(init_frames, 1, scene.num_frames))
-    frames = sorted(set(np.linspace(0, scene.num_frames - 1, count).round().astype(int).tolist()))
-    out = Path(tempfile.mkdtemp(prefix="fixer4d-view-init-"))
-    clouds, _ = run_init(scene, method, out, frames=frames, progress=False)
-    return Trainer(model_from_clouds(clouds, scene, config), scene, config)
 
 
 def initial_state(src: ViewerSource, gaussians: Any) -> AppState:
@@ -245,7 +233,10 @@ def run_window(args: argparse.Namespace) -> int:
     last = time.perf_counter()
     try:
         while not glfw.window_should_close(window):
-            glfw.poll_events()
+            if viewer.is_idle() and not args.screenshot:
+                glfw.wait_events_timeout(IDLE_WAIT_S)  # no busy loop: wake on input
+            else:
+                glfw.poll_events()
             now = time.perf_counter()
             fbo = ctx.detect_framebuffer()
             viewer.frame(now - last, fbo, platform_new_frame=imgui.backends.glfw_new_frame)
@@ -262,11 +253,22 @@ def run_window(args: argparse.Namespace) -> int:
                         status = 1
                     break
             glfw.swap_buffers(window)
+            pace_frame(viewer, now)
     finally:
         viewer.close(platform_shutdown=imgui.backends.glfw_shutdown)
         glfw.destroy_window(window)
         glfw.terminate()
     return status
+
+
+def pace_frame(viewer: Viewer, frame_start: float) -> None:
+    """Sleep out the rest of the frame period while live training runs (TRAINING_UI_FPS), so
+    the trainer gets the CPU the UI does not need."""
+    tr = viewer.source.training
+    if tr is not None and tr.state in ("setup", "running"):
+        rest = 1.0 / TRAINING_UI_FPS - (time.perf_counter() - frame_start)
+        if rest > 0:
+            time.sleep(rest)
 
 
 def save_png(path: str | Path, image: np.ndarray) -> None:

@@ -54,7 +54,7 @@ def sh_degree_of(num_rest: int) -> int:
     return d
 
 # Debug modes of the resolve pass (heatmap.frag) and of the splat colours (splat.vert).
-RESOLVE_MODES = {"color": 0, "holes": 1, "depth": 2, "blur": 3, "alpha": 4}
+RESOLVE_MODES = {"color": 0, "holes": 1, "depth": 2, "blur": 3, "alpha": 4, "moving": 5}
 SPLAT_MODES = {"color": 0, "speed": 1, "temporal_opacity": 2}
 
 
