@@ -131,21 +131,40 @@ def open_run(run: Path, model: Path | None = None) -> tuple[ViewerSource, Any, P
     scene = load_scene(**scene_cfg)
     model_path = model if model is not None else choose_model(run, remembered_version(run / "viewer" / "session.json"))
     g = GaussianArrays.from_model(load_model(model_path))
-    cache, restore = make_restore(run / "cache")
+    cache, restore = make_restore(run / "cache", run)
     src = ViewerSource(scene=scene, run_dir=run, label=str(model_path), cache=cache, restore=restore,
                        model_path=model_path)
     return src, g, run / "viewer"
 
 
-def make_restore(cache_dir: Path) -> tuple[Any, RestoreQueue]:
-    """The on-disk cache and a queue feeding the built-in CPU restorer."""
+def make_restore(cache_dir: Path, run_dir: Path | None = None) -> tuple[Any, RestoreQueue]:
+    """The on-disk cache and a queue feeding the restorer: the run's own kind when its
+    config.json names one that can be built here (e.g. learned with RUN/restorer weights), else
+    the geometric warp restorer (CPU, no weights)."""
     from fixer4d.restore.cache import RestoreCache
-    from fixer4d.restore.jobs import RestoreJobs
-    from fixer4d.restore.reference_warp import ReferenceWarpRestorer
 
     cache = RestoreCache(cache_dir)
-    jobs = RestoreJobs(ReferenceWarpRestorer(), cache)
-    return cache, RestoreQueue(jobs, lambda: cache.latest_round() or 0)
+    kind = "warp"
+    if run_dir is not None:
+        try:
+            kind = str((json.loads((run_dir / "config.json").read_text()).get("restorer") or {}).get("kind", "warp"))
+        except (ValueError, OSError, AttributeError):
+            kind = "warp"
+    try:
+        jobs = make_jobs(kind, cache, run_dir)
+    except Fixer4DError:  # e.g. no learned weights yet: start with the warp restorer
+        kind, jobs = "warp", make_jobs("warp", cache, run_dir)
+    return cache, RestoreQueue(jobs, lambda: cache.latest_round() or 0, kind=kind)
+
+
+def make_jobs(kind: str, cache: Any, run_dir: Path | None) -> Any:
+    """``RestoreJobs`` around the restorer of ``kind`` (fixer4d.restore.config.build_restorer;
+    the learned restorer's weights come from RUN/restorer)."""
+    from fixer4d.restore.config import RestoreConfig, build_restorer
+    from fixer4d.restore.jobs import RestoreJobs
+
+    restorer = build_restorer(RestoreConfig(kind=kind), None if run_dir is None else run_dir / "restorer")
+    return RestoreJobs(restorer, cache)
 
 
 def initial_state(src: ViewerSource, gaussians: Any) -> AppState:

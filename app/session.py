@@ -263,8 +263,10 @@ class RestoreQueue:
     """Queue restorations: ``build_request()`` (renders, slow) runs on a worker thread, then the
     request goes to ``jobs.submit(request, round, key, meta)``."""
 
-    def __init__(self, jobs: Any, round_index: Callable[[], int]) -> None:
+    def __init__(self, jobs: Any, round_index: Callable[[], int], kind: str = "warp") -> None:
         self.jobs = jobs
+        self.kind = kind  # the restorer kind new jobs use
+        self._retired: list[Any] = []  # earlier jobs objects, still finishing what they took
         self.round_index = round_index
         self.items: list[QueuedRestore] = []
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="viewer-restore-render")
@@ -290,6 +292,11 @@ class RestoreQueue:
         self.items.append(item)
         return item
 
+    def set_jobs(self, jobs: Any, kind: str) -> None:
+        """New requests go to ``jobs`` (another restorer); queued ones finish where they are."""
+        self._retired.append(self.jobs)
+        self.jobs, self.kind = jobs, kind
+
     def wait_all(self, timeout: float = 600.0) -> bool:
         """Block until every queued item finished (tests and scripts). True if all did."""
         deadline = time.monotonic() + timeout
@@ -308,7 +315,8 @@ class RestoreQueue:
             if item.status in ("rendering", "queued"):
                 item.cancel()
         self._pool.shutdown(wait=False, cancel_futures=True)
-        self.jobs.shutdown()
+        for jobs in [*self._retired, self.jobs]:
+            jobs.shutdown()
 
 
 def restore_request(model_render: Callable[[Camera, float], dict[str, np.ndarray]], scene: Any,
