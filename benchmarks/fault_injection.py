@@ -2,8 +2,10 @@
 
     python benchmarks/fault_injection.py --out /tmp/fi --kills 10 [--seed 0] [--json result.json]
 
-1. An uninterrupted reference run of the tiny scene (``TINY_SETTINGS``) into OUT/reference,
-   whose stage timeline (when each stage name appears in RUN/stages.json, measured from the
+1. Uninterrupted reference runs of the tiny scene (``TINY_SETTINGS``) into
+   OUT/reference_<i> (``--references``, default 2: the first also compiles and warms caches).
+   They must agree exactly (else the pipeline is nondeterministic without any kill). The last
+   one's stage timeline (when each stage name appears in RUN/stages.json, measured from the
    moment the process rewrote RUN/config.json) gives every stage's duration.
 2. A second run folder OUT/killed: ``--kills`` times, start (or resume) the same command,
    wait until the target stage is under way, sleep a random fraction of that stage's reference
@@ -284,24 +286,37 @@ def check_config_change(killed: Path, fresh: Path, settings: dict[str, Any], cha
 # ---- the whole experiment ----------------------------------------------------------------------
 def run_experiment(out: Path, kills: int, settings: dict[str, Any], seed: int = 0,
                    change: dict[str, Any] | None = None, timeout_s: float = 1800.0,
-                   targets: list[tuple[str, float]] | None = None, log=print) -> dict[str, Any]:
+                   targets: list[tuple[str, float]] | None = None, references: int = 2,
+                   log=print) -> dict[str, Any]:
     """Steps 1-3 of the module doc; returns a JSON-able result with ``ok`` and ``problems``.
 
     targets: (stage, fraction of its reference duration) per kill, in pipeline order, instead
     of ``kills`` random points; the test uses it to place its few kills where resuming is
-    hardest (training before and after its first checkpoint)."""
+    hardest (training before and after its first checkpoint).
+    references: uninterrupted runs before the kills. The first one also compiles the numba
+    kernels (cached on disk) and warms the file cache, which would stretch its stage times and
+    make kills land late, so the timeline is the last one's; all must agree exactly (a
+    difference there is nondeterminism that has nothing to do with resuming)."""
     out = Path(out)
     rng = random.Random(seed)
-    ref_dir, run_dir = out / "reference", out / "killed"
-    for d in (ref_dir, run_dir, out / "fresh_changed"):
+    ref_dirs = [out / f"reference_{i}" for i in range(max(1, references))]
+    ref_dir, run_dir = ref_dirs[-1], out / "killed"
+    for d in (*ref_dirs, run_dir, out / "fresh_changed"):
         if d.exists():
             raise SystemExit(f"{d} exists; pass an empty --out")
-    ref = launch(ref_dir, settings, timeout_s=timeout_s)
-    if ref.returncode != 0:
-        raise SystemExit(f"the reference run failed (exit {ref.returncode}):\n{ref.stderr_tail}")
+    problems: list[str] = []
+    for d in ref_dirs:
+        ref = launch(d, settings, timeout_s=timeout_s)
+        if ref.returncode != 0:
+            raise SystemExit(f"the reference run {d} failed (exit {ref.returncode}):\n{ref.stderr_tail}")
+        log(f"{d.name}: {ref.wall_s:.1f} s wall")
+    for d in ref_dirs[:-1]:
+        found = compare_reports(json.loads((d / "report.json").read_text()),
+                                json.loads((ref_dir / "report.json").read_text())) + compare_artifacts(d, ref_dir)
+        problems += [f"uninterrupted runs differ ({d.name} vs {ref_dir.name}): {p}" for p in found]
     order = _stages(ref_dir)
     durations = stage_durations(ref.timeline)
-    log(f"reference: {ref.wall_s:.1f} s wall, stages " + ", ".join(f"{k} {v:.1f}s" for k, v in durations.items()))
+    log("stages " + ", ".join(f"{k} {v:.1f}s" for k, v in durations.items()))
 
     attempts: list[Attempt] = []
     if targets is not None:
@@ -326,7 +341,6 @@ def run_experiment(out: Path, kills: int, settings: dict[str, Any], seed: int = 
         log(f"kill {len(attempts)}: target {stage} +{delay:.2f}s, killed {att.killed_after_s:.2f}s after launch "
             f"in {att.landed or 'the report'}")
     final = launch(run_dir, settings, timeout_s=timeout_s)
-    problems: list[str] = []
     if final.returncode != 0:
         problems.append(f"the final resume failed (exit {final.returncode}): {final.stderr_tail[-600:]}")
     landed = [a.landed or "report" for a in attempts if a.killed_after_s is not None]
@@ -347,7 +361,7 @@ def run_experiment(out: Path, kills: int, settings: dict[str, Any], seed: int = 
     result = {
         "ok": not problems, "problems": problems, "kills": len(landed), "kills_per_stage":
             {s: landed.count(s) for s in dict.fromkeys(order + ["report"]) if landed.count(s)},
-        "stages": order, "reference_wall_s": ref.wall_s, "reference_stage_s": durations,
+        "stages": order, "references": len(ref_dirs), "reference_wall_s": ref.wall_s, "reference_stage_s": durations,
         "attempts": [{"target": a.target, "landed": a.landed, "killed_after_s": a.killed_after_s,
                       "wall_s": a.wall_s} for a in attempts],
         "final_resume_wall_s": final.wall_s, "settings": settings, "seed": seed, "config_change": change_info,
@@ -358,13 +372,15 @@ def run_experiment(out: Path, kills: int, settings: dict[str, Any], seed: int = 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", required=True, help="empty scratch folder (reference/, killed/, fresh_changed/)")
+    p.add_argument("--out", required=True, help="empty scratch folder (reference_<i>/, killed/, fresh_changed/)")
     p.add_argument("--kills", type=int, default=10, help="SIGKILLs (>= the number of stages puts one in each)")
     p.add_argument("--seed", type=int, default=0, help="seed of the kill points")
     p.add_argument("--fast", action="store_true", help="the test's smaller settings instead of the tiny pipeline's")
     p.add_argument("--set", action="append", default=[], metavar="KEY=JSON", help="extra pipeline settings")
     p.add_argument("--change", action="append", default=None, metavar="KEY=JSON",
                    help="the config change of the stale-cache check (default trajectories.seed=1)")
+    p.add_argument("--references", type=int, default=2,
+                   help="uninterrupted runs first (the first warms caches; all must agree); default 2")
     p.add_argument("--json", help="write the result here")
     args = p.parse_args(argv)
     settings = dict(FAST_SETTINGS if args.fast else TINY_SETTINGS)
@@ -374,7 +390,7 @@ def main(argv: list[str] | None = None) -> int:
     change = DEFAULT_CHANGE if args.change is None else {
         k: json.loads(v) for k, _, v in (c.partition("=") for c in args.change)}
     t0 = time.perf_counter()
-    result = run_experiment(Path(args.out), args.kills, settings, args.seed, change)
+    result = run_experiment(Path(args.out), args.kills, settings, args.seed, change, references=args.references)
     result["total_wall_s"] = time.perf_counter() - t0
     result["load_average"] = os.getloadavg()
     text = json.dumps(result, indent=2)

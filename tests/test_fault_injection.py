@@ -72,7 +72,7 @@ def test_killed_and_resumed_run_equals_the_uninterrupted_one(fi, tmp_path):
     # stage 1 killed early (before its first checkpoint: the resume starts the stage over from the
     # init clouds on disk) and stage 2 mid-way (resumes from a checkpoint, cache partly written)
     result = fi.run_experiment(tmp_path, 2, fi.FAST_SETTINGS, seed=0, change=fi.DEFAULT_CHANGE,
-                               targets=[("stage1", 0.1), ("stage2", 0.6)], log=lambda *_: None)
+                               targets=[("stage1", 0.1), ("stage2", 0.6)], references=1, log=lambda *_: None)
     assert result["ok"], "\n".join(result["problems"])
     assert result["kills"] == 2 and result["metric_tolerance"] == 0.0
     assert result["config_change"]["outcome"] in ("refused", "recomputed")
