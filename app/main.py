@@ -1,6 +1,7 @@
 """`fixer4d-view [RUN_DIR | SCENE]`: the desktop viewer/editor.
 
-    fixer4d-view                      the built-in demo scene, trained live in the background
+    fixer4d-view                      a window with a chooser (File > Open; recent runs, the demo)
+    fixer4d-view MODEL.ply            a model file (with its run's scene when it sits in a run folder)
     fixer4d-view runs/demo            a run folder: model_final.ply (or model_stage1.ply), cache
     fixer4d-view path/to/scene        any scene load_scene opens, trained live
     fixer4d-view --screenshot out.png --frames 30 [SOURCE]
@@ -22,6 +23,8 @@ from typing import Any
 import numpy as np
 
 from app.camera_control import ViewCamera, rig_up
+from app.files import remember_recent
+from app.notifications import LOG
 from app.session import RestoreQueue, TrainingSession, live_stage1_trainer
 from app.state import AppState
 from app.viewer import Viewer, ViewerSource
@@ -53,8 +56,9 @@ IDLE_WAIT_S = 0.25
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fixer4d-view", description=__doc__.splitlines()[0])
-    p.add_argument("source", nargs="?", default="demo",
-                   help="a run folder (with config.json), a scene (folder, spec .json, 'demo'); default: demo")
+    p.add_argument("source", nargs="?", default=None,
+                   help="a run folder (with config.json), a model file (.ply / .npz), a scene (folder, spec .json, "
+                        "'demo'); without one the window opens with a chooser (--screenshot: the demo)")
     p.add_argument("--screenshot", metavar="FILE", help="render --frames frames, save the window image to FILE, exit")
     p.add_argument("--frames", type=int, default=30, help="frames to render before --screenshot (default 30)")
     p.add_argument("--size", default=f"{DEFAULT_SIZE[0]}x{DEFAULT_SIZE[1]}", help="window size WxH")
@@ -222,8 +226,19 @@ def run_window(args: argparse.Namespace) -> int:
     import moderngl
     from imgui_bundle import imgui
 
-    src, gaussians, session_dir = open_source(args.source, scale=args.scale, iterations=args.iterations,
-                                              init=args.init, init_frames=args.init_frames)
+    startup_error: Exception | None = None
+    source = args.source if args.source is not None or not args.screenshot else "demo"
+    if source is None:  # the desktop entry: open the window with the chooser
+        src, gaussians, session_dir = ViewerSource(label="nothing open: File > Open"), None, _config_dir() / "start"
+    else:
+        try:
+            src, gaussians, session_dir = open_source(source, scale=args.scale, iterations=args.iterations,
+                                                      init=args.init, init_frames=args.init_frames)
+            remember_recent(_config_dir(), str(Path(source).resolve()) if Path(source).exists() else source)
+        except Exception as exc:  # started without a terminal: say it in the window, not only on stderr
+            LOG.exception("could not open %s", source)
+            startup_error = exc
+            src, gaussians, session_dir = ViewerSource(label=f"could not open {source}"), None, _config_dir() / "start"
     state = initial_state(src, gaussians)
     w, h = (int(v) for v in args.size.lower().split("x"))
     if not glfw.init():
@@ -244,10 +259,16 @@ def run_window(args: argparse.Namespace) -> int:
     viewer = Viewer(ctx, state, src, ini_path=None if args.no_session else session_dir / "imgui.ini",
                     session_path=None if args.no_session else session_dir / "session.json",
                     platform_init=lambda: imgui.backends.glfw_init_for_opengl(address, True))
+    if startup_error is not None:
+        viewer.report_error("open", startup_error)
+    if src.scene is None and gaussians is None:
+        from app.panels import files
+
+        files.ask(viewer, "open", "" if source is None else source)
     if src.training is not None:
         src.training.start()
     status = 0
-    frames_with_model = 0
+    frames_with_model = frames = 0
     started = time.monotonic()
     last = time.perf_counter()
     try:
@@ -261,14 +282,16 @@ def run_window(args: argparse.Namespace) -> int:
             viewer.frame(now - last, fbo, platform_new_frame=imgui.backends.glfw_new_frame)
             last = now
             if args.screenshot:
-                frames_with_model += state.gaussians is not None
-                failed = src.training is not None and src.training.state == "failed"
+                frames += 1
+                frames_with_model += viewer.state.gaussians is not None
+                failed = (src.training is not None and src.training.state == "failed") or \
+                    (startup_error is not None and frames >= args.frames)
                 if frames_with_model >= args.frames or failed or time.monotonic() - started > SCREENSHOT_MODEL_TIMEOUT_S:
                     save_png(args.screenshot, viewer.screenshot(fbo))
                     print(f"fixer4d-view: wrote {args.screenshot} after {frames_with_model} frames with a model")
-                    if state.gaussians is None:
-                        print("fixer4d-view: no model arrived in time: "
-                              f"{src.training.error if src.training else 'nothing to show'}", file=sys.stderr)
+                    if viewer.state.gaussians is None:
+                        why = startup_error or (src.training.error if src.training else "nothing to show")
+                        print(f"fixer4d-view: no model to show: {why}", file=sys.stderr)
                         status = 1
                     break
             glfw.swap_buffers(window)
@@ -299,8 +322,26 @@ def save_png(path: str | Path, image: np.ndarray) -> None:
         Image.fromarray(image).save(tmp)
 
 
+def setup_logging() -> Path:
+    """Log the viewer's messages (notifications, errors with tracebacks) to
+    ~/.config/fixer4d/view/viewer.log as well as stderr: a viewer started from the desktop has
+    no terminal. Returns the log file's path."""
+    import logging
+
+    path = _config_dir() / "viewer.log"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    log = logging.getLogger("fixer4d.view")
+    if not log.handlers:
+        handler = logging.FileHandler(path, encoding="utf-8")
+        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
+        log.addHandler(handler)
+        log.setLevel(logging.INFO)
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    setup_logging()
     try:
         status = run_window(args)
     except Fixer4DError as exc:

@@ -594,19 +594,31 @@ class Viewer:
         return f"opened {path} ({g.n} Gaussians)"
 
     def open_path(self, text: str) -> str:
-        """File > Open: a run folder or a model file (a model of the open run switches the
-        version; anything else replaces the source, with its own session)."""
+        """File > Open: a run folder, a model file (a model of the open run switches the
+        version), or a scene (folder, spec .json, bundled name such as "demo": trained live);
+        anything but a version replaces the source, with its own session."""
         from app.files import is_model_file, is_run_folder, resolve_input
         from app.main import open_source
         from fixer4d.errors import InputError
 
-        path = resolve_input(text, self.output_dir)
-        if not (is_run_folder(path) or (path.is_file() and is_model_file(path))):
-            raise InputError(f"{path}: not a run folder (with config.json) or a model file (.ply / .npz)")
-        if self.source.run_dir is not None and path.is_file() and path.parent == Path(self.source.run_dir):
+        from app.files import remember_recent
+        from app.main import _config_dir
+
+        try:
+            path = resolve_input(text, self.output_dir)
+        except InputError:
+            if Path(text).expanduser().is_absolute() or "/" in text:
+                raise
+            path = None  # a bundled scene name ("demo"): trained live
+        if path is not None and self.source.run_dir is not None and path.is_file() \
+                and path.parent == Path(self.source.run_dir) and is_model_file(path):
             return self.open_version(path)
-        src, g, session_dir = open_source(str(path))
+        if path is not None and not (is_run_folder(path) or (path.is_file() and is_model_file(path)) or path.is_dir()
+                                     or path.suffix == ".json"):
+            raise InputError(f"{path}: not a run folder (with config.json), a model file (.ply / .npz) or a scene")
+        src, g, session_dir = open_source(text if path is None else str(path))
         self.switch_source(src, g, session_dir)
+        remember_recent(_config_dir(), text if path is None else str(path))
         return f"opened {src.label}"
 
     def switch_source(self, src: ViewerSource, gaussians: Any, session_dir: Path) -> None:
