@@ -357,12 +357,28 @@ if numba is not None:
         left-to-right float sum cannot be); the order is still fixed by the code, so results do
         not depend on timing."""
         L = _LANES_U
-        for j in range(_N_GRAD):
-            base = (_GU_MX + np.uint64(j)) * L
-            acc = _ZERO
-            for p in range(lo, hi):
-                acc += st[base + p]
-            out[g, j] += acc
+        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = s9 = _ZERO
+        for p in range(lo, hi):  # one pass, ten running sums (vectorized as ten lane vectors)
+            s0 += st[_GU_MX * L + p]
+            s1 += st[_GU_MY * L + p]
+            s2 += st[_GU_A * L + p]
+            s3 += st[_GU_B * L + p]
+            s4 += st[_GU_C * L + p]
+            s5 += st[_GU_O * L + p]
+            s6 += st[_GU_R * L + p]
+            s7 += st[_GU_G * L + p]
+            s8 += st[_GU_BL * L + p]
+            s9 += st[_GU_Z * L + p]
+        out[g, _G_MX] += s0
+        out[g, _G_MY] += s1
+        out[g, _G_A] += s2
+        out[g, _G_B] += s3
+        out[g, _G_C] += s4
+        out[g, _G_O] += s5
+        out[g, _G_R] += s6
+        out[g, _G_G] += s7
+        out[g, _G_BL] += s8
+        out[g, _G_Z] += s9
 
     @njit(cache=True, error_model="numpy")
     def _backward_tile(rec, ids, start, x0, y0, width, height, trans, count, g_color, g_trans, g_depth, out):
