@@ -269,6 +269,15 @@ def build_restorer(settings: dict[str, Any], weights_dir: Path | None = None):
     return build(RestoreConfig.from_dict(settings), weights_dir)
 
 
+def _check_restorer(config: "PipelineConfig") -> None:
+    # [issue 12, helper C] validate the restorer settings; cogvideo must be runnable here
+    from fixer4d.restore.config import RestoreConfig
+
+    rc = RestoreConfig.from_dict(config.restorer)
+    if rc.kind == "cogvideo":
+        build_restorer(config.restorer)
+
+
 def _scene_restorer(scene, clouds, config: "PipelineConfig", run_dir: Path, times: "StageTimes", progress: bool):
     # [issue 12, helper C] the learned restorer is trained (leave-one-camera-out, train cameras
     # only) into RUN/restorer before its first use; other kinds are just built
@@ -452,6 +461,7 @@ def run_pipeline(config: PipelineConfig, run_dir: str | Path, *, progress: bool 
     models are kept and reused by runs whose settings match (see StageCache).
     """
     run_dir = Path(run_dir)
+    _check_restorer(config)  # [issue 12, helper C] a bad kind or an unavailable cogvideo stops before any work
     run_dir.mkdir(parents=True, exist_ok=True)
     cfg_path = run_dir / "config.json"
     if cfg_path.exists():
