@@ -17,7 +17,7 @@ TORCH  := torch==2.13.0
 RUN    ?= runs/demo
 PYTEST_ARGS ?=
 
-.PHONY: setup run test bench deb clean-venv
+.PHONY: setup run test bench deb clean-venv install-desktop
 
 setup: deb $(STAMP) $(LPIPS)
 
@@ -57,3 +57,16 @@ bench: setup
 
 clean-venv:
 	rm -rf $(VENV)
+
+# The viewer as a desktop application (freedesktop menu entry + icon, for this user): it starts
+# this checkout's fixer4d-view with a chooser; errors show in the window and in
+# ~/.config/fixer4d/view/viewer.log.
+DATA_HOME ?= $(or $(XDG_DATA_HOME),$(HOME)/.local/share)
+install-desktop: setup
+	mkdir -p $(DATA_HOME)/applications $(DATA_HOME)/icons/hicolor/scalable/apps
+	sed -e 's|^Exec=fixer4d-view|Exec=$(abspath $(VENV))/bin/fixer4d-view|' \
+	    -e 's|^TryExec=fixer4d-view|TryExec=$(abspath $(VENV))/bin/fixer4d-view|' \
+	    assets/desktop/fixer4d-view.desktop > $(DATA_HOME)/applications/fixer4d-view.desktop
+	cp assets/desktop/fixer4d-view.svg $(DATA_HOME)/icons/hicolor/scalable/apps/fixer4d-view.svg
+	-update-desktop-database $(DATA_HOME)/applications 2>/dev/null
+	@echo "installed $(DATA_HOME)/applications/fixer4d-view.desktop"

@@ -1,23 +1,29 @@
-"""`fixer4d bench viewer`: the splat renderer's frame time and the UI's frame time while
-training runs.
+"""`fixer4d bench viewer`: the splat renderer's frame time, the whole viewer's frame rate while
+orbiting the demo, and live training's speed in the viewer against the same training without it.
 
 Part 1, per Gaussian count (default 10k, 100k, 1M) at 1280x720: sort (depth order at the
 current time, the worker thread's job, timed here inline), upload (the sorted index buffer),
-draw (instanced splats until the GPU finishes), median over repeats with the camera moving
-a little each repeat so every frame re-sorts. The one-time parameter-texture upload is
-reported separately. Gaussians lie on a unit sphere (a surface, like a trained model's) with a
-density-matched size (std = SCALE_PER_SPACING x the mean spacing on the surface), so the
-overdraw per pixel stays similar across counts.
+draw (preparation pass + instanced splats until the GPU finishes), median over repeats with
+the camera moving a little each repeat so every frame re-sorts. The one-time parameter-texture
+upload is reported separately. Gaussians lie on a unit sphere (a surface, like a trained
+model's) with a density-matched size (std = SCALE_PER_SPACING x the mean spacing on the
+surface), so the overdraw per pixel stays similar across counts.
 
-Part 2: the whole viewer (imgui panels + 3D view) headless on the "tiny" synthetic scene, the
-median UI frame time with training idle and while ``Trainer.step()`` runs in its thread.
+Part 2 (``orbit_fps``): the whole viewer (panels + 3D view, 1440x900 window) on the demo with a
+30k-splat model (``--model`` a run folder or model file; default the demo's true surfaces
+back-projected, see ``demo_surface_gaussians``) while a left-drag orbits the camera every
+frame: frames per second with adaptive resolution, and at full resolution for comparison.
 
-Prints a table and writes JSON (default benchmarks/results/viewer.json). On this machine the
-GL is Mesa llvmpipe (software rasterizer on the CPU): the numbers say so in "renderer".
+Part 3 (``live_vs_pipeline_ratio``): ``bench_live``.
+
+Prints a table and writes JSON (default benchmarks/results/viewer.json) with the load average,
+since the machine may be shared. On this machine the GL is Mesa llvmpipe (software rasterizer
+on the CPU): the numbers say so in "renderer".
 """
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import statistics
 import time
@@ -31,9 +37,8 @@ DEFAULT_COUNTS = (10_000, 100_000, 1_000_000)
 # Gaussian std as a fraction of the mean spacing sqrt(4 pi / N) on the unit sphere: neighbours
 # overlap like a trained model's, so the fragments per pixel do not explode or vanish with N.
 SCALE_PER_SPACING = 0.5
-# The UI loop is paced like a 60 Hz vsync'd window (the app swaps with swap_interval 1): the
-# rest of each frame period is left to training.
-FRAME_PERIOD_S = 1.0 / 60.0
+# Live-training steps left out of the timing (first renders, allocator warm-up).
+LIVE_WARMUP_STEPS = 10
 
 
 def synthetic_gaussians(n: int, seed: int = 0):
@@ -89,53 +94,66 @@ def bench_splats(ctx, counts, width: int, height: int, repeats: int) -> list[dic
     return rows
 
 
-def bench_ui(ctx, frames: int, iterations: int) -> dict:
-    from app.main import initial_state, live_trainer
-    from app.session import TrainingSession
+def bench_live(iterations: int, steps: int, warmup: int, scene_name: str = "demo") -> dict:
+    """Live training in the viewer vs the same stage 1 without it: one setup function
+    (``live_stage1_trainer``: the pipeline's stage-1 config, sparse init on 2 frames) builds two
+    trainers; steps ``warmup..steps`` are timed (a) in a plain loop, as ``fixer4d run`` steps,
+    (b) in the viewer's training thread while the whole UI draws headless, paced like the
+    window loop (app.main.pace_frame). Returns steps/s of both and their ratio."""
+    import moderngl
+
+    from app.main import initial_state, pace_frame
+    from app.session import TrainingSession, live_stage1_trainer
     from app.viewer import Viewer, ViewerSource
     from fixer4d.scene import load_scene
 
-    scene = load_scene("tiny")
-    training = TrainingSession(lambda: live_trainer(scene, iterations, "sparse", 2), publish_every=10)
+    scene = load_scene(scene_name)
+
+    def setup(report=lambda text: None):
+        return live_stage1_trainer(scene, iterations, "sparse", 2, report)
+
+    trainer = setup()
+    tic = None
+    for k in range(steps):
+        if k == warmup:
+            tic = time.perf_counter()
+        trainer.step()
+    pipeline_rate = (steps - warmup) / (time.perf_counter() - tic)
+    gaussians_plain = trainer.model.num_gaussians
+    del trainer
+
+    ctx = moderngl.create_standalone_context(backend="egl", require=330)
+    training = TrainingSession(setup)
     src = ViewerSource(scene=scene, label="bench", training=training)
-    state = initial_state(src, None)
-    viewer = Viewer(ctx, state, src)
-    fbo = ctx.simple_framebuffer((1280, 720))
+    viewer = Viewer(ctx, initial_state(src, None), src)
+    fbo = ctx.simple_framebuffer((1440, 900))
+    frames, tic, tic_step = 0, None, None
     try:
         training.start()
-        deadline = time.monotonic() + 300
-        while state.gaussians is None and time.monotonic() < deadline:
-            viewer.frame(1 / 60, fbo)
-            time.sleep(0.05)
-        if state.gaussians is None:
-            raise RuntimeError(f"training did not start: {training.error or training.state}")
-        training.pause()
-        time.sleep(0.2)
-        for _ in range(5):
-            viewer.frame(1 / 60, fbo)
-        idle = []
-        for _ in range(frames):
-            tic_frame = time.perf_counter()
-            viewer.frame(FRAME_PERIOD_S, fbo)
-            idle.append(viewer.frame_ms)
-            time.sleep(max(0.0, FRAME_PERIOD_S - (time.perf_counter() - tic_frame)))
-        step0, tic = training.step, time.perf_counter()
-        training.resume()
-        busy = []
-        for _ in range(frames):
-            tic_frame = time.perf_counter()
-            viewer.frame(FRAME_PERIOD_S, fbo)
-            busy.append(viewer.frame_ms)
-            time.sleep(max(0.0, FRAME_PERIOD_S - (time.perf_counter() - tic_frame)))
-        steps_per_s = (training.step - step0) / (time.perf_counter() - tic)
+        deadline = time.monotonic() + 1800
+        while training.step < steps and training.state not in ("failed", "done") and time.monotonic() < deadline:
+            start = time.perf_counter()
+            viewer.frame(1.0 / 10, fbo)
+            ctx.finish()
+            frames += 1
+            if tic is None and training.step >= warmup:
+                tic, tic_step = time.perf_counter(), training.step
+            pace_frame(viewer, start)
+        if training.state == "failed":
+            raise RuntimeError(f"live training failed: {training.error}")
+        viewer_rate = (training.step - tic_step) / (time.perf_counter() - tic)
+        gaussians_viewer = 0 if viewer.state.gaussians is None else viewer.state.gaussians.n
+        ui_fps = frames / max(time.perf_counter() - tic, 1e-9) if tic else 0.0
     finally:
         viewer.close()
-    out = {"scene": "tiny", "window": [1280, 720], "gaussians": state.gaussians.n,
-           "ui_frame_ms_idle": statistics.median(idle), "ui_frame_ms_training": statistics.median(busy),
-           "ui_frame_ms_training_p90": float(np.percentile(busy, 90)), "training_steps_per_s": steps_per_s}
-    print(f"  UI frame (1280x720 window, {out['gaussians']} Gaussians, paced at 60 Hz): idle {out['ui_frame_ms_idle']:.1f} ms, "
-          f"training {out['ui_frame_ms_training']:.1f} ms (p90 {out['ui_frame_ms_training_p90']:.1f}), "
-          f"{steps_per_s:.1f} training steps/s meanwhile", flush=True)
+        ctx.release()
+    out = {"scene": scene_name, "iterations": iterations, "timed_steps": [warmup, steps],
+           "pipeline_steps_per_s": pipeline_rate, "viewer_steps_per_s": viewer_rate,
+           "live_vs_pipeline_ratio": viewer_rate / pipeline_rate, "gaussians_pipeline": gaussians_plain,
+           "gaussians_viewer_shown": gaussians_viewer, "ui_frames_per_s_while_training": ui_fps}
+    print(f"  live training ({scene_name}, stage-1 config for {iterations} iterations, steps {warmup}..{steps}): "
+          f"{viewer_rate:.2f} steps/s in the viewer vs {pipeline_rate:.2f} without it "
+          f"(ratio {out['live_vs_pipeline_ratio']:.2f}; UI {ui_fps:.1f} frames/s meanwhile)", flush=True)
     return out
 
 
@@ -146,8 +164,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--counts", default=",".join(str(c) for c in DEFAULT_COUNTS), help="Gaussian counts")
     p.add_argument("--size", default="1280x720")
     p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--ui-frames", type=int, default=40)
-    p.add_argument("--ui-iterations", type=int, default=2000)
+    p.add_argument("--orbit-frames", type=int, default=30, help="frames of the orbit measurement")
+    p.add_argument("--model", default=None, help="run folder or model file for the orbit (default: a 30k-splat "
+                                                 "model of the demo's surfaces)")
+    p.add_argument("--live-iterations", type=int, default=500, help="stage-1 iterations of the live-training config")
+    p.add_argument("--live-steps", type=int, default=60, help="steps timed in each live-training run (after 10)")
     p.add_argument("--out", default="benchmarks/results/viewer.json")
     args = p.parse_args(argv)
     width, height = (int(v) for v in args.size.lower().split("x"))
@@ -156,9 +177,101 @@ def main(argv: list[str] | None = None) -> int:
     print(f"viewer benchmark on {renderer} ({'software, CPU' if 'llvmpipe' in renderer else 'GPU'}), "
           f"{width}x{height}", flush=True)
     splats = bench_splats(ctx, [int(c) for c in args.counts.split(",")], width, height, args.repeats)
-    ui = bench_ui(ctx, args.ui_frames, args.ui_iterations)
+    orbit = bench_orbit(ctx, args.model, args.orbit_frames, (1440, 900))
+    live = bench_live(args.live_iterations, args.live_steps, LIVE_WARMUP_STEPS)
+    load = os.getloadavg()
     result = {"benchmark": "viewer", "renderer": renderer, "size": [width, height], "machine": platform.machine(),
-              "splats": splats, "ui": ui}
+              "cpu_count": os.cpu_count(), "load_average_1_5_15": list(load), "splats": splats, "orbit": orbit,
+              "live": live, "orbit_fps": orbit["orbit_fps"], "live_vs_pipeline_ratio": live["live_vs_pipeline_ratio"]}
     write_json(Path(args.out), result)
     print(f"wrote {args.out}")
     return 0
+
+
+def demo_surface_gaussians(scene, target: int = 30_000, frame: int = 0):
+    """A stand-in for the demo's trained model when no run folder is given: about ``target``
+    static Gaussians on the scene's true surfaces (every k-th pixel of each train view at
+    ``frame`` back-projected with its depth, coloured by the pixel, sized to the sample
+    spacing), so the splat count, sizes and screen coverage are those of a trained model."""
+    from app.gaussians import GaussianArrays
+    from fixer4d.model.spacetime import SH_C0
+
+    pixels = sum(scene.cameras[i].width * scene.cameras[i].height for i in scene.train_ids)
+    stride = max(1, int(round(np.sqrt(pixels / target))))
+    pts, cols, sizes = [], [], []
+    for i in scene.train_ids:
+        cam = scene.cameras[i]
+        depth = scene.depth(frame, i)
+        ok = np.isfinite(depth)
+        xyz = cam.backproject_depth(np.where(ok, depth, 0.0))
+        sel = np.zeros(depth.shape, bool)
+        sel[::stride, ::stride] = True
+        sel &= ok
+        pts.append(xyz[sel])
+        cols.append(scene.frame(frame, i)[sel])
+        sizes.append(depth[sel] * stride / cam.fx / 2.0)
+    p, c, s = np.concatenate(pts), np.concatenate(cols), np.concatenate(sizes)
+    n = p.shape[0]
+    return GaussianArrays(means=p, log_scales=np.log(np.repeat(s[:, None], 3, 1)), quats=np.tile([1.0, 0, 0, 0], (n, 1)),
+                          opacity_logits=np.full(n, 3.0), colors=(c - 0.5) / SH_C0, t_center=np.zeros(n),
+                          t_log_scale=np.zeros(n), motion=np.zeros((n, 9)), omega=np.zeros((n, 4)),
+                          dynamic=np.zeros(n, bool), model_config={"motion_degree": 3, "rotation_velocity": True,
+                                                                   "temporal_opacity": True, "sh_degree": 0})
+
+
+def bench_orbit(ctx, model: str | None, frames: int, window: tuple[int, int]) -> dict:
+    """The whole viewer (panels + 3D view) on the demo while the mouse orbits the camera (a
+    steady left-drag fed through imgui's io, one step per frame): frames per second with
+    adaptive resolution and with it off, each frame finished on the GPU before the next."""
+    from imgui_bundle import imgui
+
+    from app.main import initial_state, open_source
+    from app.viewer import Viewer, ViewerSource
+    from fixer4d.scene import load_scene
+
+    if model:
+        src, g, _ = open_source(model)
+        label = model
+    else:
+        scene = load_scene("demo")
+        g = demo_surface_gaussians(scene)
+        src = ViewerSource(scene=scene, label="demo (surface model)")
+        label = f"demo scene surfaces, {g.n} static Gaussians (no run folder given)"
+    fbo = ctx.simple_framebuffer(window)
+    out = {"model": label, "gaussians": int(g.n), "window": list(window)}
+    for adaptive in (True, False):
+        state = initial_state(src, g)
+        state.show_frusta = state.show_trajectories = False
+        viewer = Viewer(ctx, state, src)
+        viewer.adaptive.enabled = adaptive
+        try:
+            for _ in range(3):  # layout, first sort, shader warm-up
+                viewer.frame(1 / 60, fbo)
+            x0, y0, w, h = viewer.viewport_rect
+            io = imgui.get_io()
+            io.add_mouse_pos_event(x0 + w / 2, y0 + h / 2)
+            viewer.frame(1 / 60, fbo)
+            io.add_mouse_button_event(0, True)
+            viewer.frame(1 / 60, fbo)
+            times, scales = [], []
+            for k in range(frames):
+                io.add_mouse_pos_event(x0 + w / 2 + 4.0 * (k + 1), y0 + h / 2)
+                tic = time.perf_counter()
+                viewer.frame(1 / 60, fbo)
+                ctx.finish()
+                times.append(time.perf_counter() - tic)
+                scales.append(viewer.adaptive.scale)
+            io.add_mouse_button_event(0, False)
+            viewer.frame(1 / 60, fbo)
+        finally:
+            viewer.close()
+        key = "adaptive" if adaptive else "full_resolution"
+        out[f"orbit_fps_{key}"] = len(times) / sum(times)
+        out[f"orbit_frame_ms_{key}_median"] = 1e3 * statistics.median(times)
+        if adaptive:
+            out["orbit_render_scale_median"] = statistics.median(scales)
+    out["orbit_fps"] = out["orbit_fps_adaptive"]
+    print(f"  orbit ({label}, {window[0]}x{window[1]} window): {out['orbit_fps_adaptive']:.1f} fps adaptive "
+          f"(median scale {out['orbit_render_scale_median']:.2f}), {out['orbit_fps_full_resolution']:.1f} fps "
+          f"at full resolution", flush=True)
+    return out

@@ -88,3 +88,27 @@ def resolve_input(text: str, base: Path) -> Path:
     if not p.exists():
         raise InputError(f"{p}: no such file or folder")
     return p
+
+
+# Entries kept in the recently-opened list (the start chooser shows them).
+MAX_RECENT = 12
+RECENT_FILE = "recent.json"
+
+
+def recent(config_dir: Path) -> list[str]:
+    """Recently opened sources (newest first) from ``config_dir/recent.json``; [] when absent
+    or unreadable."""
+    try:
+        items = json.loads((Path(config_dir) / RECENT_FILE).read_text())
+    except (ValueError, OSError):
+        return []
+    return [str(x) for x in items if isinstance(x, str)][:MAX_RECENT] if isinstance(items, list) else []
+
+
+def remember_recent(config_dir: Path, source: str) -> None:
+    """Put ``source`` first in the recently-opened list."""
+    from fixer4d.atomic import write_json
+
+    items = [source] + [x for x in recent(config_dir) if x != source]
+    Path(config_dir).mkdir(parents=True, exist_ok=True)
+    write_json(Path(config_dir) / RECENT_FILE, items[:MAX_RECENT])

@@ -1,6 +1,7 @@
 """`fixer4d-view [RUN_DIR | SCENE]`: the desktop viewer/editor.
 
-    fixer4d-view                      the built-in demo scene, trained live in the background
+    fixer4d-view                      a window with a chooser (File > Open; recent runs, the demo)
+    fixer4d-view MODEL.ply            a model file (with its run's scene when it sits in a run folder)
     fixer4d-view runs/demo            a run folder: model_final.ply (or model_stage1.ply), cache
     fixer4d-view path/to/scene        any scene load_scene opens, trained live
     fixer4d-view --screenshot out.png --frames 30 [SOURCE]
@@ -22,7 +23,9 @@ from typing import Any
 import numpy as np
 
 from app.camera_control import ViewCamera, rig_up
-from app.session import RestoreQueue, TrainingSession
+from app.files import remember_recent
+from app.notifications import LOG
+from app.session import RestoreQueue, TrainingSession, live_stage1_trainer
 from app.state import AppState
 from app.viewer import Viewer, ViewerSource
 from fixer4d.errors import Fixer4DError, InputError
@@ -43,12 +46,19 @@ SCREENSHOT_MODEL_TIMEOUT_S = 900.0
 # Gaussians spans the gaps and training fills in the rest.
 LIVE_INIT_METHOD = "mvs"
 LIVE_INIT_FRAMES = 3
+# While live training runs the UI draws at most this many frames per second: on a CPU the
+# window's drawing (software GL) competes with the trainer for the same cores, and 10 frames a
+# second keeps orbiting usable while leaving the cores to training.
+TRAINING_UI_FPS = 10.0
+# With nothing moving, playing or training, the loop sleeps until an input event or this long.
+IDLE_WAIT_S = 0.25
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fixer4d-view", description=__doc__.splitlines()[0])
-    p.add_argument("source", nargs="?", default="demo",
-                   help="a run folder (with config.json), a scene (folder, spec .json, 'demo'); default: demo")
+    p.add_argument("source", nargs="?", default=None,
+                   help="a run folder (with config.json), a model file (.ply / .npz), a scene (folder, spec .json, "
+                        "'demo'); without one the window opens with a chooser (--screenshot: the demo)")
     p.add_argument("--screenshot", metavar="FILE", help="render --frames frames, save the window image to FILE, exit")
     p.add_argument("--frames", type=int, default=30, help="frames to render before --screenshot (default 30)")
     p.add_argument("--size", default=f"{DEFAULT_SIZE[0]}x{DEFAULT_SIZE[1]}", help="window size WxH")
@@ -85,7 +95,7 @@ def open_source(source: str, *, scale: float = 1.0, iterations: int | None = Non
     if path.is_file() and is_model_file(path):
         return open_model(path.resolve())
     scene = load_scene(source, scale=scale)
-    training = TrainingSession(lambda: live_trainer(scene, iterations, init, init_frames))
+    training = TrainingSession(lambda report: live_stage1_trainer(scene, iterations, init, init_frames, report))
     session_dir = _config_dir() / _slug(str(path.resolve()) if path.exists() else source)
     cache, restore = make_restore(session_dir / "cache")
     src = ViewerSource(scene=scene, label=f"{scene.name} (live training)", training=training, cache=cache,
@@ -125,39 +135,40 @@ def open_run(run: Path, model: Path | None = None) -> tuple[ViewerSource, Any, P
     scene = load_scene(**scene_cfg)
     model_path = model if model is not None else choose_model(run, remembered_version(run / "viewer" / "session.json"))
     g = GaussianArrays.from_model(load_model(model_path))
-    cache, restore = make_restore(run / "cache")
+    cache, restore = make_restore(run / "cache", run)
     src = ViewerSource(scene=scene, run_dir=run, label=str(model_path), cache=cache, restore=restore,
                        model_path=model_path)
     return src, g, run / "viewer"
 
 
-def make_restore(cache_dir: Path) -> tuple[Any, RestoreQueue]:
-    """The on-disk cache and a queue feeding the built-in CPU restorer."""
+def make_restore(cache_dir: Path, run_dir: Path | None = None) -> tuple[Any, RestoreQueue]:
+    """The on-disk cache and a queue feeding the restorer: the run's own kind when its
+    config.json names one that can be built here (e.g. learned with RUN/restorer weights), else
+    the geometric warp restorer (CPU, no weights)."""
     from fixer4d.restore.cache import RestoreCache
-    from fixer4d.restore.jobs import RestoreJobs
-    from fixer4d.restore.reference_warp import ReferenceWarpRestorer
 
     cache = RestoreCache(cache_dir)
-    jobs = RestoreJobs(ReferenceWarpRestorer(), cache)
-    return cache, RestoreQueue(jobs, lambda: cache.latest_round() or 0)
+    kind = "warp"
+    if run_dir is not None:
+        try:
+            kind = str((json.loads((run_dir / "config.json").read_text()).get("restorer") or {}).get("kind", "warp"))
+        except (ValueError, OSError, AttributeError):
+            kind = "warp"
+    try:
+        jobs = make_jobs(kind, cache, run_dir)
+    except Fixer4DError:  # e.g. no learned weights yet: start with the warp restorer
+        kind, jobs = "warp", make_jobs("warp", cache, run_dir)
+    return cache, RestoreQueue(jobs, lambda: cache.latest_round() or 0, kind=kind)
 
 
-def live_trainer(scene: Any, iterations: int | None, method: str = LIVE_INIT_METHOD,
-                 init_frames: int = LIVE_INIT_FRAMES) -> Any:
-    """Init clouds (``method`` on ``init_frames`` evenly spaced frames) + model + stage-1
-    Trainer for a scene (runs on the training thread)."""
-    import tempfile
+def make_jobs(kind: str, cache: Any, run_dir: Path | None) -> Any:
+    """``RestoreJobs`` around the restorer of ``kind`` (fixer4d.restore.config.build_restorer;
+    the learned restorer's weights come from RUN/restorer)."""
+    from fixer4d.restore.config import RestoreConfig, build_restorer
+    from fixer4d.restore.jobs import RestoreJobs
 
-    from fixer4d.init import run_init
-    from fixer4d.train.config import Stage1Config
-    from fixer4d.train.trainer import Trainer, model_from_clouds
-
-    config = Stage1Config(progress=False) if iterations is None else Stage1Config(progress=False, iterations=iterations)
-    count = int(np.clip(init_frames, 1, scene.num_frames))
-    frames = sorted(set(np.linspace(0, scene.num_frames - 1, count).round().astype(int).tolist()))
-    out = Path(tempfile.mkdtemp(prefix="fixer4d-view-init-"))
-    clouds, _ = run_init(scene, method, out, frames=frames, progress=False)
-    return Trainer(model_from_clouds(clouds, scene, config), scene, config)
+    restorer = build_restorer(RestoreConfig(kind=kind), None if run_dir is None else run_dir / "restorer")
+    return RestoreJobs(restorer, cache)
 
 
 def initial_state(src: ViewerSource, gaussians: Any) -> AppState:
@@ -215,8 +226,19 @@ def run_window(args: argparse.Namespace) -> int:
     import moderngl
     from imgui_bundle import imgui
 
-    src, gaussians, session_dir = open_source(args.source, scale=args.scale, iterations=args.iterations,
-                                              init=args.init, init_frames=args.init_frames)
+    startup_error: Exception | None = None
+    source = args.source if args.source is not None or not args.screenshot else "demo"
+    if source is None:  # the desktop entry: open the window with the chooser
+        src, gaussians, session_dir = ViewerSource(label="nothing open: File > Open"), None, _config_dir() / "start"
+    else:
+        try:
+            src, gaussians, session_dir = open_source(source, scale=args.scale, iterations=args.iterations,
+                                                      init=args.init, init_frames=args.init_frames)
+            remember_recent(_config_dir(), str(Path(source).resolve()) if Path(source).exists() else source)
+        except Exception as exc:  # started without a terminal: say it in the window, not only on stderr
+            LOG.exception("could not open %s", source)
+            startup_error = exc
+            src, gaussians, session_dir = ViewerSource(label=f"could not open {source}"), None, _config_dir() / "start"
     state = initial_state(src, gaussians)
     w, h = (int(v) for v in args.size.lower().split("x"))
     if not glfw.init():
@@ -237,36 +259,58 @@ def run_window(args: argparse.Namespace) -> int:
     viewer = Viewer(ctx, state, src, ini_path=None if args.no_session else session_dir / "imgui.ini",
                     session_path=None if args.no_session else session_dir / "session.json",
                     platform_init=lambda: imgui.backends.glfw_init_for_opengl(address, True))
+    if startup_error is not None:
+        viewer.report_error("open", startup_error)
+    if src.scene is None and gaussians is None:
+        from app.panels import files
+
+        files.ask(viewer, "open", "" if source is None else source)
     if src.training is not None:
         src.training.start()
     status = 0
-    frames_with_model = 0
+    frames_with_model = frames = 0
     started = time.monotonic()
     last = time.perf_counter()
     try:
         while not glfw.window_should_close(window):
-            glfw.poll_events()
+            if viewer.is_idle() and not args.screenshot:
+                glfw.wait_events_timeout(IDLE_WAIT_S)  # no busy loop: wake on input
+            else:
+                glfw.poll_events()
             now = time.perf_counter()
             fbo = ctx.detect_framebuffer()
             viewer.frame(now - last, fbo, platform_new_frame=imgui.backends.glfw_new_frame)
             last = now
             if args.screenshot:
-                frames_with_model += state.gaussians is not None
-                failed = src.training is not None and src.training.state == "failed"
+                frames += 1
+                frames_with_model += viewer.state.gaussians is not None
+                failed = (src.training is not None and src.training.state == "failed") or \
+                    (startup_error is not None and frames >= args.frames)
                 if frames_with_model >= args.frames or failed or time.monotonic() - started > SCREENSHOT_MODEL_TIMEOUT_S:
                     save_png(args.screenshot, viewer.screenshot(fbo))
                     print(f"fixer4d-view: wrote {args.screenshot} after {frames_with_model} frames with a model")
-                    if state.gaussians is None:
-                        print("fixer4d-view: no model arrived in time: "
-                              f"{src.training.error if src.training else 'nothing to show'}", file=sys.stderr)
+                    if viewer.state.gaussians is None:
+                        why = startup_error or (src.training.error if src.training else "nothing to show")
+                        print(f"fixer4d-view: no model to show: {why}", file=sys.stderr)
                         status = 1
                     break
             glfw.swap_buffers(window)
+            pace_frame(viewer, now)
     finally:
         viewer.close(platform_shutdown=imgui.backends.glfw_shutdown)
         glfw.destroy_window(window)
         glfw.terminate()
     return status
+
+
+def pace_frame(viewer: Viewer, frame_start: float) -> None:
+    """Sleep out the rest of the frame period while live training runs (TRAINING_UI_FPS), so
+    the trainer gets the CPU the UI does not need."""
+    tr = viewer.source.training
+    if tr is not None and tr.state in ("setup", "running"):
+        rest = 1.0 / TRAINING_UI_FPS - (time.perf_counter() - frame_start)
+        if rest > 0:
+            time.sleep(rest)
 
 
 def save_png(path: str | Path, image: np.ndarray) -> None:
@@ -278,8 +322,26 @@ def save_png(path: str | Path, image: np.ndarray) -> None:
         Image.fromarray(image).save(tmp)
 
 
+def setup_logging() -> Path:
+    """Log the viewer's messages (notifications, errors with tracebacks) to
+    ~/.config/fixer4d/view/viewer.log as well as stderr: a viewer started from the desktop has
+    no terminal. Returns the log file's path."""
+    import logging
+
+    path = _config_dir() / "viewer.log"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    log = logging.getLogger("fixer4d.view")
+    if not log.handlers:
+        handler = logging.FileHandler(path, encoding="utf-8")
+        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
+        log.addHandler(handler)
+        log.setLevel(logging.INFO)
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    setup_logging()
     try:
         status = run_window(args)
     except Fixer4DError as exc:

@@ -2,10 +2,12 @@
 through mailboxes so the UI thread never blocks on them (DESIGN.md §5).
 
 - ``Mailbox``: a single-slot, latest-value-wins handoff (a newer model replaces an unread one).
-- ``TrainingSession``: runs ``Trainer.step()`` in a thread (after an optional setup function,
-  e.g. init + model construction), publishes the model's raw parameters every few steps and a
-  loss record every step, pauses/resumes, and yields to rendering: before each step it waits
-  until the UI is not drawing a frame.
+- ``TrainingSession``: runs ``Trainer.step()`` in a thread (after a setup function, e.g. init +
+  model construction, that reports its progress), publishes the model's raw parameters every
+  few steps (and at most every PUBLISH_MIN_S) and a loss record every step, pauses/resumes.
+  The trainer never waits for the UI: the UI reads what was published when it draws.
+- ``live_stage1_trainer``: the one place that sets up live training the way ``fixer4d run``
+  sets up stage 1 (same config, schedule and Gaussian cap).
 - ``RestoreQueue``: renders the request for (trajectory, frame) on a worker thread with an
   injected render function, then submits it to ``fixer4d.restore.jobs.RestoreJobs``; finished
   clips land in the cache through the jobs' own writer.
@@ -27,9 +29,11 @@ from fixer4d.geometry.camera import Camera
 # Publish the model to the viewer every this many steps: a full parameter copy costs about as
 # much as a step on small models, so every step would halve training speed.
 PUBLISH_EVERY = 10
-# Longest a training step waits for the UI to finish its frame before stepping anyway; bounds
-# how much a stuck UI can stall training.
-YIELD_TIMEOUT_S = 0.25
+# ... and at most this often: every published model makes the UI re-upload, re-sort and redraw
+# the splats, CPU work that competes with training on a software GL.
+PUBLISH_MIN_S = 1.0
+# Steps over which the steps-per-second estimate (for the ETA) is averaged.
+RATE_WINDOW = 20
 # Loss records kept for the plot.
 MAX_HISTORY = 20000
 
@@ -58,14 +62,20 @@ class Mailbox:
 class TrainingSession:
     """Trains in a background thread.
 
-    setup: called once in the thread, returns the ``Trainer`` (e.g. runs init, builds the model;
-      slow work stays off the UI thread). State goes idle -> setup -> running <-> paused -> done
-      (or failed, with ``error`` holding the message).
+    setup: called once in the thread as ``setup(report)``, returns the ``Trainer`` (e.g. runs
+      init, builds the model; slow work stays off the UI thread); ``report(text)`` sets
+      ``setup_status`` for the UI. State goes idle -> setup -> running <-> paused -> done (or
+      failed, with ``error`` holding the message).
     """
 
-    def __init__(self, setup: Callable[[], Any], publish_every: int = PUBLISH_EVERY) -> None:
+    def __init__(self, setup: Callable[[Callable[[str], None]], Any], publish_every: int = PUBLISH_EVERY,
+                 publish_min_s: float = PUBLISH_MIN_S) -> None:
         self._setup = setup
         self.publish_every = int(publish_every)
+        self.publish_min_s = float(publish_min_s)
+        self.setup_status = ""
+        self.setup_started: float | None = None
+        self._step_times: list[float] = []
         self.models = Mailbox()
         self.state = "idle"
         self.error: str | None = None
@@ -74,8 +84,6 @@ class TrainingSession:
         self._history_lock = threading.Lock()
         self._run = threading.Event()
         self._quit = threading.Event()
-        self._ui_idle = threading.Event()
-        self._ui_idle.set()
         self._thread: threading.Thread | None = None
         self.step_seconds = 0.0
 
@@ -102,18 +110,26 @@ class TrainingSession:
     def stop(self, timeout: float = 10.0) -> None:
         self._quit.set()
         self._run.set()
-        self._ui_idle.set()
         if self.trainer is not None and hasattr(self.trainer, "stop"):
             self.trainer.stop()
         if self._thread is not None:
             self._thread.join(timeout)
 
-    def frame_begin(self) -> None:
-        """The UI starts drawing: training waits (up to YIELD_TIMEOUT_S) before its next step."""
-        self._ui_idle.clear()
+    @property
+    def total_steps(self) -> int | None:
+        cfg = getattr(self.trainer, "config", None)
+        return None if cfg is None else int(getattr(cfg, "iterations", 0)) or None
 
-    def frame_end(self) -> None:
-        self._ui_idle.set()
+    @property
+    def steps_per_s(self) -> float:
+        """Recent training speed (steps per second of step time)."""
+        times = self._step_times[-RATE_WINDOW:]
+        return 0.0 if not times else len(times) / max(sum(times), 1e-9)
+
+    @property
+    def eta_s(self) -> float | None:
+        total, rate = self.total_steps, self.steps_per_s
+        return None if total is None or rate <= 0 else max(total - self.step, 0) / rate
 
     def set_stage2(self, **changes: Any) -> bool:
         """Change stage-2 knobs (lambda_gen, refresh_every) of the running trainer; False when it
@@ -137,8 +153,11 @@ class TrainingSession:
     def _loop(self) -> None:
         try:
             self.state = "setup"
-            self.trainer = self._setup()
+            self.setup_started = time.monotonic()
+            self.trainer = self._setup(self._report)
+            self.setup_status = "training"
             self.models.put(GaussianArrays.from_model(self.trainer.model))
+            published = time.monotonic()
             self.state = "running" if self._run.is_set() else "paused"
             while not self._quit.is_set():
                 if not self._run.wait(0.1):
@@ -149,19 +168,59 @@ class TrainingSession:
                     self.state = "done"
                     break
                 self.state = "running"
-                self._ui_idle.wait(YIELD_TIMEOUT_S)
                 tic = time.perf_counter()
                 rec = self.trainer.step()
                 self.step_seconds = time.perf_counter() - tic
+                self._step_times.append(self.step_seconds)
+                del self._step_times[:-RATE_WINDOW]
                 with self._history_lock:
                     self.history.append({k: float(v) for k, v in rec.items() if isinstance(v, (int, float))})
                     del self.history[:-MAX_HISTORY]
-                if self.trainer.step_count % self.publish_every == 0 or self.trainer.done:
+                now = time.monotonic()
+                if self.trainer.done or (self.trainer.step_count % self.publish_every == 0
+                                         and now - published >= self.publish_min_s):
                     self.models.put(GaussianArrays.from_model(self.trainer.model))
+                    published = now
         except Exception as exc:  # shown in the training panel; the UI keeps running
             self.state = "failed"
             self.error = f"{type(exc).__name__}: {exc}"
             traceback.print_exc()
+
+    def _report(self, text: str) -> None:
+        self.setup_status = str(text)
+
+
+def live_stage1_trainer(scene: Any, iterations: int | None, method: str, init_frames: int,
+                        report: Callable[[str], None] = lambda text: None) -> Any:
+    """Live training set up as ``fixer4d run`` sets up stage 1: the pipeline's stage-1 settings
+    (its default iterations unless ``iterations`` is given, the 3DGS schedule scaled to them,
+    the same init-point and Gaussian caps) on ``method`` init clouds of ``init_frames`` evenly
+    spaced frames. The init writes into a temporary folder that is removed before returning.
+    ``report(text)`` is called at each setup step. Returns the ``Trainer``."""
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    from fixer4d.init import run_init
+    from fixer4d.pipeline import PipelineConfig, stage1_config  # the lead's stage functions will replace these
+    from fixer4d.train.trainer import Trainer, model_from_init
+
+    stage1 = dict(PipelineConfig().stage1)
+    if iterations is not None:
+        stage1["iterations"] = int(iterations)
+    config = stage1_config(stage1, progress=False)
+    count = int(np.clip(init_frames, 1, scene.num_frames))
+    frames = sorted(set(np.linspace(0, scene.num_frames - 1, count).round().astype(int).tolist()))
+    report(f"init: {method} point clouds of frames {frames} (of {scene.num_frames})")
+    out = Path(tempfile.mkdtemp(prefix="fixer4d-view-init-"))
+    try:
+        clouds, _ = run_init(scene, method, out, frames=frames, progress=False)
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
+    report(f"model: {sum(len(c.points) for c in clouds)} init points -> Gaussians (cap {config.max_gaussians})")
+    model, _ = model_from_init(clouds, scene, config)
+    report(f"trainer: {config.iterations} steps")
+    return Trainer(model, scene, config)
 
 
 # ---- restoration ------------------------------------------------------------------------------
@@ -204,8 +263,10 @@ class RestoreQueue:
     """Queue restorations: ``build_request()`` (renders, slow) runs on a worker thread, then the
     request goes to ``jobs.submit(request, round, key, meta)``."""
 
-    def __init__(self, jobs: Any, round_index: Callable[[], int]) -> None:
+    def __init__(self, jobs: Any, round_index: Callable[[], int], kind: str = "warp") -> None:
         self.jobs = jobs
+        self.kind = kind  # the restorer kind new jobs use
+        self._retired: list[Any] = []  # earlier jobs objects, still finishing what they took
         self.round_index = round_index
         self.items: list[QueuedRestore] = []
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="viewer-restore-render")
@@ -231,6 +292,11 @@ class RestoreQueue:
         self.items.append(item)
         return item
 
+    def set_jobs(self, jobs: Any, kind: str) -> None:
+        """New requests go to ``jobs`` (another restorer); queued ones finish where they are."""
+        self._retired.append(self.jobs)
+        self.jobs, self.kind = jobs, kind
+
     def wait_all(self, timeout: float = 600.0) -> bool:
         """Block until every queued item finished (tests and scripts). True if all did."""
         deadline = time.monotonic() + timeout
@@ -249,7 +315,8 @@ class RestoreQueue:
             if item.status in ("rendering", "queued"):
                 item.cancel()
         self._pool.shutdown(wait=False, cancel_futures=True)
-        self.jobs.shutdown()
+        for jobs in [*self._retired, self.jobs]:
+            jobs.shutdown()
 
 
 def restore_request(model_render: Callable[[Camera, float], dict[str, np.ndarray]], scene: Any,

@@ -103,6 +103,10 @@ class Viewer:
         self.depth_range = (0.1, 10.0)  # near, far of the depth colour map (last render)
         self.scalar_version = 0  # bumped when the blur/mask map changes
         self.adaptive = AdaptiveResolution()
+        self.heat_scale = 1.0  # speed at the top of the speed heatmap (scene units per clip time)
+        self.blur_key: tuple | None = None  # the view the blur map was computed for
+        self.mask_note = ""  # why the moving-content overlay shows nothing, if it does not
+        self._masks: tuple | None = None  # (path, masks, camera ids, frames) of RUN/init_*/masks.npz
         self.frame_ms = 0.0
         self.frame_times: list[float] = []
         self.images: dict[str, moderngl.Texture] = {}
@@ -129,42 +133,35 @@ class Viewer:
     def frame(self, dt: float, fbo: moderngl.Framebuffer, platform_new_frame: Callable[[], None] | None = None) -> None:
         """Advance playback by ``dt`` seconds, build the UI, draw everything into ``fbo``."""
         tic = time.perf_counter()
-        training = self.source.training
-        if training is not None:
-            training.frame_begin()
-        try:
-            self._poll_models()
-            self.state.advance(dt)
-            io = imgui.get_io()
-            io.delta_time = max(float(dt), 1e-4)
-            if platform_new_frame is not None:
-                platform_new_frame()
-            else:
-                io.display_size = imgui.ImVec2(float(fbo.size[0]), float(fbo.size[1]))
-            imgui.backends.opengl3_new_frame()
-            imgui.new_frame()
-            imgui.dock_space_over_viewport(0, imgui.get_main_viewport(),
-                                           imgui.DockNodeFlags_.passthru_central_node.value)
-            with guard(self, "menu"):
-                self._menu()
-            self._viewport_window()
-            for name, draw in self.panels:
-                draw(self)  # each panel guards its own body (panels._layout.panel)
-            self._notifications_window()
-            with guard(self, "file"):
-                from app.panels import files
+        self._poll_models()
+        self.state.advance(dt)
+        io = imgui.get_io()
+        io.delta_time = max(float(dt), 1e-4)
+        if platform_new_frame is not None:
+            platform_new_frame()
+        else:
+            io.display_size = imgui.ImVec2(float(fbo.size[0]), float(fbo.size[1]))
+        imgui.backends.opengl3_new_frame()
+        imgui.new_frame()
+        imgui.dock_space_over_viewport(0, imgui.get_main_viewport(),
+                                       imgui.DockNodeFlags_.passthru_central_node.value)
+        with guard(self, "menu"):
+            self._menu()
+        self._viewport_window()
+        for name, draw in self.panels:
+            draw(self)  # each panel guards its own body (panels._layout.panel)
+        self._notifications_window()
+        with guard(self, "file"):
+            from app.panels import files
 
-                files.draw_dialog(self)
-            with guard(self, "shortcuts"):
-                self._shortcuts()
-            imgui.render()
-            fbo.use()
-            self.ctx.viewport = (0, 0, *fbo.size)
-            fbo.clear(0.08, 0.08, 0.09, 1.0)
-            imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
-        finally:
-            if training is not None:
-                training.frame_end()
+            files.draw_dialog(self)
+        with guard(self, "shortcuts"):
+            self._shortcuts()
+        imgui.render()
+        fbo.use()
+        self.ctx.viewport = (0, 0, *fbo.size)
+        fbo.clear(0.08, 0.08, 0.09, 1.0)
+        imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
         self.frame_ms = 1e3 * (time.perf_counter() - tic)
         self.frame_times.append(self.frame_ms)
         del self.frame_times[:-240]
@@ -267,17 +264,110 @@ class Viewer:
         rcam = cam if scale >= 1.0 else cam.resized(max(1, int(round(cam.width * scale))),
                                                     max(1, int(round(cam.height * scale))))
         self.render_camera = rcam
-        heat = float(np.percentile(st.gaussians.speed_at(st.time), 99)) if st.splat_mode == "speed" and st.gaussians.n else 1.0
-        stats = self.splats.render(rcam, st.time, mode=st.splat_mode, heat_scale=heat, wait_sort=wait_sort)
+        if st.splat_mode == "speed" and st.gaussians.n:
+            speed = st.gaussians.speed_at(st.time)
+            moving = speed[speed > 0]
+            self.heat_scale = float(np.percentile(moving, 99)) if moving.size else 1.0
+        stats = self.splats.render(rcam, st.time, mode=st.splat_mode, heat_scale=self.heat_scale, wait_sort=wait_sort)
         self.adaptive.done(scale, stats.draw_ms, self.splats.order_matches(rcam, st.time))
         self.depth_range = self._depth_range(rcam)
-        tex = self.splats.resolve(st.background, st.debug_mode, depth_range=self.depth_range,
-                                  scalar_max=self.blur_max if st.debug_mode == "blur" else 1.0)
+        mode = st.debug_mode
+        if mode == "blur" and self.blur_stale:
+            if self.adaptive.final:  # the view rests: recompute for it
+                from app.panels.debug import compute_blur
+
+                compute_blur(self)
+            else:  # moving: no map rather than a wrong one
+                mode = "color"
+        if mode == "moving":
+            self._update_mask(cam)
+        tex = self.splats.resolve(st.background, mode, depth_range=self.depth_range,
+                                  scalar_max=self.blur_max if mode == "blur" else 1.0)
         self.splats.display_framebuffer.use()
         self.overlays.clear()
         self._collect_overlays(rcam)
         self.overlays.draw(rcam, st.view.scene_radius)
         return tex
+
+    def view_signature(self) -> tuple | None:
+        """Pose, intrinsics, time and model of the current full-size view (what a blur map is
+        valid for)."""
+        cam = self.display_camera
+        if cam is None:
+            return None
+        st = self.state
+        return (cam.c2w.tobytes(), cam.K.tobytes(), round(st.time, 9), st.gaussians_version)
+
+    @property
+    def blur_stale(self) -> bool:
+        return self.blur_key is None or self.blur_key != self.view_signature()
+
+    def masks(self) -> tuple | None:
+        """(masks (V,F,H,W) bool, camera ids, frames) from the run's RUN/init_*/masks.npz (the
+        static/dynamic split of the init), or None when the run has none."""
+        run = self.source.run_dir
+        if run is None:
+            return None
+        paths = sorted(Path(run).glob("init_*/masks.npz"))
+        if not paths:
+            return None
+        if self._masks is None or self._masks[0] != paths[0]:
+            from fixer4d.init.masks import load_masks
+
+            self._masks = (paths[0], *load_masks(paths[0]))
+        return self._masks[1:]
+
+    def _update_mask(self, cam: Camera) -> None:
+        """Upload the moving-content mask of the camera the view is snapped to at the current
+        frame (the mask is that camera's image, so it only lines up there)."""
+        scene, got = self.source.scene, self.masks()
+        masks, ids, frames = got if got is not None else (None, [], [])
+        idx = None
+        if scene is not None and self.state.view.snapped is not None:
+            snap = self.state.view.snapped
+            idx = next((i for i, c in enumerate(scene.cameras) if np.allclose(c.c2w, snap.c2w)), None)
+        key = (idx, self.state.frame)
+        if getattr(self, "_mask_key", None) == key:
+            return
+        self._mask_key = key
+        names = [] if idx is None else [str(idx), str(scene.cameras[idx].name)]
+        v = next((k for k, c in enumerate(ids) if c in names), None)
+        if masks is None or v is None or self.state.frame not in frames:
+            self.mask_note = ("no masks in this run (RUN/init_*/masks.npz)" if masks is None else
+                              f"snap to a masked camera ({', '.join(ids)}) at a masked frame")
+            self.splats.set_scalar_map(np.zeros((1, 1), np.float32))
+        else:
+            self.mask_note = ""
+            self.splats.set_scalar_map(masks[v, frames.index(self.state.frame)].astype(np.float32))
+        self.scalar_version += 1
+
+    def _draw_legend(self, x0: float, y0: float, w: float, h: float) -> None:
+        """The colour bar of the current heatmap over the bottom left of the 3D image."""
+        from app.legends import legend
+
+        lg = legend(self)
+        if lg is None:
+            return
+        draw = imgui.get_window_draw_list()
+        line = imgui.get_text_line_height()
+        bw = min(320.0, w - 20.0)
+        bx, by = x0 + 10.0, y0 + h - 10.0 - 14.0 - 2.2 * line - (line if lg.note else 0.0)
+        draw.add_rect_filled(imgui.ImVec2(bx - 6, by - line - 6), imgui.ImVec2(bx + bw + 6, y0 + h - 4),
+                             imgui.get_color_u32(imgui.ImVec4(0.0, 0.0, 0.0, 0.65)), 4.0)
+        draw.add_text(imgui.ImVec2(bx, by - line - 2), imgui.get_color_u32(imgui.ImVec4(1, 1, 1, 1)), lg.title)
+        self.item_rects["legend_bar"] = (bx, by + 2, bx + bw, by + 14)
+        n = 32
+        cols = lg.colors(n)
+        for k in range(n):
+            c = imgui.get_color_u32(imgui.ImVec4(*cols[k], 1.0))
+            draw.add_rect_filled(imgui.ImVec2(bx + bw * k / n, by + 2), imgui.ImVec2(bx + bw * (k + 1) / n + 0.5, by + 14), c)
+        if lg.kind != "swatch":
+            white = imgui.get_color_u32(imgui.ImVec4(1, 1, 1, 1))
+            hi = f"{lg.hi:.3g}"
+            draw.add_text(imgui.ImVec2(bx, by + 16), white, f"{lg.lo:.3g}")
+            draw.add_text(imgui.ImVec2(bx + bw - imgui.calc_text_size(hi).x, by + 16), white, hi)
+        if lg.note:
+            draw.add_text(imgui.ImVec2(bx, by + 16 + line), imgui.get_color_u32(imgui.ImVec4(1.0, 0.75, 0.3, 1)), lg.note)
 
     def _depth_range(self, cam: Camera) -> tuple[float, float]:
         g = self.state.gaussians
@@ -327,6 +417,7 @@ class Viewer:
             self.viewport_rect = (pos.x, pos.y, float(w), float(h))
             imgui.set_cursor_screen_pos(pos)
             imgui.image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(w, h), imgui.ImVec2(0, 1), imgui.ImVec2(1, 0))
+            self._draw_legend(pos.x, pos.y, float(w), float(h))
             # an invisible button over the image takes the mouse, so drags steer the camera or
             # select instead of moving the window
             imgui.set_cursor_screen_pos(pos)
@@ -341,8 +432,21 @@ class Viewer:
         if tr is not None and tr.state == "failed":
             return f"training failed: {tr.error}"
         if tr is not None:
-            return f"preparing the model ({tr.state}) ..."
-        return "no model loaded"
+            return f"preparing the model ({tr.state}): {tr.setup_status or 'starting'} ..."
+        return "no model loaded (File > Open a run folder or a model)"
+
+    def is_idle(self) -> bool:
+        """Nothing would change without input: no playback, training or restore work, and the
+        3D view rests at full size (the window loop may then sleep until an event)."""
+        st, src = self.state, self.source
+        if st.playing or (st.gaussians is not None and not self.adaptive.final):
+            return False
+        if src.training is not None and src.training.state in ("setup", "running"):
+            return False
+        if src.restore is not None and any(i.status in ("rendering", "queued", "running", "submitted")
+                                           for i in src.restore.items):
+            return False
+        return not imgui.get_io().want_text_input and not any(imgui.get_io().mouse_down)
 
     def _viewport_input(self, hovered: bool, active: bool) -> None:
         io = imgui.get_io()
@@ -490,19 +594,31 @@ class Viewer:
         return f"opened {path} ({g.n} Gaussians)"
 
     def open_path(self, text: str) -> str:
-        """File > Open: a run folder or a model file (a model of the open run switches the
-        version; anything else replaces the source, with its own session)."""
+        """File > Open: a run folder, a model file (a model of the open run switches the
+        version), or a scene (folder, spec .json, bundled name such as "demo": trained live);
+        anything but a version replaces the source, with its own session."""
         from app.files import is_model_file, is_run_folder, resolve_input
         from app.main import open_source
         from fixer4d.errors import InputError
 
-        path = resolve_input(text, self.output_dir)
-        if not (is_run_folder(path) or (path.is_file() and is_model_file(path))):
-            raise InputError(f"{path}: not a run folder (with config.json) or a model file (.ply / .npz)")
-        if self.source.run_dir is not None and path.is_file() and path.parent == Path(self.source.run_dir):
+        from app.files import remember_recent
+        from app.main import _config_dir
+
+        try:
+            path = resolve_input(text, self.output_dir)
+        except InputError:
+            if Path(text).expanduser().is_absolute() or "/" in text:
+                raise
+            path = None  # a bundled scene name ("demo"): trained live
+        if path is not None and self.source.run_dir is not None and path.is_file() \
+                and path.parent == Path(self.source.run_dir) and is_model_file(path):
             return self.open_version(path)
-        src, g, session_dir = open_source(str(path))
+        if path is not None and not (is_run_folder(path) or (path.is_file() and is_model_file(path)) or path.is_dir()
+                                     or path.suffix == ".json"):
+            raise InputError(f"{path}: not a run folder (with config.json), a model file (.ply / .npz) or a scene")
+        src, g, session_dir = open_source(text if path is None else str(path))
         self.switch_source(src, g, session_dir)
+        remember_recent(_config_dir(), text if path is None else str(path))
         return f"opened {src.label}"
 
     def switch_source(self, src: ViewerSource, gaussians: Any, session_dir: Path) -> None:

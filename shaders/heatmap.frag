@@ -2,7 +2,7 @@
 // Resolve the accumulated splat targets into a displayable image, optionally as a debug map:
 // 0 colour over the background, 1 hole map (low accumulated alpha in red over the colour),
 // 2 expected depth (turbo, near..far), 3 an uploaded scalar map (e.g. blur) in turbo over grey,
-// 4 accumulated alpha as grey.
+// 4 accumulated alpha as grey, 5 an uploaded mask (moving content) tinted magenta over the colour.
 uniform sampler2D u_color;   // premultiplied rgb, accumulated alpha
 uniform sampler2D u_depth;   // alpha-weighted depth in r, alpha in a
 uniform sampler2D u_scalar;  // R32F, mode 3 only
@@ -34,6 +34,8 @@ void main() {
         rgb = mix(vec3(dot(rgb, vec3(0.299, 0.587, 0.114))), turbo(s), clamp(s * 2.0, 0.0, 1.0));
     } else if (u_mode == 4) {
         rgb = vec3(c.a);
+    } else if (u_mode == 5) {
+        rgb = mix(rgb, vec3(1.0, 0.2, 0.9), 0.6 * clamp(texture(u_scalar, v_uv).r, 0.0, 1.0));
     }
     frag = vec4(clamp(rgb, 0.0, 1.0), 1.0);
 }

@@ -1,6 +1,7 @@
 """The moderngl spacetime-Gaussian splat renderer (DESIGN.md §5).
 
-Instanced screen-space quads, one per Gaussian, drawn front to back. Raw parameters sit in an
+Instanced screen-space quads, one per Gaussian, drawn front to back; a transform-feedback pass
+first evaluates and projects each Gaussian once (splat_prep.vert), the quads only place corners. Raw parameters sit in an
 RGBA32F texture read with texelFetch (GL 3.3 data path, runs on macOS too); the vertex shader
 evaluates the spacetime terms at the current time and projects with the same EWA Jacobian and
 low-pass as the torch rasterizer. The depth order at the current time is computed on a worker
@@ -20,7 +21,7 @@ import moderngl
 import numpy as np
 
 from app.gaussians import GaussianArrays
-from app.gl.programs import load_program
+from app.gl.programs import load_program, shader_source
 from fixer4d.geometry.camera import Camera
 from fixer4d.model.spacetime import T_LOG_SCALE_MIN
 # One constant set with the torch rasterizer, so the two agree (a test measures it).
@@ -36,6 +37,8 @@ from fixer4d.render.constants import (ALPHA_MAX, ALPHA_MIN, DET_MIN, LOWPASS_2D,
 TEXELS_PER_GAUSSIAN = 8
 MAX_SH_TEXELS = 12
 TEXTURE_WIDTH = 4096
+# Bytes per Gaussian in the transform-feedback buffer: centre/size/z, conic/opacity, colour.
+FEEDBACK_BYTES = 3 * 4 * 4
 
 
 def sh_texels(num_rest: int) -> int:
@@ -51,7 +54,7 @@ def sh_degree_of(num_rest: int) -> int:
     return d
 
 # Debug modes of the resolve pass (heatmap.frag) and of the splat colours (splat.vert).
-RESOLVE_MODES = {"color": 0, "holes": 1, "depth": 2, "blur": 3, "alpha": 4}
+RESOLVE_MODES = {"color": 0, "holes": 1, "depth": 2, "blur": 3, "alpha": 4, "moving": 5}
 SPLAT_MODES = {"color": 0, "speed": 1, "temporal_opacity": 2}
 
 
@@ -180,6 +183,10 @@ class SplatRenderer:
     def __init__(self, ctx: moderngl.Context) -> None:
         self.ctx = ctx
         self.prog = load_program(ctx, "splat.vert", "splat.frag")
+        self.prep_prog = ctx.program(vertex_shader=shader_source("splat_prep.vert"),
+                                     varyings=["f_center", "f_conic", "f_color"])
+        self._feedback_buf: moderngl.Buffer | None = None
+        self._prep_vao: moderngl.VertexArray | None = None
         self.resolve_prog = load_program(ctx, "screen.vert", "heatmap.frag")
         self.sorter = DepthSorter()
         self.gaussians: GaussianArrays | None = None
@@ -280,31 +287,25 @@ class SplatRenderer:
                 stats.upload_ms = 1e3 * (time.perf_counter() - t0)
                 stats.sort_ms = self.sorter.last_sort_ms
         t0 = time.perf_counter()
-        p = self.prog
-        p["u_params"].value = 0
-        p["u_flags"].value = 1
+        p = self.prep_prog
         self._param_tex.use(0)
         self._flag_tex.use(1)
-        p["u_tex_width"].value = TEXTURE_WIDTH
-        p["u_texels"].value = texels_per_gaussian(g)
-        p["u_sh_degree"].value = sh_degree_of(g.sh_rest.shape[1])
-        p["u_cam_center"].value = tuple(float(x) for x in camera.center)
+        uniforms = {
+            "u_params": 0, "u_flags": 1, "u_tex_width": TEXTURE_WIDTH, "u_texels": texels_per_gaussian(g),
+            "u_sh_degree": sh_degree_of(g.sh_rest.shape[1]), "u_cam_center": tuple(float(x) for x in camera.center),
+            "u_intr": (camera.fx, camera.fy, camera.cx, camera.cy), "u_size": (float(camera.width), float(camera.height)),
+            "u_time": float(t), "u_t_log_scale_min": T_LOG_SCALE_MIN, "u_near": NEAR_PLANE, "u_lowpass": LOWPASS_2D,
+            "u_det_min": DET_MIN, "u_min_alpha": ALPHA_MIN, "u_sigma_extent": SIGMA_EXTENT,
+            "u_fov_clamp": TAN_FOV_MARGIN, "u_mode": SPLAT_MODES[mode], "u_heat_scale": float(heat_scale),
+            "u_show_selection": int(show_selection), "u_max_alpha": ALPHA_MAX, "u_power_max": POWER_MAX}
+        for prog in (self.prep_prog, self.prog):
+            for name, value in uniforms.items():
+                member = prog.get(name, None)  # each stage declares only what it uses
+                if member is not None:
+                    member.value = value
         p["u_w2c"].write(np.ascontiguousarray(camera.w2c.T, dtype=np.float32).tobytes())
-        p["u_intr"].value = (camera.fx, camera.fy, camera.cx, camera.cy)
-        p["u_size"].value = (float(camera.width), float(camera.height))
-        p["u_time"].value = float(t)
-        p["u_t_log_scale_min"].value = T_LOG_SCALE_MIN
-        p["u_near"].value = NEAR_PLANE
-        p["u_lowpass"].value = LOWPASS_2D
-        p["u_det_min"].value = DET_MIN
-        p["u_min_alpha"].value = ALPHA_MIN
-        p["u_max_alpha"].value = ALPHA_MAX
-        p["u_power_max"].value = POWER_MAX
-        p["u_sigma_extent"].value = SIGMA_EXTENT
-        p["u_fov_clamp"].value = TAN_FOV_MARGIN
-        p["u_mode"].value = SPLAT_MODES[mode]
-        p["u_heat_scale"].value = float(heat_scale)
-        p["u_show_selection"].value = int(show_selection)
+        if self._instances:  # once per Gaussian: evaluate and project into the feedback buffer
+            self._prep_vao.transform(self._feedback_buf, moderngl.POINTS, vertices=self._instances)
         self.ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         self.ctx.enable(moderngl.BLEND)
         self.ctx.blend_func = (moderngl.ONE_MINUS_DST_ALPHA, moderngl.ONE)
@@ -331,12 +332,15 @@ class SplatRenderer:
     def _upload_order(self, order: np.ndarray) -> None:
         data = np.ascontiguousarray(order, np.uint32)
         if self._order_buf is None or self._order_buf.size < max(data.nbytes, 4):
-            if self._vao is not None:
-                self._vao.release()
-            if self._order_buf is not None:
-                self._order_buf.release()
+            for obj in (self._vao, self._prep_vao, self._order_buf, self._feedback_buf):
+                if obj is not None:
+                    obj.release()
             self._order_buf = self.ctx.buffer(reserve=max(data.nbytes, 4))
-            self._vao = self.ctx.vertex_array(self.prog, [(self._order_buf, "u4/i", "a_index")])
+            # 3 vec4 per Gaussian out of the preparation pass, read per instance by the quads
+            self._feedback_buf = self.ctx.buffer(reserve=max(data.size, 1) * FEEDBACK_BYTES)
+            self._prep_vao = self.ctx.vertex_array(self.prep_prog, [(self._order_buf, "u4", "a_index")])
+            self._vao = self.ctx.vertex_array(self.prog, [(self._feedback_buf, "4f 4f 4f/i", "i_center", "i_conic",
+                                                           "i_color")])
         if data.nbytes:
             self._order_buf.write(data.tobytes())
         self._instances = int(data.size)
@@ -406,7 +410,8 @@ class SplatRenderer:
 
     def release(self) -> None:
         self.sorter.close()
-        for obj in [self._param_tex, self._flag_tex, self._scalar_tex, self._order_buf, self._vao,
+        for obj in [self._param_tex, self._flag_tex, self._scalar_tex, self._order_buf, self._vao, self._prep_vao,
+                    self._feedback_buf, self.prep_prog,
                     *(self._targets or ()), *(self._display or ())]:
             if obj is not None:
                 obj.release()

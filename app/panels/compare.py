@@ -71,16 +71,29 @@ def body(viewer, ui: dict) -> None:
     if not entries:
         imgui.text("the cache has no finished clips yet")
         return
-    names = [f"round {e.round}  {e.key}" for e in entries]
-    ui["entry"] = min(ui["entry"], len(entries) - 1)
-    _, ui["entry"] = imgui.combo("clip", ui["entry"], names)
-    entry = entries[ui["entry"]]
+    ui.setdefault("filter", "")
+    imgui.set_next_item_width(120)
+    _, ui["filter"] = imgui.input_text_with_hint("##filter", "filter clips", ui["filter"])
+    viewer.record_item("clip_filter")
+    words = ui["filter"].lower().split()
+    shown = [e for e in entries if all(w in f"round {e.round} {e.key}".lower() for w in words)]
+    imgui.same_line()
+    if not shown:
+        imgui.text(f"no clip matches ({len(entries)} in the cache)")
+        return
+    names = [f"round {e.round}  {e.key}" for e in shown]
+    current = next((i for i, e in enumerate(shown) if (e.round, e.key) == ui.get("picked")), 0)
+    imgui.set_next_item_width(220)
+    changed, current = imgui.combo(f"clip ({len(shown)}/{len(entries)})", current, names)
+    entry = shown[current]
+    ui["picked"] = (entry.round, entry.key)
     n = len(entry.cameras)
     ui["k"] = min(ui["k"], n - 1)
-    imgui.set_next_item_width(200)
-    _, ui["k"] = imgui.slider_int("frame in clip", ui["k"], 0, n - 1)
     imgui.same_line()
-    imgui.set_next_item_width(140)
+    imgui.set_next_item_width(150)
+    _, ui["k"] = imgui.slider_int("frame", ui["k"], 0, n - 1)
+    imgui.same_line()
+    imgui.set_next_item_width(120)
     _, ui["mode"] = imgui.combo("mode", ui["mode"], list(MODES))
     imgs = frame_images(viewer, ui, entry, ui["k"])
     labels = [("render", "render (current model)"), ("target", "pseudo-target (cache)"), ("truth", "ground truth")]
@@ -93,10 +106,10 @@ def body(viewer, ui: dict) -> None:
     h, w = imgs["render"].shape[:2]
     mode = MODES[ui["mode"]]
     if mode == "side by side":
-        shown = [(k, lab) for k, lab in labels if k in imgs]
-        scale = min((avail.x - 8 * len(shown)) / (w * len(shown)), max(avail.y - 24, 32) / h)
-        for i, (k, lab) in enumerate(shown):
-            if i:
+        panes = [(k, lab) for k, lab in labels if k in imgs]
+        cols, scale = grid_layout(len(panes), w, h, avail.x, avail.y, imgui.get_text_line_height_with_spacing())
+        for i, (k, lab) in enumerate(panes):
+            if i % cols:
                 imgui.same_line()
             imgui.begin_group()
             imgui.text(lab)
@@ -122,3 +135,16 @@ def body(viewer, ui: dict) -> None:
         scale = min(avail.x / w, max(avail.y - 24, 32) / h)
         tex = viewer.image_texture("compare_main", img)
         imgui.image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(w * scale, h * scale))
+
+
+def grid_layout(n: int, w: float, h: float, avail_w: float, avail_h: float, label_h: float) -> tuple[int, float]:
+    """(columns, image scale) that show ``n`` w x h images, each under a label line, as large
+    as the area allows (one row in a wide panel, a grid in a tall one)."""
+    best = (n, 0.0)
+    for cols in range(1, n + 1):
+        rows = -(-n // cols)
+        gap = 8.0
+        scale = min((avail_w - gap * cols) / (w * cols), (avail_h - rows * (label_h + gap)) / (h * rows))
+        if scale > best[1]:
+            best = (cols, scale)
+    return best[0], max(best[1], 0.05)

@@ -19,7 +19,8 @@ def draw(viewer) -> None:
         if not expanded:
             return
         imgui.text("image")
-        mode = radio_row(RESOLVE, st.debug_mode, "image")
+        modes = RESOLVE + (("moving",) if viewer.masks() is not None else ())
+        mode = radio_row(modes, st.debug_mode, "image")
         if mode != st.debug_mode:
             st.debug_mode = mode
             if mode == "blur":
@@ -56,6 +57,7 @@ def compute_blur(viewer) -> None:
                  viewer.splats.read_alpha(), cam, scene.frame(viewer.state.frame, ref_idx), train[j])
     viewer.splats.set_scalar_map(m)
     viewer.scalar_version += 1
+    viewer.blur_key = viewer.view_signature()
     viewer.blur_max = float(max(np.percentile(m, 99), 1e-6))
     ui["ref"] = train[j].name or str(ref_idx)
 

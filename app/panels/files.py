@@ -11,7 +11,7 @@ from app.panels._layout import error_text
 
 # Dialog actions: title, button label, whether the path must exist (read) or is written.
 ACTIONS = {
-    "open": ("Open a run folder or a model file (.ply / .npz)", "open", True),
+    "open": ("Open a run folder, a model file (.ply / .npz) or a scene (trained live)", "open", True),
     "import_preset": ("Import trajectories from a fixer4d preset JSON", "import", True),
     "export_preset": ("Export the trajectories as a fixer4d preset JSON", "export", False),
     "import_camera_path": ("Import a nerfstudio camera_path JSON as a custom trajectory", "import", True),
@@ -89,9 +89,18 @@ def draw_dialog(viewer) -> None:
     viewer.record_item("dialog_path")
     imgui.text_disabled(f"relative paths are under {viewer.output_dir}")
     if ui["action"] == "open":
-        for p in viewer.model_versions():
-            if imgui.selectable(str(p), str(p) == ui["path"])[0]:
-                ui["path"] = str(p)
+        from app.files import recent
+        from app.main import _config_dir
+
+        shortcuts = [str(p) for p in viewer.model_versions()]
+        shortcuts += [r for r in recent(_config_dir()) if r not in shortcuts]
+        if shortcuts:
+            imgui.text("model versions of this run, recently opened:")
+        for text in shortcuts:
+            if imgui.selectable(text, text == ui["path"])[0]:
+                ui["path"] = text
+        if imgui.button("the built-in demo scene (trained live)"):
+            ui["path"] = "demo"
     if ui["error"]:
         error_text(ui["error"])
     ok = imgui.button(verb)

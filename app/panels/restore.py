@@ -20,6 +20,7 @@ def draw(viewer) -> None:
         if src.restore is None or src.scene is None:
             imgui.text_wrapped("Restoration needs a scene and a restorer (open a run folder or a scene).")
         else:
+            restorer_choice(viewer, src)
             k = st.selected_trajectory
             name = st.trajectories[k].name if 0 <= k < len(st.trajectories) else "(select a trajectory)"
             imgui.text(f"trajectory: {name}")
@@ -59,7 +60,8 @@ def queue_restore(viewer, k: int, frame: int):
     scene = src.scene
     if spec.pair is not None:
         ref_ids = (scene.train_ids[spec.pair[0]], scene.train_ids[spec.pair[1]])
-        key = src.cache.key(frame, spec.pair[0], spec.pair[1], spec.arc_index)
+        # the pipeline's clip names: scene camera ids, not positions in the train-camera list
+        key = src.cache.key(frame, ref_ids[0], ref_ids[1], spec.arc_index)
     else:
         ref_ids = tuple(_nearest_train(scene, c) for c in (cams[0], cams[-1]))
         key = f"t{frame:04d}_" + re.sub(r"[^A-Za-z0-9_-]+", "_", spec.name)
@@ -74,3 +76,20 @@ def queue_restore(viewer, k: int, frame: int):
 def _nearest_train(scene, cam) -> int:
     d = [float(((scene.cameras[i].center - cam.center) ** 2).sum()) for i in scene.train_ids]
     return scene.train_ids[int(min(range(len(d)), key=d.__getitem__))]
+
+
+def restorer_choice(viewer, src) -> None:
+    """The restorer kind for new jobs (learned | warp | cogvideo). A kind that cannot be built
+    here (no learned weights in RUN/restorer, no GPU for cogvideo) is reported and the current
+    restorer stays."""
+    from fixer4d.restore.config import KINDS
+
+    current = src.restore.kind
+    imgui.set_next_item_width(140)
+    changed, idx = imgui.combo("restorer", KINDS.index(current) if current in KINDS else 0, list(KINDS))
+    viewer.record_item("restorer_kind")
+    if changed and KINDS[idx] != current:
+        from app.main import make_jobs
+
+        src.restore.set_jobs(make_jobs(KINDS[idx], src.cache, src.run_dir), KINDS[idx])
+        viewer.state.status = f"restorer: {KINDS[idx]} for new jobs"

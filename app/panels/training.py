@@ -2,10 +2,12 @@
 plotted with implot. Training runs in its own thread and yields to the UI's frames."""
 from __future__ import annotations
 
+import time
+
 import numpy as np
 from imgui_bundle import imgui, implot
 
-from app.panels._layout import panel
+from app.panels._layout import error_text, panel
 
 # Loss curves drawn from at most this many points (the history is decimated to it).
 PLOT_POINTS = 2000
@@ -19,9 +21,15 @@ def draw(viewer) -> None:
         if tr is None:
             imgui.text_wrapped("Showing a saved model. Open a scene (fixer4d-view SCENE) to train live.")
         else:
-            imgui.text(f"state: {tr.state}   step {tr.step}")
+            total = tr.total_steps
+            imgui.text(f"state: {tr.state}   step {tr.step}" + (f" of {total}" if total else ""))
+            if tr.state == "setup":
+                elapsed = 0.0 if tr.setup_started is None else time.monotonic() - tr.setup_started
+                imgui.text_wrapped(f"setting up ({elapsed:.0f} s): {tr.setup_status or 'starting'}")
+            if total:
+                imgui.progress_bar(min(tr.step / total, 1.0), imgui.ImVec2(-1, 0))
             if tr.error:
-                imgui.text_colored(imgui.ImVec4(1.0, 0.35, 0.3, 1.0), tr.error)
+                error_text(tr.error)
             if tr.state in ("idle",) and imgui.button("start"):
                 tr.start()
             if tr.state in ("running", "setup") and imgui.button("pause"):
@@ -29,7 +37,11 @@ def draw(viewer) -> None:
             if tr.state == "paused" and imgui.button("resume"):
                 tr.resume()
             g = viewer.state.gaussians
-            imgui.text(f"Gaussians: {0 if g is None else g.n}   step time {1e3 * tr.step_seconds:.0f} ms")
+            rate, eta = tr.steps_per_s, tr.eta_s
+            imgui.text(f"Gaussians: {0 if g is None else g.n}   {rate:.2f} steps/s" if rate else
+                       f"Gaussians: {0 if g is None else g.n}")
+            if eta is not None and tr.state == "running":
+                imgui.text(f"step time {1e3 * tr.step_seconds:.0f} ms   ETA {format_duration(eta)}")
             st2 = getattr(tr.trainer, "stage2", None)
             if st2 is not None:
                 changed, lam = imgui.slider_float("lambda_gen", float(st2.lambda_gen), 0.0, 2.0)
@@ -45,10 +57,32 @@ def draw(viewer) -> None:
                 stride = max(1, len(hist) // PLOT_POINTS)
                 rows = hist[::stride]
                 steps = np.array([r.get("step", i * stride) for i, r in enumerate(rows)], np.float64)
-                if implot.begin_plot("losses", imgui.ImVec2(-1, 170)):
+                series = plotted_series(rows)
+                if series and implot.begin_plot("losses", imgui.ImVec2(-1, 170)):
                     implot.setup_axes("step", "loss", implot.AxisFlags_.auto_fit.value, implot.AxisFlags_.auto_fit.value)
-                    for key in ("loss", "loss_stg", "loss_gen"):
-                        ys = np.array([r.get(key, np.nan) for r in rows], np.float64)
-                        if np.isfinite(ys).any():
-                            implot.plot_line(key, steps, ys)
+                    for key, ys in series.items():
+                        implot.plot_line(key, steps, ys)
                     implot.end_plot()
+
+
+# Loss terms the trainer may record, in legend order.
+LOSS_KEYS = ("loss", "loss_stg", "loss_gen")
+
+
+def plotted_series(rows: list[dict]) -> dict[str, np.ndarray]:
+    """The loss curves worth a line: terms with finite values, leaving out one that repeats
+    an earlier curve exactly (stage 1's loss is its loss_stg)."""
+    out: dict[str, np.ndarray] = {}
+    for key in LOSS_KEYS:
+        ys = np.array([r.get(key, np.nan) for r in rows], np.float64)
+        if not np.isfinite(ys).any():
+            continue
+        if any(np.array_equal(ys, other, equal_nan=True) for other in out.values()):
+            continue
+        out[key] = ys
+    return out
+
+
+def format_duration(seconds: float) -> str:
+    s = int(round(seconds))
+    return f"{s // 3600}h {s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m {s % 60:02d}s"

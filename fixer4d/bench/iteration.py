@@ -54,7 +54,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--backend", default="auto")
     parser.add_argument("--max-points", type=int, default=None, help="init point cap (default: Stage1Config's)")
     parser.add_argument("--out", default="benchmarks/results/iteration.json")
+    parser.add_argument("--effects", action="store_true",
+                        help="instead: seconds per iteration with effects auto vs all vs the per-frame init "
+                             "(decomposed MVS init of every --init-stride-th frame; see effects_comparison)")
+    parser.add_argument("--init", default=None, help="with --effects: a decomposed init folder to reuse "
+                                                     "(default: computed into a temporary folder)")
+    parser.add_argument("--init-stride", type=int, default=4, help="with --effects: init frame stride (the pipeline's)")
     args = parser.parse_args(argv)
+    if args.effects:
+        return _effects_main(args)
 
     import torch
     from tqdm import tqdm
@@ -113,6 +121,90 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{k:<12}{v:>10.4f}{100 * v / total:>7.1f}%")
     print(f"{'total':<12}{total:>10.4f}")
     print(f"one densify/prune call: {densify_call:.4f} s ({counts})")
+    out = Path(args.out)
+    write_json(out, result)
+    print(f"-> {out}")
+    return 0
+
+
+# Rows of the effects comparison: name -> (use the decomposed init?, effects mode).
+EFFECT_ROWS = {"per_frame_all": (False, None), "decomposed_all": (True, "all"), "decomposed_auto": (True, "auto")}
+
+
+def effects_comparison(scene, init, cfg, iterations: int, warmup: int) -> dict:
+    """Seconds per stage-1 iteration of the same scene and init at equal settings (``cfg``),
+    with every effect on vs effects by evidence, measured in one process and interleaved
+    step by step (so a load change on a shared machine hits every row alike).
+
+    init: a DecomposedInit. Rows (EFFECT_ROWS): the per-frame clouds (static cloud repeated in
+    every init frame, every Gaussian dynamic with the default effects: the path before the
+    decomposition), the decomposed init with mode all, and with mode auto. Densification is
+    off inside the timed loop (it would change N). Returns {row: {seconds_per_iteration,
+    num_gaussians, num_dynamic, config, split_seconds}} plus ratios against auto.
+    """
+    import time
+
+    from fixer4d.model.effects import EffectsConfig
+    from fixer4d.train.trainer import Trainer, model_from_init
+
+    trainers = {}
+    for name, (decomposed, mode) in EFFECT_ROWS.items():
+        src = init if decomposed else init.frame_clouds()
+        eff = EffectsConfig(mode=mode, revise=False) if mode else None
+        model, _ = model_from_init(src, scene, cfg, eff)
+        trainers[name] = Trainer(model, scene, cfg)
+    for _ in range(warmup):
+        for t in trainers.values():
+            t.step()
+    recs: dict[str, list] = {k: [] for k in trainers}
+    for _ in range(iterations):
+        for name, t in trainers.items():
+            tic = time.perf_counter()
+            rec = t.step()
+            rec["t_total"] = time.perf_counter() - tic
+            recs[name].append(rec)
+    rows = {}
+    for name, t in trainers.items():
+        r = recs[name]
+        rows[name] = {"seconds_per_iteration": float(np.median([x["t_total"] for x in r])),
+                      "num_gaussians": t.model.num_gaussians, "num_dynamic": t.model.num_dynamic,
+                      "config": t.model.config.to_dict(),
+                      "split_seconds": {k[2:]: float(np.median([x[k] for x in r])) for k in _PARTS}}
+    auto = rows["decomposed_auto"]["seconds_per_iteration"]
+    return {"rows": rows, "speedup_auto_vs": {k: v["seconds_per_iteration"] / auto for k, v in rows.items()}}
+
+
+def _effects_main(args) -> int:
+    import os
+    import tempfile
+
+    import torch
+
+    from fixer4d.atomic import write_json
+    from fixer4d.init import run_init
+    from fixer4d.init.decompose import DecomposedInit
+    from fixer4d.scene import load_scene
+    from fixer4d.train.config import Stage1Config
+
+    scene = load_scene(args.scene, scale=args.scale)
+    frames = list(range(0, scene.num_frames, max(1, args.init_stride)))
+    if args.init is None:
+        with tempfile.TemporaryDirectory() as tmp:
+            run_init(scene, "mvs", tmp, frames=frames, progress=False)
+            init = DecomposedInit.load(tmp)
+    else:
+        init = DecomposedInit.load(args.init)
+    extra = {} if args.max_points is None else {"init_max_points": args.max_points}
+    cfg = Stage1Config(iterations=10 ** 9, backend=args.backend, progress=False,
+                       densify_from=10 ** 9, densify_until=10 ** 9 + 1, **extra)
+    result = {"benchmark": "iteration-effects", "scene": scene.name, "init_frames": frames,
+              "iterations": args.iterations, "warmup": args.warmup, "init_max_points": cfg.init_max_points,
+              "torch_threads": torch.get_num_threads(), "load_average": list(os.getloadavg()),
+              **effects_comparison(scene, init, cfg, args.iterations, args.warmup)}
+    result["load_average_after"] = list(os.getloadavg())
+    for name, r in result["rows"].items():
+        print(f"{name:<18}{r['seconds_per_iteration']:>9.4f} s/it  {r['num_gaussians']:>7} Gaussians "
+              f"({r['num_dynamic']} dynamic)  {result['speedup_auto_vs'][name]:.2f}x auto")
     out = Path(args.out)
     write_json(out, result)
     print(f"-> {out}")

@@ -176,8 +176,9 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
         prep = row.get("seconds", {}).get("prep")
         extra = (f" {_format(mean.get('psnr_dynamic'), 2)} | {_format(mean.get('psnr_static'), 2)} |"
                  if regions else "")
-        lines.append(f"| {row.get('method', '?')} | {_format(mean.get('psnr'), 2)} | {_format(mean.get('dssim1'), 4)} | "
-                     f"{_format(mean.get('dssim2'), 4)} | {_format(mean.get('lpips'), 4)} |{extra} {_format_seconds(prep)} |")
+        lines.append(f"| {row.get('method', '?')} | {_format(mean.get('psnr'), 2)} | "
+                     f"{_format(mean.get('dssim1'), 4)} | {_format(mean.get('dssim2'), 4)} | "
+                     f"{_format(mean.get('lpips'), 4)} |{extra} {_format_seconds(prep)} |")
     return "\n".join(lines) + "\n"
 
 

@@ -130,7 +130,8 @@ def common_view_bounds(cameras: Sequence[Camera]) -> ViewBounds:
         for other in cameras:
             p, zo = other.project(pts)
             with np.errstate(invalid="ignore"):
-                seen &= (zo > 0) & (p[:, 0] >= 0) & (p[:, 0] <= other.width) & (p[:, 1] >= 0) & (p[:, 1] <= other.height)
+                seen &= ((zo > 0) & (p[:, 0] >= 0) & (p[:, 0] <= other.width)
+                         & (p[:, 1] >= 0) & (p[:, 1] <= other.height))
         kept.append(pts[seen])
     pts = np.concatenate(kept)
     if pts.shape[0] == 0:

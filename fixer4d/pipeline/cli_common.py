@@ -5,7 +5,6 @@ import argparse
 import json
 from typing import Any
 
-from fixer4d.errors import InputError
 
 
 def add_config_arguments(parser: argparse.ArgumentParser) -> None:
@@ -20,14 +19,13 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def frame_range_override(text: str | None) -> list[int] | None:
-    """``--frames a:b`` (half-open, the scene's own frame numbers) -> [a, b]; checked against the
-    scene's length when the scene loads."""
+    """``--frames a:b`` (half-open, the scene's own frame numbers) -> [a, b], by the one frame-range
+    parser (``fixer4d.scene.parse_frame_range``); checked against the scene's length when it opens."""
     if text is None:
         return None
-    a, sep, b = text.partition(":")
-    if not sep or not a.strip().isdigit() or not b.strip().isdigit() or int(b) <= int(a):
-        raise InputError(f"--frames {text!r}: expected a:b with 0 <= a < b (half-open), e.g. 0:20")
-    return [int(a), int(b)]
+    from fixer4d.scene import parse_frame_range
+
+    return list(parse_frame_range(text))
 
 
 def resolve_from_args(args: argparse.Namespace, flags: dict[str, Any], *, source: str | None = None,

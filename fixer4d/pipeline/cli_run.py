@@ -18,6 +18,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--init", choices=["mvs", "sparse"], default=None, help="initialization of the main model")
     parser.add_argument("--restorer", choices=["learned", "warp", "cogvideo"], default=None,
                         help="stage-2 restorer (learned: trained per scene on its own train cameras)")
+    parser.add_argument("--effects", choices=["auto", "all", "static"], default=None,
+                        help="spacetime effects: decided by evidence (auto, default), all, or static only; force "
+                             "one with --set effects.motion_degree=N (sh_degree, rotation_velocity, temporal_opacity)")
     parser.add_argument("--no-baseline", action="store_true", help="skip the STGS w/ COLMAP baseline row")
     parser.add_argument("--eval-stride", type=int, default=None, help="evaluate every S-th frame")
     parser.add_argument("--segment-frames", type=int, default=None,
@@ -38,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
              "stage1.iterations": args.iterations, "stage2.rounds": args.rounds,
              "stage2.refresh_every": args.refresh_every, "stage2.lambda_gen": args.lambda_gen,
              "init.method": args.init, "eval.stride": args.eval_stride, "restorer.kind": args.restorer,
+             "effects.mode": args.effects,
              "baseline_sparse": False if args.no_baseline else None,
              "segments.frames": args.segment_frames, "executor.kind": args.executor,
              "executor.ray_address": args.ray_address}

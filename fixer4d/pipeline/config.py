@@ -3,6 +3,7 @@
     RunConfig
       scene         SceneConfig        which scene, scale, frame range
       init          InitConfig         (init/run.py) method mvs|sparse, plane sweep, fusion, ...
+      effects       EffectsConfig      (model/effects.py) auto|all|static + forced switches
       stage1        Stage1Config       (train/config.py) STGS on the four observed views
       stage2        Stage2Config       (train/config.py) restoration-guided refinement
       trajectories  TrajectoryConfig   the novel trajectories restored in stage 2
@@ -26,6 +27,7 @@ from typing import Any
 
 from fixer4d.errors import InputError
 from fixer4d.init.run import InitConfig
+from fixer4d.model.effects import EffectsConfig
 from fixer4d.pipeline import config_tree
 from fixer4d.pipeline.executors import ExecutorConfig
 from fixer4d.pipeline.segments import SegmentConfig
@@ -92,6 +94,7 @@ class RunConfig:
 
     scene: SceneConfig = field(default_factory=SceneConfig)
     init: InitConfig = field(default_factory=InitConfig)
+    effects: EffectsConfig = field(default_factory=EffectsConfig)
     stage1: Stage1Config = field(default_factory=Stage1Config)
     stage2: Stage2Config = field(default_factory=Stage2Config)
     trajectories: TrajectoryConfig = field(default_factory=TrajectoryConfig)

@@ -25,7 +25,8 @@ def init_key(config: RunConfig, method: str) -> str:
 
 
 def stage1_key(config: RunConfig, method: str) -> str:
-    return stage_key("stage1", init_key(config, method), training_settings(config.to_dict()["stage1"]), config.seed)
+    d = config.to_dict()
+    return stage_key("stage1", init_key(config, method), training_settings(d["stage1"]), config.seed, d["effects"])
 
 
 def stage2_key(config: RunConfig) -> str:

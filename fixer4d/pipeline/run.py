@@ -8,6 +8,7 @@ reason while the others run.
 """
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -19,7 +20,7 @@ from fixer4d import atomic
 from fixer4d.pipeline import report as R
 from fixer4d.pipeline import stages as S
 from fixer4d.pipeline.config import RunConfig
-from fixer4d.pipeline.restoration import model_render_fn, restoration_render_fn
+from fixer4d.pipeline.restoration import build_restorer, model_render_fn, restoration_render_fn
 from fixer4d.pipeline.run_folder import RunFolder, load_scene_for, stage_key
 from fixer4d.pipeline.stage_cache import StageCache
 
@@ -30,10 +31,12 @@ def open_context(config: RunConfig, out: str | Path, *, progress: bool = True,
                  stage_cache: str | Path | None = None) -> S.StageContext:
     """Load and check the scene, then create (or resume) the run folder: a bad scene or frame
     range fails here, before anything is written."""
+    from fixer4d.scene import validate_scene
+
     scene = load_scene_for(config)
-    validate = getattr(scene, "validate", None)
-    if callable(validate):
-        validate()
+    validate_scene(scene)  # a video that opens but does not decode fails here, naming file and frame
+    if config.restorer.kind == "cogvideo":  # an unavailable restorer stops before any work
+        build_restorer(config)
     run = RunFolder.create(out, config)
     return S.StageContext(run=run, scene=scene, progress=progress,
                           cache=StageCache(stage_cache) if stage_cache is not None else None)
@@ -67,7 +70,11 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
         R.write_report(ctx.path, ctx.scene.describe(), _ordered(rows), rec.as_seconds(), extra())
 
     def extra() -> dict[str, Any]:
-        return {"restorer": S.restorer_summary(ctx), "peak_rss_mb": peak_rss_mb()}
+        out = {"restorer": S.restorer_summary(ctx), "peak_rss_mb": peak_rss_mb()}
+        effects = ctx.path / S.EFFECTS_NAME
+        if effects.is_file():  # the main model's effects and why
+            out["model"] = json.loads(effects.read_text())
+        return out
 
     def seconds(*stages: str) -> dict[str, float]:
         return {"prep": rec.seconds(f"init_{method}"), "train": rec.seconds(*stages)}

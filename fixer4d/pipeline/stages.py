@@ -29,6 +29,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from fixer4d import atomic
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
 from fixer4d.pipeline.config import RunConfig
@@ -37,6 +38,10 @@ from fixer4d.pipeline.run_folder import RunFolder, stage_key
 from fixer4d.pipeline.stage_cache import StageCache
 
 log = logging.getLogger("fixer4d.pipeline")
+
+# The stage-1 model's effects and why (Gaussians static/dynamic, degrees, switches, revisions),
+# beside the model; the report's "model" section.
+EFFECTS_NAME = "model_effects.json"
 
 
 class StageFailed(InputError):
@@ -78,6 +83,7 @@ def init_stage(ctx: StageContext, method: str):
 
     Raises StageFailed when the sparse baseline finds no point at all (reported in its row)."""
     from fixer4d.init import load_frame_clouds, run_init
+    from fixer4d.init.decompose import DecomposedInit, has_decomposed
 
     out = ctx.path / f"init_{method}"
     name = f"init_{method}"
@@ -95,6 +101,8 @@ def init_stage(ctx: StageContext, method: str):
             ctx.run.records.finish(name, key, time.perf_counter() - t0)
             if ctx.cache is not None:
                 ctx.cache.store(key, [out / p.name for p in out.iterdir()], ctx.run.records.seconds(name))
+    # always the init as stored (colours are uint8 on disk), so a resumed stage 1 trains on the
+    # same input as an uninterrupted one
     try:
         clouds = load_frame_clouds(out)
     except InputError:
@@ -102,11 +110,14 @@ def init_stage(ctx: StageContext, method: str):
     if sum(len(c.points) for c in clouds) == 0 and method == "sparse":
         raise StageFailed(f"the sparse (COLMAP) init triangulated no points on any of its "
                           f"{len(range(0, ctx.scene.num_frames, ctx.config.init_frame_stride))} init frames")
+    if has_decomposed(out):
+        return DecomposedInit.load(out)
     return clouds
 
 
 def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
     """Stage 1 (STGS on the observed views) from ``clouds`` -> ``model_path``; resumes mid-stage."""
+    from fixer4d.model.effects import effects_report
     from fixer4d.model.io import load_ply, save_ply
 
     key = stage1_key(ctx.config, method)
@@ -118,10 +129,11 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
         ctx.run.records.finish(name, key, seconds)
         return load_ply(model_path)
     t0 = time.perf_counter()
-    trainer = stage1_trainer(ctx, clouds, model_path.parent)
+    trainer, decision = stage1_trainer(ctx, clouds, model_path.parent)
     prior = trainer.train_seconds if trainer.resume() else 0.0
     trainer.train()
     save_ply(trainer.model, model_path)
+    atomic.write_json(model_path.parent / EFFECTS_NAME, effects_report(trainer.model, decision, trainer.revisions))
     ctx.run.records.finish(name, key, time.perf_counter() - t0 + prior)
     _drop_checkpoints(model_path.parent, 1)
     if ctx.cache is not None:
@@ -129,14 +141,19 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
     return trainer.model
 
 
-def stage1_trainer(ctx: StageContext, clouds, run_dir: Path | None):
-    """The stage-1 Trainer exactly as ``stage1`` builds it (model from ``clouds``, the run's
-    Stage1Config with its scaled schedule), for callers that step it themselves (the viewer's live
-    training). run_dir: where checkpoints go (None: none)."""
-    from fixer4d.train.trainer import Trainer, model_from_clouds
+def stage1_trainer(ctx: StageContext, init, run_dir: Path | None):
+    """(Trainer, effects decision) exactly as ``stage1`` builds them: the model from ``init`` (a
+    decomposed init -> effects decided by evidence under ``config.effects``; per-frame clouds ->
+    every effect on), the run's Stage1Config with its scaled schedule, effect revisions during
+    training. For callers that step the trainer themselves too (the viewer's live training).
+    run_dir: where checkpoints go (None: none)."""
+    from fixer4d.train.trainer import Trainer, model_from_init
 
     cfg = ctx.stage1_config()
-    return Trainer(model_from_clouds(clouds, ctx.scene, cfg), ctx.scene, cfg, run_dir=run_dir)
+    model, decision = model_from_init(init, ctx.scene, cfg, ctx.config.effects)
+    trainer = Trainer(model, ctx.scene, cfg, run_dir=run_dir,
+                      effects=ctx.config.effects if decision is not None else None)
+    return trainer, decision
 
 
 def restorer_stage(ctx: StageContext, clouds):

@@ -2,26 +2,34 @@
 
 Same splats and the same blending rule as the oracle (fixer4d/render/reference.py), in float32:
 
+* records: each splat's mean, conic (LDL form, project.stable_conic), opacity, colour and depth
+  in one 64-byte float32 row, so a tile fetches a splat with one cache miss.
 * binning (serial, O(tile-splat pairs)): visible splats are depth-sorted once (stable), then
   appended in that order to the flat index list of every TILE x TILE tile that their box
   touches, so each tile's list comes out sorted without a per-tile sort. The box is the radius
   box cut to the bounding box of the ellipse where the splat can still reach alpha >= ALPHA_MIN
   (power <= ln(opacity / ALPHA_MIN), with a safety margin): only provably non-blending pixels
-  are left out, so results do not change; at opacity 0.1 the lists are ~25 % shorter.
-* forward (parallel over tiles): a tile's splats are packed contiguously (structure of arrays),
-  then walked front to back one splat at a time over the tile's 64 pixel lanes, restricted to
-  the rows of the splat's box. Each lane follows exactly the sequential per-pixel rule (same
-  float32 operations in the same order, early stop included); the lane loop is branch-free
-  with exp(-power) in explicit arithmetic (_exp_neg, correctly rounded), so LLVM vectorizes
-  it. It stores the final transmittance and, per pixel, the list position of its last blended
-  splat.
-* backward (parallel over tiles): the reverse walk (as in 3DGS/gsplat), lane-parallel the same
-  way, recovering the transmittance before each splat as T / (1 - alpha); per-splat gradients
-  dL/d(mean2d, conic, opacity, colour, depth) are summed over the lanes and accumulated in one
-  float64 buffer per chunk of tiles (no atomics); the buffers are summed at the end.
+  are left out, so results do not change. The widened level and the box's rows go into the
+  record for the kernels' row test.
+* row test (_active_rows, vectorized over a tile's 8 rows): per (tile, splat), the rows whose
+  line cuts the ellipse within the tile's columns and whose gate is open (forward: some pixel
+  still live; backward: some pixel blended this far down its list). Only those rows are walked:
+  on random-init scenes this removes 35-60 % of the pixel evaluations (lanes outside the
+  ellipse and lanes already stopped).
+* forward (parallel over tiles): walked front to back one splat at a time over each maximal
+  run of active rows, 8 pixel lanes at a time. Each lane follows exactly the sequential
+  per-pixel rule (same float32 operations in the same order, early stop included); the lane
+  loop is branch-free with exp(-power) in explicit arithmetic (_exp_neg, correctly rounded),
+  so LLVM vectorizes it. It stores the final transmittance and, per pixel, the list position
+  of its last blended splat.
+* backward (parallel over tiles): the reverse walk (as in 3DGS/gsplat) over the same row runs,
+  recovering the transmittance before each splat as T / (1 - alpha) (one reciprocal per
+  lane); per-splat gradients dL/d(mean2d, conic, opacity, colour, depth) are summed over the
+  run's lanes (vectorized sums, _add_lane_sums) and accumulated in one float64 buffer per chunk
+  of tiles (no atomics); the buffers are summed at the end.
 * scheduling: tiles are ordered by work and dealt evenly to the threads (static schedule).
 
-Memory is the image, the projected splats and the flat tile lists. Chain rule from the 2D splats
+Memory is the image, the splat records and the flat tile lists. Chain rule from the 2D splats
 to means/quats/scales is torch autograd through fixer4d/render/project.py.
 """
 from __future__ import annotations
@@ -59,19 +67,26 @@ _LANES = C.TILE * C.TILE  # one lane per pixel of a tile (the lane reductions as
 # per-splat gradient slots in the accumulation buffers
 _G_MX, _G_MY, _G_A, _G_B, _G_C, _G_O, _G_R, _G_G, _G_BL, _G_Z = range(10)
 _N_GRAD = 10
-# rows of a tile's packed splats
-_S_MX, _S_MY, _S_A, _S_B, _S_C, _S_O, _S_R, _S_G, _S_BL, _S_Z = range(10)
-_N_SP = 10
-# slots (of _LANES floats each) of the backward's flat lane state, then the _N_GRAD contributions.
-# Unsigned: numba skips the negative-index wraparound for unsigned indices, which would otherwise
-# keep LLVM from vectorizing the lane loops.
-(_BU_PX, _BU_PY, _BU_T, _BU_TF, _BU_CNT, _BU_GR, _BU_GG, _BU_GB, _BU_GD, _BU_GT, _BU_RR, _BU_RG, _BU_RB,
- _BU_RD) = (np.uint64(k) for k in range(14))
-_B_C0 = 14
-_B_SLOTS = _B_C0 + _N_GRAD
-_B_C0_U = np.uint64(_B_C0)
+# columns of the (N, _R_N) float32 splat records: one 64-byte row per splat, so a tile reads a
+# splat with one cache miss. Mean (px), conic in LDL form (a, r, q), opacity, colour, depth,
+# then what binning adds: the widened power level of the opacity-aware ellipse and the first and
+# last pixel row of its box (integers, exact in float32).
+(_R_MX, _R_MY, _R_A, _R_R, _R_Q, _R_O, _R_CR, _R_CG, _R_CB, _R_Z, _R_LEV, _R_ROW0, _R_ROW1) = range(13)
+_R_N = 16
+# Slots (of _LANES floats each) of the kernels' flat lane state: one array at constant offsets,
+# so LLVM can prove the lane loops free of aliasing. Unsigned: numba skips the negative-index
+# wraparound for unsigned indices, which would otherwise keep LLVM from vectorizing the loops.
+(_FU_PX, _FU_PY, _FU_T, _FU_CR, _FU_CG, _FU_CB, _FU_CD, _FU_WALK, _FU_NBL, _FU_LIVE) = (
+    np.uint64(k) for k in range(10))
+_F_SLOTS = 10
+# the backward's lane state, then the _N_GRAD per-lane gradient contributions of the current splat
+(_BU_PX, _BU_PY, _BU_T, _BU_CNT, _BU_GR, _BU_GG, _BU_GB, _BU_GD, _BU_TG, _BU_RR, _BU_RG, _BU_RB,
+ _BU_RD) = (np.uint64(k) for k in range(13))
+(_GU_MX, _GU_MY, _GU_A, _GU_B, _GU_C, _GU_O, _GU_R, _GU_G, _GU_BL, _GU_Z) = (np.uint64(13 + k) for k in range(10))
+_B_SLOTS = 13 + 10
+_RECOUNT_MASK = 7  # the forward recounts its live rows every 8 splats
+_GATE_OPEN = np.float32(2 ** 30)  # a forward row gate above every list position
 _LANES_U = np.uint64(_LANES)
-_U1, _U2, _U3, _U4, _U5, _U6, _U7, _U8, _U16, _U32 = (np.uint64(k) for k in (1, 2, 3, 4, 5, 6, 7, 8, 16, 32))
 # exp(-power) in explicit float64 arithmetic (see _exp_neg): power is clamped to this (the
 # result is used only for power <= POWER_MAX = 4.5), so 2^n needs n >= -9 only
 _F64 = np.float64
@@ -87,6 +102,12 @@ _POWER_MAX64 = float(C.POWER_MAX)
 _ALPHA_MIN64 = float(np.float32(C.ALPHA_MIN))
 _BOX_REL_MARGIN = 1e-3  # relative, far above float32 round-off of power (~1e-6)
 _BOX_ABS_MARGIN = 1e-2  # pixels, far above float32 round-off of a pixel coordinate
+# per-row ellipse test (_row_misses): absolute pixels, and relative to the offsets the float32
+# per-pixel test subtracts (its round-off is ~6e-8 of them)
+_ROW_ABS_MARGIN = 1e-2
+_ROW_REL_MARGIN = 1e-5
+_ROW_REL2 = (1.0 + _BOX_REL_MARGIN) ** 2  # the relative margin of the half-width, squared
+_ROW_HALF_SPAN = 0.5 * C.TILE - 0.5  # from a tile row's middle to its outer pixel centres
 
 
 def unavailable_reason() -> str | None:
@@ -124,34 +145,35 @@ if numba is not None:
         return np.float32(p * s)
 
     @njit(cache=True)
-    def _bin_tiles(mx, my, ca, cb, cc, op, radii, order, width, height, tile):
+    def _bin_tiles(rec, radii, order, width, height, tile):
         """Flat per-tile lists of splat ids, each in the depth order of ``order``.
 
-        Returns (offsets (n_tiles + 1,) int64, ids (pairs,) int32, rows (N, 2) int32: the first
-        and last pixel row of each binned splat's box, used to skip a tile's rows it cannot
-        reach). A splat goes to every tile
-        holding a pixel whose centre may blend it: inside both its radius box (one pixel of
-        slack against round-off) and the bounding box of the ellipse power <= min(POWER_MAX,
-        ln(opacity / ALPHA_MIN)) (beyond it alpha < ALPHA_MIN), widened by a safety margin.
-        Only pixels that provably cannot blend the splat are left out, so results are the same
-        as with the radius box alone; the per-pixel tests decide exactly.
+        rec: (N, _R_N) float32 splat records (see _records); this fills their _R_LEV, _R_ROW0
+        and _R_ROW1 slots for the binned splats. Returns (offsets (n_tiles + 1,) int64, ids
+        (pairs,) int32). A splat goes to every tile holding a pixel whose centre may blend it:
+        inside both its radius box (one pixel of slack against round-off) and the bounding box
+        of the ellipse power <= level = min(POWER_MAX, ln(opacity / ALPHA_MIN)) (beyond it
+        alpha < ALPHA_MIN), widened by a safety margin. Only pixels that provably cannot blend
+        the splat are left out, so results are the same as with the radius box alone; the
+        per-pixel tests decide exactly. _R_LEV keeps the widened level (the kernels' per-row
+        test), _R_ROW0/_R_ROW1 the first and last pixel row of the box.
         """
         n_tx = (width + tile - 1) // tile
         n_ty = (height + tile - 1) // tile
         counts = np.zeros(n_tx * n_ty + 1, np.int64)
         ranges = np.empty((order.shape[0], 4), np.int64)
-        rows = np.zeros((mx.shape[0], 2), np.int32)
         for k in range(order.shape[0]):
             g = order[k]
             r = float(radii[g])
-            x = float(mx[g])
-            y = float(my[g])
+            x = float(rec[g, _R_MX])
+            y = float(rec[g, _R_MY])
             rx = r
             ry = r
-            a, rr, q = float(ca[g]), float(cb[g]), float(cc[g])
-            level = min(_POWER_MAX64, np.log(float(op[g]) / _ALPHA_MIN64))
+            a, rr, q = float(rec[g, _R_A]), float(rec[g, _R_R]), float(rec[g, _R_Q])
+            level = min(_POWER_MAX64, np.log(float(rec[g, _R_O]) / _ALPHA_MIN64))
+            level = level * (1.0 + _BOX_REL_MARGIN) + _BOX_REL_MARGIN
+            rec[g, _R_LEV] = np.float32(level * (1.0 + _BOX_REL_MARGIN))  # rounding up, generously
             if a > 0.0 and q > 0.0:
-                level = level * (1.0 + _BOX_REL_MARGIN) + _BOX_REL_MARGIN
                 # half-extents of {d : 0.5 d^T conic d <= level} are sqrt(2 level Sigma_xx), ...;
                 # from the LDL form Sigma_xx = r^2 / q + 1 / a, Sigma_yy = 1 / q (no cancellation)
                 ex = np.sqrt(2.0 * level * (rr * rr / q + 1.0 / a)) * (1.0 + _BOX_REL_MARGIN) + _BOX_ABS_MARGIN
@@ -171,8 +193,8 @@ if numba is not None:
                 ranges[k, 2] = 1
                 ranges[k, 3] = 0
                 continue
-            rows[g, 0] = int(v0)
-            rows[g, 1] = int(v1)
+            rec[g, _R_ROW0] = np.float32(v0)  # exact: image rows are far below 2^24
+            rec[g, _R_ROW1] = np.float32(v1)
             tx0, tx1 = int(u0) // tile, int(u1) // tile
             ty0, ty1 = int(v0) // tile, int(v1) // tile
             ranges[k, 0] = tx0
@@ -192,106 +214,130 @@ if numba is not None:
                     t = ty * n_tx + tx
                     ids[cursor[t]] = g
                     cursor[t] += 1
-        return offsets, ids, rows
+        return offsets, ids
 
-    @njit(cache=True)
-    def _pack_tile(mx, my, ca, cb, cc, op, col, z, ids, start, n):
-        """The tile's splats, contiguous in list order: (10, n) float32 rows _S_*."""
-        sp = np.empty((_N_SP, n), np.float32)
-        for i in range(n):
-            g = ids[start + i]
-            sp[_S_MX, i] = mx[g]
-            sp[_S_MY, i] = my[g]
-            sp[_S_A, i] = ca[g]
-            sp[_S_B, i] = cb[g]
-            sp[_S_C, i] = cc[g]
-            sp[_S_O, i] = op[g]
-            sp[_S_R, i] = col[g, 0]
-            sp[_S_G, i] = col[g, 1]
-            sp[_S_BL, i] = col[g, 2]
-            sp[_S_Z, i] = z[g]
-        return sp
+    @njit(inline="always")
+    def _active_rows(rec, g, fi, x0, y0, n_rows, row_gate, act):
+        """Marks in act[0:TILE] the tile rows the splat may blend; returns how many.
 
-    @njit(cache=True)
-    def _forward_tile(sp, n, ids, start, rows, x0, y0, width, height, out_color, out_trans, out_depth,
-                      out_count):
+        A row is active when it lies in the splat's box, its gate is open (row_gate[row] > fi:
+        some pixel of the row can still blend list position fi), and the row's line cuts the
+        ellipse power <= _R_LEV in an interval that reaches the row's pixel centres x0 + 0.5 ..
+        x0 + TILE - 0.5, widened by margins far above the float32 round-off of the per-pixel
+        test (_ROW_* constants; float64 here). The interval's half-width is sqrt(s / a) with
+        s = 2 level - q dy^2 (LDL form), compared squared: no sqrt or division per row.
+        """
+        smx, smy = float(rec[g, _R_MX]), float(rec[g, _R_MY])
+        a, rr, q = float(rec[g, _R_A]), float(rec[g, _R_R]), float(rec[g, _R_Q])
+        lev2 = 2.0 * float(rec[g, _R_LEV])
+        v0, v1 = float(rec[g, _R_ROW0]), float(rec[g, _R_ROW1])
+        x_mid = float(x0) + 0.5 * _TILE
+        n_act = 0
+        for row in range(n_rows):
+            v = float(y0 + row)
+            dy = v + 0.5 - smy
+            s = lev2 - q * dy * dy
+            rdy = rr * dy
+            xc = smx - rdy
+            d = abs(xc - x_mid) - _ROW_HALF_SPAN - (_ROW_ABS_MARGIN + _ROW_REL_MARGIN * (abs(xc) + abs(rdy)))
+            d = max(d, 0.0)
+            ok = (s >= 0.0) & (a * d * d <= s * _ROW_REL2) & (v >= v0) & (v <= v1) & (row_gate[row] > fi)
+            act[row] = ok
+            n_act += 1 if ok else 0
+        return n_act
+
+    @njit(cache=True, error_model="numpy")
+    def _forward_tile(rec, ids, start, n, x0, y0, width, height, out_color, out_trans, out_depth, out_count):
         """Front-to-back compositing of one tile, splat by splat over the tile's pixel lanes.
 
         Each lane (pixel) follows exactly the sequential rule of the oracle (same float32
-        operations in the same order per pixel); the loop over lanes is branch-free so LLVM
-        vectorizes it. Returns the number of blended fragments.
+        operations in the same order per pixel); the lane loop is branch-free so LLVM
+        vectorizes it. Per splat it runs over each maximal run of consecutive active rows
+        (_active_rows: a row is skipped when all its pixels have stopped or when the splat's
+        ellipse misses it); the tile stops once every pixel has. Returns the number of blended
+        fragments.
         """
-        px = np.empty(_LANES, np.float32)
-        py = np.empty(_LANES, np.float32)
-        tr = np.ones(_LANES, np.float32)
-        cr = np.zeros(_LANES, np.float32)
-        cg = np.zeros(_LANES, np.float32)
-        cbl = np.zeros(_LANES, np.float32)
-        cd = np.zeros(_LANES, np.float32)
-        walked = np.zeros(_LANES, np.float32)
-        live = np.zeros(_LANES, np.int32)
-        nbl = np.zeros(_LANES, np.int32)
-        for p in range(_LANES):
-            u = x0 + p % _TILE
-            v = y0 + p // _TILE
-            px[p] = np.float32(u) + _HALF
-            py[p] = np.float32(v) + _HALF
+        L = _LANES_U
+        st = np.zeros(_F_SLOTS * _LANES, np.float32)
+        row_gate = np.zeros(_TILE, np.float32)  # 2^30 while a row has a live pixel, else 0
+        act = np.zeros(_TILE, np.bool_)
+        n_rows = min(_TILE, height - y0)  # rows inside the image (a runtime bound: see _active_rows)
+        for pi in range(_LANES):
+            p = np.uint64(pi)
+            u = x0 + pi % _TILE
+            v = y0 + pi // _TILE
+            st[_FU_PX * L + p] = np.float32(u) + _HALF
+            st[_FU_PY * L + p] = np.float32(v) + _HALF
+            st[_FU_T * L + p] = _ONE
             if u < width and v < height:
-                live[p] = 1
-        n_live = 1
+                st[_FU_LIVE * L + p] = _ONE
+                row_gate[pi // _TILE] = _GATE_OPEN
         for i in range(n):
-            if (i & 15) == 0:  # stop the tile once every pixel has terminated
-                n_live = 0
-                for p in range(_LANES):
-                    n_live += live[p]
-                if n_live == 0:
+            if (i & _RECOUNT_MASK) == 0:  # close the rows whose pixels have all stopped
+                n_live_rows = 0
+                for row in range(_TILE):
+                    n_row = 0
+                    for l in range(_TILE):
+                        n_row += 1 if st[_FU_LIVE * L + np.uint64(row * _TILE + l)] != _ZERO else 0
+                    row_gate[row] = _GATE_OPEN if n_row > 0 else _ZERO
+                    n_live_rows += 1 if n_row > 0 else 0
+                if n_live_rows == 0:
                     break
-            smx, smy = sp[_S_MX, i], sp[_S_MY, i]
-            a, r, q, o = sp[_S_A, i], sp[_S_B, i], sp[_S_C, i], sp[_S_O, i]
-            sr, sg, sb, sz = sp[_S_R, i], sp[_S_G, i], sp[_S_BL, i], sp[_S_Z, i]
-            fi = np.float32(i + 1)
             g = ids[start + i]
-            # only the tile rows inside the splat's box (the others cannot blend it)
-            p0 = max(rows[g, 0] - y0, 0) * _TILE
-            p1 = (min(rows[g, 1] - y0, _TILE - 1) + 1) * _TILE
-            for pi in range(p0, p1):
-                p = np.uint64(pi)  # unsigned: no negative-index wraparound, so LLVM vectorizes
-                dx = px[p] - smx
-                dy = py[p] - smy
-                e = dx + r * dy
-                power = _HALF * (a * e * e + q * dy * dy)
-                alpha = o * _exp_neg(power)
-                alpha = _ALPHA_MAX if alpha > _ALPHA_MAX else alpha
-                t = tr[p]
-                t_next = t * (_ONE - alpha)
-                ok = (power <= _POWER_MAX) & (alpha >= _ALPHA_MIN) & (live[p] != 0)
-                blend = ok & (t_next >= _T_MIN)
-                w = alpha * t
-                cr[p] = cr[p] + w * sr if blend else cr[p]
-                cg[p] = cg[p] + w * sg if blend else cg[p]
-                cbl[p] = cbl[p] + w * sb if blend else cbl[p]
-                cd[p] = cd[p] + w * sz if blend else cd[p]
-                tr[p] = t_next if blend else t
-                walked[p] = fi if blend else walked[p]
-                nbl[p] += 1 if blend else 0
-                live[p] = 0 if (ok & (t_next < _T_MIN)) else live[p]
+            if _active_rows(rec, g, _ZERO, x0, y0, n_rows, row_gate, act) == 0:
+                continue
+            smx, smy = rec[g, _R_MX], rec[g, _R_MY]
+            a, r, q, o = rec[g, _R_A], rec[g, _R_R], rec[g, _R_Q], rec[g, _R_O]
+            sr, sg, sb, sz = rec[g, _R_CR], rec[g, _R_CG], rec[g, _R_CB], rec[g, _R_Z]
+            fi = np.float32(i + 1)
+            row = 0
+            while row < n_rows:
+                if not act[row]:
+                    row += 1
+                    continue
+                ra = row
+                while row + 1 < n_rows and act[row + 1]:
+                    row += 1
+                for pi in range(ra * _TILE, (row + 1) * _TILE):
+                    p = np.uint64(pi)  # unsigned: no negative-index wraparound, so LLVM vectorizes
+                    dx = st[_FU_PX * L + p] - smx
+                    dy = st[_FU_PY * L + p] - smy
+                    e = dx + r * dy
+                    power = _HALF * (a * e * e + q * dy * dy)
+                    alpha = o * _exp_neg(power)
+                    alpha = _ALPHA_MAX if alpha > _ALPHA_MAX else alpha
+                    t = st[_FU_T * L + p]
+                    t_next = t * (_ONE - alpha)
+                    live = st[_FU_LIVE * L + p]
+                    ok = (power <= _POWER_MAX) & (alpha >= _ALPHA_MIN) & (live != _ZERO)
+                    blend = ok & (t_next >= _T_MIN)
+                    w = alpha * t
+                    st[_FU_CR * L + p] = st[_FU_CR * L + p] + w * sr if blend else st[_FU_CR * L + p]
+                    st[_FU_CG * L + p] = st[_FU_CG * L + p] + w * sg if blend else st[_FU_CG * L + p]
+                    st[_FU_CB * L + p] = st[_FU_CB * L + p] + w * sb if blend else st[_FU_CB * L + p]
+                    st[_FU_CD * L + p] = st[_FU_CD * L + p] + w * sz if blend else st[_FU_CD * L + p]
+                    st[_FU_T * L + p] = t_next if blend else t
+                    st[_FU_WALK * L + p] = fi if blend else st[_FU_WALK * L + p]
+                    st[_FU_NBL * L + p] += _ONE if blend else _ZERO
+                    st[_FU_LIVE * L + p] = _ZERO if (ok & (t_next < _T_MIN)) else live
+                row += 1
         nf = 0
-        for p in range(_LANES):
-            u = x0 + p % _TILE
-            v = y0 + p // _TILE
+        for pi in range(_LANES):
+            p = np.uint64(pi)
+            u = x0 + pi % _TILE
+            v = y0 + pi // _TILE
             if u < width and v < height:
-                out_color[v, u, 0] = cr[p]
-                out_color[v, u, 1] = cg[p]
-                out_color[v, u, 2] = cbl[p]
-                out_depth[v, u] = cd[p]
-                out_trans[v, u] = tr[p]
-                out_count[v, u] = np.int32(walked[p])
-                nf += nbl[p]
+                out_color[v, u, 0] = st[_FU_CR * L + p]
+                out_color[v, u, 1] = st[_FU_CG * L + p]
+                out_color[v, u, 2] = st[_FU_CB * L + p]
+                out_depth[v, u] = st[_FU_CD * L + p]
+                out_trans[v, u] = st[_FU_T * L + p]
+                out_count[v, u] = np.int32(st[_FU_WALK * L + p])
+                nf += int(st[_FU_NBL * L + p])
         return nf
 
     @njit(parallel=True, cache=True)
-    def _forward(mx, my, ca, cb, cc, op, col, z, offsets, ids, rows, tile_perm, width, height,
-                 out_color, out_trans, out_depth, out_count):
+    def _forward(rec, offsets, ids, tile_perm, width, height, out_color, out_trans, out_depth, out_count):
         """Front-to-back compositing, parallel over tiles; returns blended fragments per tile."""
         n_tx = (width + _TILE - 1) // _TILE
         n_tiles = tile_perm.shape[0]
@@ -299,25 +345,58 @@ if numba is not None:
         for k in prange(n_tiles):
             t = tile_perm[k]
             start = offsets[t]
-            n = offsets[t + 1] - start
-            sp = _pack_tile(mx, my, ca, cb, cc, op, col, z, ids, start, n)
-            frags[k] = _forward_tile(sp, n, ids, start, rows, (t % n_tx) * _TILE, (t // n_tx) * _TILE,
-                                     width, height, out_color, out_trans, out_depth, out_count)
+            frags[k] = _forward_tile(rec, ids, start, offsets[t + 1] - start, (t % n_tx) * _TILE,
+                                     (t // n_tx) * _TILE, width, height, out_color, out_trans, out_depth, out_count)
         return frags
 
+    @njit(cache=True, fastmath={"reassoc"})
+    def _add_lane_sums(st, lo, hi, out, g):
+        """out[g, j] += the sum of the backward's per-lane contributions j over lanes lo..hi-1.
+
+        Reassociation is allowed here only, so that LLVM vectorizes these sums (a strict
+        left-to-right float sum cannot be); the order is still fixed by the code, so results do
+        not depend on timing."""
+        L = _LANES_U
+        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = s9 = _ZERO
+        for p in range(lo, hi):  # one pass, ten running sums (vectorized as ten lane vectors)
+            s0 += st[_GU_MX * L + p]
+            s1 += st[_GU_MY * L + p]
+            s2 += st[_GU_A * L + p]
+            s3 += st[_GU_B * L + p]
+            s4 += st[_GU_C * L + p]
+            s5 += st[_GU_O * L + p]
+            s6 += st[_GU_R * L + p]
+            s7 += st[_GU_G * L + p]
+            s8 += st[_GU_BL * L + p]
+            s9 += st[_GU_Z * L + p]
+        out[g, _G_MX] += s0
+        out[g, _G_MY] += s1
+        out[g, _G_A] += s2
+        out[g, _G_B] += s3
+        out[g, _G_C] += s4
+        out[g, _G_O] += s5
+        out[g, _G_R] += s6
+        out[g, _G_G] += s7
+        out[g, _G_BL] += s8
+        out[g, _G_Z] += s9
+
     @njit(cache=True, error_model="numpy")
-    def _backward_tile(sp, n, ids, start, rows, x0, y0, width, height, trans, count, g_color, g_trans,
-                       g_depth, out):
+    def _backward_tile(rec, ids, start, x0, y0, width, height, trans, count, g_color, g_trans, g_depth, out):
         """Reverse walk over one tile (as in 3DGS/gsplat), splat by splat over pixel lanes.
 
         Per lane, the same float32 recurrences as the sequential walk: the transmittance before
         a splat is recovered as T / (1 - alpha), and rec_* hold the colour/depth of everything
-        behind it. Per-splat gradients are summed over the lanes by a pairwise tree and added
-        into ``out`` (N, 10) float64. All lane state lives in one flat array at constant
-        offsets, so LLVM can prove the lane loop free of aliasing and vectorize it.
+        behind it. Per splat the lane loop runs over each maximal run of active rows
+        (_active_rows: rows where some pixel blended at or beyond this list position and the
+        ellipse reaches); the run's per-lane gradient contributions are then summed
+        (_add_lane_sums) into ``out`` (N, 10) float64. All lane state lives in one flat array
+        at constant offsets, so LLVM can prove the lane loop free of aliasing and vectorize it.
         """
         L = _LANES_U
         st = np.zeros(_B_SLOTS * _LANES, np.float32)
+        row_gate = np.zeros(_TILE, np.float32)  # a row's largest count: no blending at or beyond it
+        act = np.zeros(_TILE, np.bool_)
+        n_rows = min(_TILE, height - y0)  # rows inside the image (a runtime bound: see _active_rows)
         max_cnt = 0
         for pi in range(_LANES):
             p = np.uint64(pi)
@@ -326,88 +405,79 @@ if numba is not None:
             st[_BU_PX * L + p] = np.float32(u) + _HALF
             st[_BU_PY * L + p] = np.float32(v) + _HALF
             st[_BU_T * L + p] = _ONE
-            st[_BU_TF * L + p] = _ONE
             if u < width and v < height:
                 st[_BU_T * L + p] = trans[v, u]
-                st[_BU_TF * L + p] = trans[v, u]
                 st[_BU_CNT * L + p] = np.float32(count[v, u])
                 st[_BU_GR * L + p] = g_color[v, u, 0]
                 st[_BU_GG * L + p] = g_color[v, u, 1]
                 st[_BU_GB * L + p] = g_color[v, u, 2]
                 st[_BU_GD * L + p] = g_depth[v, u]
-                st[_BU_GT * L + p] = g_trans[v, u]
+                # the transmittance term of every splat's alpha gradient: T_final g_T / (1 - alpha)
+                st[_BU_TG * L + p] = trans[v, u] * g_trans[v, u]
                 max_cnt = max(max_cnt, count[v, u])
+                row_gate[pi // _TILE] = max(row_gate[pi // _TILE], np.float32(count[v, u]))
         for i in range(max_cnt - 1, -1, -1):
-            smx, smy = sp[_S_MX, i], sp[_S_MY, i]
-            a, r, q, o = sp[_S_A, i], sp[_S_B, i], sp[_S_C, i], sp[_S_O, i]
-            sr, sg, sb, sz = sp[_S_R, i], sp[_S_G, i], sp[_S_BL, i], sp[_S_Z, i]
-            fi = np.float32(i)
             g = ids[start + i]
-            p0 = max(rows[g, 0] - y0, 0) * _TILE
-            p1 = (min(rows[g, 1] - y0, _TILE - 1) + 1) * _TILE
-            if p1 <= p0:
+            fi = np.float32(i)
+            if _active_rows(rec, g, fi, x0, y0, n_rows, row_gate, act) == 0:
                 continue
-            for j in range(_N_GRAD):  # lanes outside the splat's rows contribute nothing
-                for pi in range(_LANES):
-                    st[(_B_C0_U + np.uint64(j)) * L + np.uint64(pi)] = _ZERO
-            for pi in range(p0, p1):
-                p = np.uint64(pi)
-                dx = st[_BU_PX * L + p] - smx
-                dy = st[_BU_PY * L + p] - smy
-                e = dx + r * dy
-                power = _HALF * (a * e * e + q * dy * dy)
-                gauss = _exp_neg(power)
-                raw = o * gauss
-                alpha = _ALPHA_MAX if raw > _ALPHA_MAX else raw
-                valid = (fi < st[_BU_CNT * L + p]) & (power <= _POWER_MAX) & (alpha >= _ALPHA_MIN)
-                one_minus = _ONE - alpha
-                t0 = st[_BU_T * L + p]
-                t = t0 / one_minus
-                w = alpha * t
-                r0, r1 = st[_BU_RR * L + p], st[_BU_RG * L + p]
-                r2, r3 = st[_BU_RB * L + p], st[_BU_RD * L + p]
-                g0, g1 = st[_BU_GR * L + p], st[_BU_GG * L + p]
-                g2, g3 = st[_BU_GB * L + p], st[_BU_GD * L + p]
-                g_alpha = (t * ((sr - r0) * g0 + (sg - r1) * g1 + (sb - r2) * g2 + (sz - r3) * g3)
-                           - st[_BU_TF * L + p] / one_minus * st[_BU_GT * L + p])
-                st[_BU_T * L + p] = t if valid else t0
-                st[_BU_RR * L + p] = alpha * sr + one_minus * r0 if valid else r0
-                st[_BU_RG * L + p] = alpha * sg + one_minus * r1 if valid else r1
-                st[_BU_RB * L + p] = alpha * sb + one_minus * r2 if valid else r2
-                st[_BU_RD * L + p] = alpha * sz + one_minus * r3 if valid else r3
-                free = valid & (raw <= _ALPHA_MAX)  # clamped alpha ignores opacity and conic
-                g_power = -raw * g_alpha
-                st[(_B_C0_U + np.uint64(_G_R)) * L + p] = w * g0 if valid else _ZERO
-                st[(_B_C0_U + np.uint64(_G_G)) * L + p] = w * g1 if valid else _ZERO
-                st[(_B_C0_U + np.uint64(_G_BL)) * L + p] = w * g2 if valid else _ZERO
-                st[(_B_C0_U + np.uint64(_G_Z)) * L + p] = w * g3 if valid else _ZERO
-                st[(_B_C0_U + np.uint64(_G_O)) * L + p] = gauss * g_alpha if free else _ZERO
-                ae = a * e
-                st[(_B_C0_U + np.uint64(_G_MX)) * L + p] = -(g_power * ae) if free else _ZERO
-                st[(_B_C0_U + np.uint64(_G_MY)) * L + p] = -(g_power * (ae * r + q * dy)) if free else _ZERO
-                st[(_B_C0_U + np.uint64(_G_A)) * L + p] = g_power * _HALF * e * e if free else _ZERO
-                st[(_B_C0_U + np.uint64(_G_B)) * L + p] = g_power * ae * dy if free else _ZERO
-                st[(_B_C0_U + np.uint64(_G_C)) * L + p] = g_power * _HALF * dy * dy if free else _ZERO
-            # pairwise sum over the lanes: constant-length elementwise halvings (vectorized)
-            for j in range(_N_GRAD):
-                base = (_B_C0_U + np.uint64(j)) * L
-                for qi in range(32):
-                    q = np.uint64(qi)
-                    st[base + q] += st[base + q + _U32]
-                for qi in range(16):
-                    q = np.uint64(qi)
-                    st[base + q] += st[base + q + _U16]
-                for qi in range(8):
-                    q = np.uint64(qi)
-                    st[base + q] += st[base + q + _U8]
-            for j in range(_N_GRAD):
-                base = (_B_C0_U + np.uint64(j)) * L
-                out[g, j] += ((st[base] + st[base + _U4]) + (st[base + _U1] + st[base + _U5])) + (
-                    (st[base + _U2] + st[base + _U6]) + (st[base + _U3] + st[base + _U7]))
+            smx, smy = rec[g, _R_MX], rec[g, _R_MY]
+            a, r, q, o = rec[g, _R_A], rec[g, _R_R], rec[g, _R_Q], rec[g, _R_O]
+            sr, sg, sb, sz = rec[g, _R_CR], rec[g, _R_CG], rec[g, _R_CB], rec[g, _R_Z]
+            row = 0
+            while row < n_rows:
+                if not act[row]:
+                    row += 1
+                    continue
+                ra = row
+                while row + 1 < n_rows and act[row + 1]:
+                    row += 1
+                for pi in range(ra * _TILE, (row + 1) * _TILE):
+                    p = np.uint64(pi)
+                    dx = st[_BU_PX * L + p] - smx
+                    dy = st[_BU_PY * L + p] - smy
+                    e = dx + r * dy
+                    power = _HALF * (a * e * e + q * dy * dy)
+                    gauss = _exp_neg(power)
+                    raw = o * gauss
+                    alpha = _ALPHA_MAX if raw > _ALPHA_MAX else raw
+                    valid = (fi < st[_BU_CNT * L + p]) & (power <= _POWER_MAX) & (alpha >= _ALPHA_MIN)
+                    one_minus = _ONE - alpha
+                    inv = _ONE / one_minus
+                    t0 = st[_BU_T * L + p]
+                    t = t0 * inv
+                    w = alpha * t
+                    r0, r1 = st[_BU_RR * L + p], st[_BU_RG * L + p]
+                    r2, r3 = st[_BU_RB * L + p], st[_BU_RD * L + p]
+                    g0, g1 = st[_BU_GR * L + p], st[_BU_GG * L + p]
+                    g2, g3 = st[_BU_GB * L + p], st[_BU_GD * L + p]
+                    g_alpha = (t * ((sr - r0) * g0 + (sg - r1) * g1 + (sb - r2) * g2 + (sz - r3) * g3)
+                               - st[_BU_TG * L + p] * inv)
+                    st[_BU_T * L + p] = t if valid else t0
+                    st[_BU_RR * L + p] = alpha * sr + one_minus * r0 if valid else r0
+                    st[_BU_RG * L + p] = alpha * sg + one_minus * r1 if valid else r1
+                    st[_BU_RB * L + p] = alpha * sb + one_minus * r2 if valid else r2
+                    st[_BU_RD * L + p] = alpha * sz + one_minus * r3 if valid else r3
+                    free = valid & (raw <= _ALPHA_MAX)  # clamped alpha ignores opacity and conic
+                    gp = -raw * g_alpha if free else _ZERO
+                    wv = w if valid else _ZERO
+                    ae = a * e
+                    st[_GU_R * L + p] = wv * g0
+                    st[_GU_G * L + p] = wv * g1
+                    st[_GU_BL * L + p] = wv * g2
+                    st[_GU_Z * L + p] = wv * g3
+                    st[_GU_O * L + p] = gauss * g_alpha if free else _ZERO
+                    st[_GU_MX * L + p] = -(gp * ae)
+                    st[_GU_MY * L + p] = -(gp * (ae * r + q * dy))
+                    st[_GU_A * L + p] = gp * _HALF * e * e
+                    st[_GU_B * L + p] = gp * ae * dy
+                    st[_GU_C * L + p] = gp * _HALF * dy * dy
+                _add_lane_sums(st, np.uint64(ra * _TILE), np.uint64((row + 1) * _TILE), out, g)
+                row += 1
 
     @njit(parallel=True, cache=True)
-    def _backward(mx, my, ca, cb, cc, op, col, z, offsets, ids, rows, tile_order, width, height,
-                  trans, count, g_color, g_trans, g_depth, n_splats, n_chunks):
+    def _backward(rec, offsets, ids, tile_order, width, height, trans, count, g_color, g_trans, g_depth,
+                  n_chunks):
         """Reverse walk per tile; returns per-chunk gradient sums (n_chunks, N, 10) float64.
 
         Chunk c owns tiles tile_order[c::n_chunks] (tile_order by decreasing work, so the
@@ -416,16 +486,13 @@ if numba is not None:
         """
         n_tx = (width + _TILE - 1) // _TILE
         n_tiles = tile_order.shape[0]
-        out = np.zeros((n_chunks, n_splats, _N_GRAD), np.float64)
+        out = np.zeros((n_chunks, rec.shape[0], _N_GRAD), np.float64)
         for chunk in prange(n_chunks):
             for k in range(chunk, n_tiles, n_chunks):
                 t = tile_order[k]
-                start = offsets[t]
-                n = offsets[t + 1] - start
-                if n > 0:
-                    sp = _pack_tile(mx, my, ca, cb, cc, op, col, z, ids, start, n)
-                    _backward_tile(sp, n, ids, start, rows, (t % n_tx) * _TILE, (t // n_tx) * _TILE,
-                                   width, height, trans, count, g_color, g_trans, g_depth, out[chunk])
+                if offsets[t + 1] > offsets[t]:
+                    _backward_tile(rec, ids, offsets[t], (t % n_tx) * _TILE, (t // n_tx) * _TILE, width, height,
+                                   trans, count, g_color, g_trans, g_depth, out[chunk])
         return out
 
 
@@ -463,26 +530,35 @@ def _as_np(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().to(torch.float32).cpu().numpy())
 
 
+def _records(means2d, conics, opacities, colors, depths) -> np.ndarray:
+    """(N, _R_N) float32 splat records (columns _R_*); binning fills _R_LEV and the rows."""
+    rec = torch.zeros(means2d.shape[0], _R_N, dtype=torch.float32)
+    rec[:, _R_MX:_R_MY + 1] = means2d.detach()
+    rec[:, _R_A:_R_Q + 1] = conics.detach()
+    rec[:, _R_O] = opacities.detach()
+    rec[:, _R_CR:_R_CB + 1] = colors.detach()
+    rec[:, _R_Z] = depths.detach()
+    return rec.numpy()
+
+
 class _RasterizeCPU(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means2d, conics, opacities, colors, depths, radii, width, height):
-        mx, my = _as_np(means2d[:, 0]), _as_np(means2d[:, 1])
-        ca, cb, cc = _as_np(conics[:, 0]), _as_np(conics[:, 1]), _as_np(conics[:, 2])
-        op, col, z = _as_np(opacities), _as_np(colors), _as_np(depths)
+        rec = _records(means2d, conics, opacities, colors, depths)
         radii_np = radii.detach().cpu().numpy().astype(np.int64)
+        op, z = rec[:, _R_O], rec[:, _R_Z]
         # alpha <= opacity, so a splat below ALPHA_MIN opacity never blends: not binned
         visible = np.nonzero((radii_np > 0) & (op >= _ALPHA_MIN))[0]
         order = visible[np.argsort(z[visible], kind="stable")].astype(np.int64)
-        offsets, ids, rows = _bin_tiles(mx, my, ca, cb, cc, op, radii_np, order, width, height, _TILE)
+        offsets, ids = _bin_tiles(rec, radii_np, order, width, height, _TILE)
         color = np.empty((height, width, 3), np.float32)
         trans = np.empty((height, width), np.float32)
         depth = np.empty((height, width), np.float32)
         count = np.empty((height, width), np.int32)
         with _torch_threads_kept():
             by_work, dealt = _tile_orders(offsets, numba.get_num_threads())
-            frags = _forward(mx, my, ca, cb, cc, op, col, z, offsets, ids, rows, dealt, width, height,
-                             color, trans, depth, count)
-        ctx.arrays = (mx, my, ca, cb, cc, op, col, z, offsets, ids, rows, by_work, trans, count)
+            frags = _forward(rec, offsets, ids, dealt, width, height, color, trans, depth, count)
+        ctx.arrays = (rec, offsets, ids, by_work, trans, count)
         ctx.size = (width, height)
         n_frag = torch.tensor(int(frags.sum()), dtype=torch.int64)
         ctx.mark_non_differentiable(n_frag)
@@ -492,16 +568,16 @@ class _RasterizeCPU(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, g_color, g_trans, g_depth, _g_frag):
-        mx, my, ca, cb, cc, op, col, z, offsets, ids, rows, by_work, trans, count = ctx.arrays
+        rec, offsets, ids, by_work, trans, count = ctx.arrays
         width, height = ctx.size
 
         def grad_np(g, shape):
             return np.zeros(shape, np.float32) if g is None else _as_np(g)
 
         with _torch_threads_kept():
-            sums = _backward(mx, my, ca, cb, cc, op, col, z, offsets, ids, rows, by_work, width, height,
-                             trans, count, grad_np(g_color, (height, width, 3)), grad_np(g_trans, (height, width)),
-                             grad_np(g_depth, (height, width)), mx.shape[0], numba.get_num_threads()).sum(0)
+            sums = _backward(rec, offsets, ids, by_work, width, height, trans, count,
+                             grad_np(g_color, (height, width, 3)), grad_np(g_trans, (height, width)),
+                             grad_np(g_depth, (height, width)), numba.get_num_threads()).sum(0)
         g = torch.from_numpy(sums.astype(np.float32))
         return (g[:, _G_MX:_G_MY + 1], g[:, _G_A:_G_C + 1], g[:, _G_O], g[:, _G_R:_G_BL + 1], g[:, _G_Z],
                 None, None, None)

@@ -6,7 +6,8 @@ Pairs (issue 12, in the spirit of Difix3D+ / 3DGS-Enhancer and of FVS / Deep Ble
 train camera c, a short stage 1 (``loo_iterations`` at ``loo_scale`` of the resolution) on the
 *other* train cameras. At ``pair_frames`` timestamps:
 
-* leave-one-out case: the render of c from that model (a model that never saw c) is the degraded
+* leave-one-out case: the render of c from that model (a model that never saw c; rendered at
+  full resolution, like the clips the restorer will repair) is the degraded
   input, c's real frame the target; the references are the two train cameras nearest to c, the
   remaining one is an extra view;
 * milder cases: at the ``early_fraction`` checkpoint of the same training, the renders of the
@@ -48,7 +49,7 @@ from fixer4d.train.trainer import Trainer, model_from_clouds
 
 log = logging.getLogger("fixer4d.train")
 
-PAIRS_FORMAT = 1
+PAIRS_FORMAT = 2
 # Stage-1 fields that ``Stage1Config.for_iterations`` derives from the iteration count (the
 # leave-one-out trainings get their own short schedule) or that do not change a result.
 _SCHEDULE_FIELDS = ("iterations", "densify_every", "densify_from", "densify_until", "opacity_reset_every",
@@ -168,12 +169,15 @@ def build_fold(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Confi
     frames = pair_frames(scene.num_frames, lc.pair_frames)
     backend, background = cfg.backend, trainer.background
     samples: list[tuple[np.ndarray, np.ndarray, int, int, bool]] = []
+    # the model trains at loo_scale but the pairs are rendered at full resolution: the restorer
+    # then learns on the image statistics (blur widths, hole sizes in pixels) it will restore
+    full = _TrainViews(scene, trained, 1.0) if lc.loo_scale != 1.0 else views
 
     def add(target: int, loo: bool) -> None:
         for f in frames:
-            req = _pair_request(trainer.model, views, target, f, backend, background)
+            req = _pair_request(trainer.model, full, target, f, backend, background)
             feats, _ = request_features(req, warp)
-            samples.append((feats[0], views.frame(f, target), target, f, loo))
+            samples.append((feats[0], full.frame(f, target), target, f, loo))
 
     trainer.train(max(1, int(round(lc.early_fraction * cfg.iterations))), progress=progress)
     for cam in trained:
@@ -191,8 +195,30 @@ def _psnr(a: np.ndarray, b: np.ndarray) -> float:
     return float(10.0 * np.log10(1.0 / max(mse, 1e-12)))
 
 
-def _key(scene: MultiViewVideo, stage1: Stage1Config, config: RestoreConfig) -> str:
+def _init_digest(init: Any) -> str:
+    """SHA-1 of the arrays an init is made of (per-frame clouds, or the fields of a decomposed init)."""
+    h = hashlib.sha1()
+
+    def feed(value: Any) -> None:
+        if isinstance(value, np.ndarray):
+            h.update(str((value.dtype, value.shape)).encode())
+            h.update(np.ascontiguousarray(value).tobytes())
+        elif isinstance(value, (list, tuple)):
+            for v in value:
+                feed(v)
+        elif isinstance(value, (int, float, str, bool)):
+            h.update(repr(value).encode())
+        elif hasattr(value, "__dict__"):
+            for k in sorted(vars(value)):
+                feed(vars(value)[k])
+
+    feed(init)
+    return h.hexdigest()[:16]
+
+
+def _key(scene: MultiViewVideo, init: Any, stage1: Stage1Config, config: RestoreConfig) -> str:
     parts = {"format": PAIRS_FORMAT, "scene": scene.describe(), "train_ids": list(scene.train_ids),
+             "init": _init_digest(init),
              "stage1": {k: v for k, v in stage1.to_dict().items() if k not in _SCHEDULE_FIELDS},
              "warp": dataclasses.asdict(config.warp), "learned": config.learned.training_key()}
     return hashlib.sha1(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:16]
@@ -206,7 +232,7 @@ def train_scene_restorer(scene: MultiViewVideo, clouds: Sequence[Any], stage1: S
     reused, and finished weights with the same settings are loaded instead of retrained.
     clouds: the init's per-frame point clouds (``model_from_clouds`` input)."""
     out_dir = Path(out_dir)
-    key = _key(scene, stage1, config)
+    key = _key(scene, clouds, stage1, config)
     if (out_dir / WEIGHTS_FILE).is_file() and (out_dir / VALIDATION_FILE).is_file():
         meta = json.loads((out_dir / META_FILE).read_text()) if (out_dir / META_FILE).is_file() else {}
         if meta.get("pairs_key") == key:
@@ -233,7 +259,7 @@ def train_scene_restorer(scene: MultiViewVideo, clouds: Sequence[Any], stage1: S
         c0 = time.process_time()
         folds[cam] = build_fold(scene, clouds, stage1, cam, config, progress=progress)
         with atomic_path(path, suffix=".npz") as tmp:
-            np.savez(tmp, **folds[cam])
+            np.savez_compressed(tmp, **folds[cam])
         pair_cpu += time.process_time() - c0
         write_json(key_path, {"key": key, "cpu_seconds": time.process_time() - c0})
 

@@ -126,3 +126,20 @@ def imgui_escape(d) -> None:
     d.frame()
     io.add_key_event(imgui.Key.escape, False)
     d.frame()
+
+
+def test_run_restorer_kind_and_fallback(run, tmp_path):
+    from app.main import make_jobs, make_restore
+    from fixer4d.errors import InputError
+
+    cfg = json.loads((run / "config.json").read_text())
+    (run / "config.json").write_text(json.dumps({**cfg, "restorer": {"kind": "learned"}}))
+    with pytest.raises(InputError, match="learned restorer"):
+        make_jobs("learned", None, run)  # no RUN/restorer weights
+    cache, queue = make_restore(run / "cache", run)
+    try:
+        assert queue.kind == "warp"  # the run's learned restorer is not trained: warp instead
+        queue.set_jobs(make_jobs("warp", cache, run), "warp")
+        assert queue.kind == "warp" and len(queue._retired) == 1
+    finally:
+        queue.shutdown()

@@ -97,7 +97,8 @@ def test_queued_restoration_lands_in_cache_and_compare_shows_it(make_viewer, tin
     d.click_item("queue")
     assert queue.wait_all(timeout=300)
     assert [i.status for i in queue.items] == ["done"]
-    key = cache.key(2, 0, 3)
+    key = cache.key(2, tiny.train_ids[0], tiny.train_ids[3])  # the pipeline's names: scene camera ids
+    assert key == "t0002_0-7"
     assert cache.has(0, key)
     d.frame(2)
     ui = d.viewer._compare_ui

@@ -89,3 +89,16 @@ def test_blur_map_flags_missing_detail_only():
     assert blur_map(sharp, depth, alpha, cam, sharp, cam).max() < 1e-5
     flat = np.full_like(sharp, 0.5)
     assert blur_map(flat, depth, alpha, cam, sharp, cam).mean() > 0.1
+
+
+def test_compare_grid_fills_the_panel():
+    from app.panels.compare import grid_layout
+
+    # three 4:3 images in a wide, short panel: one row; in a tall, narrow one: one column
+    cols, scale = grid_layout(3, 200, 150, 800, 290, 20)
+    assert cols == 3 and abs(scale - min((800 - 24) / 600, (290 - 28) / 150)) < 1e-9
+    cols, scale = grid_layout(3, 200, 150, 330, 900, 20)
+    assert cols == 1 and scale > 1.5
+    # a square panel: a 2-column grid beats both a row and a column
+    cols, scale = grid_layout(3, 200, 150, 700, 600, 20)
+    assert cols == 2 and scale > 1.5  # one row: 1.13, one column: 1.15

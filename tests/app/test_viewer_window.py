@@ -50,3 +50,36 @@ def test_window_screenshot_on_demo(xvfb_display, tmp_path):
     view = img[60:320, 250:700].astype(float)
     assert view.std() > 5.0
     assert (cfg := tmp_path / "cfg" / "fixer4d" / "view").is_dir() and any(cfg.rglob("session.json"))
+
+
+def test_desktop_entry_names_the_viewer_and_its_icon():
+    import configparser
+
+    entry = configparser.ConfigParser(interpolation=None)
+    entry.optionxform = str
+    entry.read(ROOT / "assets" / "desktop" / "fixer4d-view.desktop")
+    d = entry["Desktop Entry"]
+    assert d["Type"] == "Application" and d["Terminal"] == "false"
+    assert d["Exec"].split()[0] == "fixer4d-view" and "%f" in d["Exec"]  # make install-desktop makes it absolute
+    assert (ROOT / "assets" / "desktop" / f"{d['Icon']}.svg").is_file()
+    assert 'fixer4d-view = "app.main:main"' in (ROOT / "pyproject.toml").read_text()
+    assert "install-desktop:" in (ROOT / "Makefile").read_text()
+
+
+def test_a_source_that_fails_to_open_is_shown_in_the_window(xvfb_display, tmp_path):
+    from PIL import Image
+
+    shot = tmp_path / "shot.png"
+    env = dict(os.environ, DISPLAY=xvfb_display, XDG_CONFIG_HOME=str(tmp_path / "cfg"),
+               PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    missing = tmp_path / "no_such_run"
+    cmd = [sys.executable, "-m", "app.main", "--screenshot", str(shot), "--frames", "4", "--size", "960x600", str(missing)]
+    proc = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1 and "no model to show" in proc.stderr
+    img = np.asarray(Image.open(shot)).astype(int)
+    # the error is written in the window (notifications area, error red; the chooser dialog
+    # dims it), not only on stderr
+    red = (img[..., 0] - img[..., 1] > 50) & (img[..., 0] - img[..., 2] > 50)
+    assert red[int(0.6 * img.shape[0]):].sum() > 200
+    log = (tmp_path / "cfg" / "fixer4d" / "view" / "viewer.log").read_text()
+    assert "no_such_run" in log and "ERROR" in log

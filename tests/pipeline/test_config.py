@@ -75,7 +75,8 @@ def test_format_1_configs_migrate():
 @pytest.mark.parametrize("argv, message", [
     (["run", "tiny", "--out", "{out}", "--set", "stage1.iteratoins=800"], "did you mean 'iterations'"),
     (["run", "tiny", "--out", "{out}", "--set", "stage1.iterations=lots"], "expected an integer"),
-    (["run", "tiny", "--out", "{out}", "--frames", "5:2"], "expected a:b"),
+    (["run", "tiny", "--out", "{out}", "--frames", "5:2"], "empty range"),
+    (["run", "tiny", "--out", "{out}", "--frames", "2"], "expected a:b"),
     (["run", "tiny", "--out", "{out}", "--frames", "0:99"], "frame"),
     (["run", "no/such/scene", "--out", "{out}"], "no such"),
     (["reconstruct", "tiny", "--out", "{out}", "--frames", "3:1"], "--frames"),

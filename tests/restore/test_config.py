@@ -60,3 +60,17 @@ def test_cogvideo_unavailable_is_the_clear_error(monkeypatch):
     monkeypatch.delenv("FIXER4D_COGVIDEO_WEIGHTS", raising=False)
     with pytest.raises(BackendUnavailable, match="CogVideoX restorer unavailable"):
         build_restorer(RestoreConfig(kind="cogvideo"))
+
+
+def test_cli_refuses_unavailable_cogvideo_before_any_work(tmp_path, capsys, monkeypatch):
+    import torch
+
+    from fixer4d.cli import main
+
+    if importlib.util.find_spec("diffusers") is not None and torch.cuda.is_available():
+        pytest.skip("CogVideoX may be available on this machine")
+    monkeypatch.delenv("FIXER4D_COGVIDEO_WEIGHTS", raising=False)
+    out = tmp_path / "run"
+    assert main(["run", "tiny", "--out", str(out), "--restorer", "cogvideo", "--quiet"]) == 1
+    assert "CogVideoX restorer unavailable" in capsys.readouterr().err
+    assert not out.exists()

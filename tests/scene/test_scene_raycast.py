@@ -203,3 +203,23 @@ def test_textures_are_deterministic_and_in_range():
     assert n.std() > 0.05  # not flat
     # Continuous: nearby points have nearby values (anti-aliasable, unlike white noise).
     assert np.abs(raycast.value_noise(p + 1e-4, 3, 0) - n).max() < 1e-2
+
+
+def test_exact_moving_mask_is_the_moving_objects_first_hits(tiny_scene):
+    """moving_mask = pixels whose first hit is the (only) moving object: where the ball alone
+    would be hit, the pixel is moving exactly when nothing static lies in front of it."""
+    import copy
+
+    spec = copy.deepcopy(tiny_scene.spec)
+    spec["objects"] = [o for o in spec["objects"] if o.get("motion")]
+    ball_only = SyntheticScene(spec)
+    seen = 0
+    for f in range(tiny_scene.num_frames):
+        for cam in (tiny_scene.train_ids[0], tiny_scene.test_ids[0]):
+            mask = tiny_scene.moving_mask(f, cam)
+            full, ball = tiny_scene.depth(f, cam), ball_only.depth(f, cam)
+            hit = np.isfinite(ball)
+            assert not (mask & ~hit).any()
+            np.testing.assert_array_equal(mask, hit & (ball <= full))
+            seen += int(mask.sum())
+    assert seen > 0

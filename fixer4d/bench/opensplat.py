@@ -1,0 +1,160 @@
+"""Run a user-built OpenSplat binary on exactly the inputs of `fixer4d bench train-step`.
+
+    project = write_nerfstudio_project(dir, cameras, images, points, colors)
+    result = run_opensplat(binary, project, iters=30)   # OpenSplatResult
+
+The project is nerfstudio format, which OpenSplat reads: ``transforms.json`` (per-frame
+pinhole intrinsics and OpenGL-axes camera-to-world matrices), one PNG per camera at the
+benchmark's size, and a binary PLY of the initial points with colours. OpenSplat is run on its
+CPU backend (``--cpu``) at full size (``-d 1 --num-downscales 0``), with refinement held off past
+the run (``--warmup-length``) so that every iteration does the same work as ours: render one
+image, L1 + 0.2 D-SSIM, backward, Adam. Seconds per iteration are taken from the wall-clock
+times at which its "Step k" progress lines appear (startup, image loading and the final PLY
+write excluded); if it prints none, from the whole run (then marked as including startup).
+
+Reference figures of another program are only ever *cited* next to our own (OPENSPLAT_CITED),
+with their date and conditions; nothing divides by them.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from fixer4d.errors import InputError
+
+# Side-by-side measurement of issue 15 (2026-11, idle 2-core machine, one after the other; same
+# 5 Panoptic cameras, same random points, same loss, one image per iteration; OpenSplat = the
+# WebODM fork 1.2.0 built from source with -DGPU_RUNTIME=CPU). Seconds per iteration, keyed by
+# (Gaussians, width, height). Cited in tables, never used as a divisor.
+OPENSPLAT_CITED = {
+    "source": "issue 15, 2026-11, idle 2-core machine, OpenSplat WebODM fork 1.2.0 CPU build",
+    "opensplat_s_per_iter": {(30_000, 320, 180): 0.365, (100_000, 320, 180): 0.509,
+                             (30_000, 640, 360): 1.362, (100_000, 640, 360): 1.734},
+    "fixer4d_s_per_iter_then": {(30_000, 320, 180): 0.191, (100_000, 320, 180): 0.339,
+                                (30_000, 640, 360): 0.554, (100_000, 640, 360): 0.794},
+}
+# Step lines OpenSplat prints while training ("Step 10: 0.2345 (0%)"); at least two distinct
+# steps are needed to time iterations without startup.
+_STEP_RE = re.compile(r"\bStep\s+(\d+)\b")
+# OpenSplat densifies only after this many steps; set past the run so no step refines
+_NO_REFINE_MARGIN = 10
+
+
+@dataclass
+class OpenSplatResult:
+    """One OpenSplat run: seconds per iteration, how it was timed, and the command."""
+
+    s_per_iter: float
+    timing: str  # "step lines k0..k1" or "whole run incl. startup"
+    iters: int
+    wall_s: float
+    command: list[str]
+
+
+def _write_ply(path: Path, points: np.ndarray, colors: np.ndarray) -> None:
+    """Binary little-endian PLY: float x, y, z and uchar red, green, blue per vertex."""
+    n = len(points)
+    rgb8 = np.clip(np.round(np.asarray(colors, np.float64) * 255.0), 0, 255).astype(np.uint8)
+    rec = np.empty(n, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
+                             ("blue", "u1")])
+    rec["x"], rec["y"], rec["z"] = (np.asarray(points, np.float32)[:, k] for k in range(3))
+    rec["red"], rec["green"], rec["blue"] = rgb8[:, 0], rgb8[:, 1], rgb8[:, 2]
+    header = ("ply\nformat binary_little_endian 1.0\n"
+              f"element vertex {n}\n"
+              "property float x\nproperty float y\nproperty float z\n"
+              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
+    with open(path, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(rec.tobytes())
+
+
+def write_nerfstudio_project(out_dir: str | os.PathLike, cameras, images, points: np.ndarray,
+                             colors: np.ndarray) -> Path:
+    """Write a nerfstudio project OpenSplat can train on; returns its folder.
+
+    cameras: fixer4d Cameras (OpenCV axes); images: one (H, W, 3) float [0, 1] image per camera,
+    at that camera's size; points: (N, 3) world positions; colors: (N, 3) in [0, 1]. Frames are
+    named so that OpenSplat's sort by file name keeps the cameras' order.
+    """
+    from PIL import Image
+
+    out = Path(out_dir)
+    if len(cameras) != len(images):
+        raise InputError(f"OpenSplat project: {len(cameras)} cameras but {len(images)} images")
+    (out / "images").mkdir(parents=True, exist_ok=True)
+    frames = []
+    for i, (cam, img) in enumerate(zip(cameras, images)):
+        img = np.asarray(img)
+        if img.shape != (cam.height, cam.width, 3):
+            raise InputError(f"OpenSplat project: image {i} has shape {img.shape}, camera {cam.name!r} is "
+                             f"{cam.width}x{cam.height}")
+        name = f"images/frame_{i:05d}.png"
+        Image.fromarray(np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)).save(out / name)
+        frames.append({"file_path": name, "w": int(cam.width), "h": int(cam.height),
+                       "fl_x": float(cam.fx), "fl_y": float(cam.fy), "cx": float(cam.cx), "cy": float(cam.cy),
+                       "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
+                       "transform_matrix": cam.c2w_opengl().tolist()})
+    _write_ply(out / "points.ply", points, colors)
+    with open(out / "transforms.json", "w") as fh:
+        json.dump({"camera_model": "OPENCV", "ply_file_path": "points.ply", "frames": frames}, fh, indent=1)
+    return out
+
+
+def opensplat_command(binary: str | os.PathLike, project: Path, iters: int, output: Path) -> list[str]:
+    """The OpenSplat command line for a benchmark run of ``iters`` iterations."""
+    return [str(binary), str(project), "--cpu", "-n", str(iters), "-d", "1", "--num-downscales", "0",
+            "--warmup-length", str(iters + _NO_REFINE_MARGIN), "-o", str(output)]
+
+
+def seconds_per_iter(events: list[tuple[float, int]], wall_s: float, iters: int) -> tuple[float, str]:
+    """(seconds per iteration, how timed) from (time, step) progress events of one run."""
+    steps: dict[int, float] = {}
+    for t, k in events:
+        steps.setdefault(k, t)  # first time each step was reported
+    if len(steps) >= 2:
+        k0, k1 = min(steps), max(steps)
+        return (steps[k1] - steps[k0]) / (k1 - k0), f"step lines {k0}..{k1}"
+    return wall_s / max(iters, 1), "whole run incl. startup"
+
+
+def resolve_binary(binary: str | os.PathLike) -> str:
+    """The path of an executable OpenSplat (a file path, or a name on PATH); InputError if none."""
+    exe = str(binary) if Path(binary).is_file() else shutil.which(str(binary))
+    if exe is None or not os.access(exe, os.X_OK):
+        raise InputError(f"--opensplat {binary}: not an executable file; build OpenSplat "
+                         "(https://github.com/pierotofy/OpenSplat, -DGPU_RUNTIME=CPU) and pass its path")
+    return exe
+
+
+def run_opensplat(binary: str | os.PathLike, project: Path, iters: int, timeout_s: float | None = None) -> OpenSplatResult:
+    """Run OpenSplat on ``project`` for ``iters`` iterations and time its iterations."""
+    exe = resolve_binary(binary)
+    cmd = opensplat_command(exe, project, iters, project / "opensplat_out.ply")
+    events: list[tuple[float, int]] = []
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1)
+    tail: list[str] = []
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        now = time.perf_counter()
+        m = _STEP_RE.search(line)
+        if m:
+            events.append((now, int(m.group(1))))
+        tail = (tail + [line.rstrip()])[-20:]
+        if timeout_s is not None and now - t0 > timeout_s:
+            proc.kill()
+            break
+    rc = proc.wait()
+    wall = time.perf_counter() - t0
+    if rc != 0:
+        raise InputError(f"OpenSplat exited with status {rc}: {' '.join(cmd)}\n" + "\n".join(tail))
+    s_it, how = seconds_per_iter(events, wall, iters)
+    return OpenSplatResult(s_per_iter=s_it, timing=how, iters=iters, wall_s=wall, command=cmd)

@@ -1,0 +1,120 @@
+"""`bench train-step --opensplat`: the nerfstudio project writer, the runner and the "not run" path."""
+from __future__ import annotations
+
+import json
+import stat
+import sys
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from fixer4d.bench import opensplat, train_step
+from fixer4d.errors import InputError
+from fixer4d.geometry.camera import Camera
+
+
+def _cameras():
+    return [Camera.look_at([3.0 * np.cos(a), 0.5, 3.0 * np.sin(a)], [0.0, 0.0, 0.0], fov_y=np.radians(50.0),
+                           width=40 + 8 * i, height=24, name=f"c{i}") for i, a in enumerate((0.1, 1.3, 2.9))]
+
+
+def _project(tmp_path):
+    rng = np.random.default_rng(0)
+    cams = _cameras()
+    images = [rng.uniform(0, 1, (c.height, c.width, 3)).astype(np.float32) for c in cams]
+    pts, cols = rng.uniform(-1, 1, (57, 3)), rng.uniform(0, 1, (57, 3))
+    return cams, images, pts, cols, opensplat.write_nerfstudio_project(tmp_path / "proj", cams, images, pts, cols)
+
+
+def test_project_files_are_valid_nerfstudio(tmp_path):
+    from plyfile import PlyData
+
+    cams, images, pts, cols, root = _project(tmp_path)
+    meta = json.loads((root / "transforms.json").read_text())
+    assert meta["camera_model"] == "OPENCV" and (root / meta["ply_file_path"]).is_file()
+    frames = meta["frames"]
+    # OpenSplat sorts frames by file name: that order must be the cameras' order
+    assert [f["file_path"] for f in frames] == sorted(f["file_path"] for f in frames)
+    for f, cam, img in zip(frames, cams, images):
+        assert (f["w"], f["h"]) == (cam.width, cam.height)
+        assert np.allclose([f["fl_x"], f["fl_y"], f["cx"], f["cy"]], [cam.fx, cam.fy, cam.cx, cam.cy])
+        c2w = np.array(f["transform_matrix"])
+        assert c2w.shape == (4, 4) and np.allclose(c2w[3], [0, 0, 0, 1])
+        # nerfstudio/OpenGL axes: the camera looks down its -z, y up; centre unchanged
+        assert np.allclose(c2w[:3, 3], cam.center)
+        assert np.allclose(-c2w[:3, 2], cam.forward)
+        assert np.allclose(c2w[:3, 1], -cam.R[:, 1])
+        png = np.asarray(Image.open(root / f["file_path"]))
+        assert png.shape == (cam.height, cam.width, 3) and png.dtype == np.uint8
+        assert np.abs(png / 255.0 - img).max() <= 0.5 / 255 + 1e-6
+    ply = PlyData.read(str(root / "points.ply"))
+    v = ply["vertex"]
+    assert v.count == len(pts)
+    assert np.allclose(np.stack([v["x"], v["y"], v["z"]], 1), pts, atol=1e-6)
+    assert np.array_equal(np.stack([v["red"], v["green"], v["blue"]], 1), np.round(cols * 255).astype(np.uint8))
+
+
+def test_project_rejects_mismatched_images(tmp_path):
+    cams = _cameras()
+    with pytest.raises(InputError, match="image 0"):
+        opensplat.write_nerfstudio_project(tmp_path, cams, [np.zeros((3, 3, 3))] * 3, np.zeros((1, 3)), np.zeros((1, 3)))
+
+
+def test_runner_times_step_lines_with_a_stand_in_binary(tmp_path):
+    """A stand-in executable checks the command line and the project, then prints OpenSplat-style
+    progress; the runner must time from the step lines and record the command."""
+    _, _, _, _, root = _project(tmp_path)
+    fake = tmp_path / "opensplat"
+    fake.write_text(f"""#!{sys.executable}
+import json, sys, time, pathlib
+args = sys.argv[1:]
+proj = pathlib.Path(args[0])
+assert "--cpu" in args and args[args.index("-n") + 1] == "30" and args[args.index("-d") + 1] == "1"
+assert args[args.index("--num-downscales") + 1] == "0" and int(args[args.index("--warmup-length") + 1]) > 30
+meta = json.loads((proj / "transforms.json").read_text())
+assert all((proj / f["file_path"]).is_file() for f in meta["frames"])
+print("Reading", len(meta["frames"]), "cameras", flush=True)
+for k in range(1, 31):
+    time.sleep(0.002)
+    if k % 10 == 0:
+        print(f"Step {{k}}: 0.25 ({{100 * k // 30}}%)", flush=True)
+""")
+    fake.chmod(fake.stat().st_mode | stat.S_IXUSR)
+    res = opensplat.run_opensplat(fake, root, iters=30)
+    assert res.timing == "step lines 10..30" and res.s_per_iter > 0 and res.iters == 30
+    assert res.command[0] == str(fake) and "--cpu" in res.command
+    row = train_step.opensplat_row(res, s_it=res.s_per_iter / 4.0)
+    assert row["speedup_vs_opensplat"] == 4.0 and row["opensplat_timing"] == "step lines 10..30"
+
+
+def test_failing_binary_reports_its_output(tmp_path):
+    fake = tmp_path / "broken"
+    fake.write_text(f"#!{sys.executable}\nprint('cannot read project'); raise SystemExit(3)\n")
+    fake.chmod(fake.stat().st_mode | stat.S_IXUSR)
+    with pytest.raises(InputError, match="status 3.*\\n.*cannot read project"):
+        opensplat.run_opensplat(fake, tmp_path, iters=5)
+
+
+def test_seconds_per_iter_without_step_lines_counts_the_whole_run():
+    assert opensplat.seconds_per_iter([], wall_s=12.0, iters=60) == (0.2, "whole run incl. startup")
+    assert opensplat.seconds_per_iter([(1.0, 10), (1.0, 10), (3.0, 20)], 9.0, 20) == (0.2, "step lines 10..20")
+
+
+def test_not_run_table_cites_issue_figures_and_divides_by_none():
+    rows = [{"n_gaussians": 30_000, "width": 640, "height": 360, "s_per_iter": 0.5, "cpu_s_per_iter": 0.9,
+             "fragments_per_pixel": 230.0, "ns_per_fragment": 9.6, "load_avg": 1.0}]
+    table = train_step.format_table(rows)
+    first_row = table.splitlines()[1]
+    assert "not run" in first_row and "x" not in first_row.split()[-2]  # no speed-up without a measurement
+    assert "cited, not measured here" in table and "issue 15, 2026-11" in table
+    assert "1.362 / 0.554" in table  # 30k at 640x360: OpenSplat then / fixer4d then
+    assert not hasattr(train_step, "OPENSPLAT_S")  # the old hard-coded divisors are gone
+    cited = train_step.cited_json()
+    assert cited["opensplat_s_per_iter"]["100000 640x360"] == 1.734
+
+
+def test_missing_binary_fails_before_timing(tmp_path):
+    with pytest.raises(InputError, match="not an executable"):
+        train_step.main(["--data", str(tmp_path), "--opensplat", str(tmp_path / "nope"), "--out",
+                         str(tmp_path / "o.json")])
