@@ -6,8 +6,8 @@ through mailboxes so the UI thread never blocks on them (DESIGN.md §5).
   model construction, that reports its progress), publishes the model's raw parameters every
   few steps (and at most every PUBLISH_MIN_S) and a loss record every step, pauses/resumes.
   The trainer never waits for the UI: the UI reads what was published when it draws.
-- ``live_stage1_trainer``: the one place that sets up live training the way ``fixer4d run``
-  sets up stage 1 (same config, schedule and Gaussian cap).
+- ``live_stage1_trainer``: live training through the pipeline's stage functions (the same
+  init, config, schedule, caps and effects as ``fixer4d run``'s stage 1).
 - ``RestoreQueue``: renders the request for (trajectory, frame) on a worker thread with an
   injected render function, then submits it to ``fixer4d.restore.jobs.RestoreJobs``; finished
   clips land in the cache through the jobs' own writer.
@@ -192,35 +192,36 @@ class TrainingSession:
 
 def live_stage1_trainer(scene: Any, iterations: int | None, method: str, init_frames: int,
                         report: Callable[[str], None] = lambda text: None) -> Any:
-    """Live training set up as ``fixer4d run`` sets up stage 1: the pipeline's stage-1 settings
-    (its default iterations unless ``iterations`` is given, the 3DGS schedule scaled to them,
-    the same init-point and Gaussian caps) on ``method`` init clouds of ``init_frames`` evenly
-    spaced frames. The init writes into a temporary folder that is removed before returning.
+    """Live training through the pipeline's own stage functions (``fixer4d.pipeline.stages``):
+    the run defaults of ``fixer4d run`` (stage-1 settings, the 3DGS schedule scaled to the
+    iterations, init-point and Gaussian caps, effects by evidence), ``method`` init clouds of
+    about ``init_frames`` evenly spaced frames, and the Trainer ``stages.stage1_trainer`` builds.
+    The init is written into a temporary run folder removed before returning.
     ``report(text)`` is called at each setup step. Returns the ``Trainer``."""
     import shutil
     import tempfile
     from pathlib import Path
 
-    from fixer4d.init import run_init
-    from fixer4d.pipeline import PipelineConfig, stage1_config  # the lead's stage functions will replace these
-    from fixer4d.train.trainer import Trainer, model_from_init
+    from fixer4d.pipeline import stages
+    from fixer4d.pipeline.config import resolve
+    from fixer4d.pipeline.run_folder import RunFolder
 
-    stage1 = dict(PipelineConfig().stage1)
+    stride = max(1, scene.num_frames // max(int(init_frames), 1))
+    overrides: dict[str, Any] = {"init.method": method, "init_frame_stride": stride}
     if iterations is not None:
-        stage1["iterations"] = int(iterations)
-    config = stage1_config(stage1, progress=False)
-    count = int(np.clip(init_frames, 1, scene.num_frames))
-    frames = sorted(set(np.linspace(0, scene.num_frames - 1, count).round().astype(int).tolist()))
-    report(f"init: {method} point clouds of frames {frames} (of {scene.num_frames})")
-    out = Path(tempfile.mkdtemp(prefix="fixer4d-view-init-"))
+        overrides["stage1.iterations"] = int(iterations)
+    config = resolve(overrides=overrides)
+    tmp = Path(tempfile.mkdtemp(prefix="fixer4d-view-init-"))
     try:
-        clouds, _ = run_init(scene, method, out, frames=frames, progress=False)
+        ctx = stages.StageContext(run=RunFolder(tmp, config), scene=scene, progress=False)
+        report(f"init: {method} point clouds of every {stride}th frame (of {scene.num_frames})")
+        init = stages.init_stage(ctx, method)
+        report(f"model: init -> Gaussians (cap {config.stage1.max_gaussians}), effects {config.effects.mode}")
+        trainer, _ = stages.stage1_trainer(ctx, init, run_dir=None)
     finally:
-        shutil.rmtree(out, ignore_errors=True)
-    report(f"model: {sum(len(c.points) for c in clouds)} init points -> Gaussians (cap {config.max_gaussians})")
-    model, _ = model_from_init(clouds, scene, config)
-    report(f"trainer: {config.iterations} steps")
-    return Trainer(model, scene, config)
+        shutil.rmtree(tmp, ignore_errors=True)
+    report(f"trainer: {trainer.total_iterations} steps")
+    return trainer
 
 
 # ---- restoration ------------------------------------------------------------------------------
