@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import shutil
 import tempfile
 from pathlib import Path
@@ -94,3 +95,26 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+# The names this module gives its temporaries: ".<target>.<8 random chars><suffix>" (files) and
+# ".<target>.tmp.<8>" / ".<target>.old.<8>" (directories); tempfile's random part is 8 of [a-z0-9_].
+_TEMPORARY = re.compile(r"^\..+\.(?:tmp\.|old\.)?[a-z0-9_]{8}(?:\.[A-Za-z0-9]+)?$")
+
+
+def clean_temporaries(root: str | os.PathLike) -> list[Path]:
+    """Remove the temporaries a killed writer left anywhere under ``root``; returns what was removed.
+
+    Call it only where no other process writes (a run folder at the start of a run)."""
+    removed = []
+    for dirpath, dirnames, filenames in os.walk(root):
+        for name in list(dirnames):
+            if _TEMPORARY.match(name):
+                shutil.rmtree(Path(dirpath) / name, ignore_errors=True)
+                dirnames.remove(name)
+                removed.append(Path(dirpath) / name)
+        for name in filenames:
+            if _TEMPORARY.match(name):
+                (Path(dirpath) / name).unlink(missing_ok=True)
+                removed.append(Path(dirpath) / name)
+    return removed

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import shutil
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,8 @@ from fixer4d.errors import InputError
 from fixer4d.pipeline import config_tree
 from fixer4d.pipeline.config import FORMAT_VERSION, RunConfig, migrate_v1
 from fixer4d.scene.base import read_json_object
+
+log = logging.getLogger("fixer4d.pipeline")
 
 CONFIG_NAME = "config.json"
 STAGES_NAME = "stages.json"
@@ -118,6 +121,8 @@ class RunFolder:
             raise InputError(f"--out {path}: exists and is not a fixer4d run folder (no {CONFIG_NAME}); "
                              "choose an empty or new folder")
         path.mkdir(parents=True, exist_ok=True)
+        for leftover in atomic.clean_temporaries(path):  # half-written files of a killed run
+            log.info("removed the temporary %s left by an interrupted write", leftover)
         folder = cls(path, config)
         folder.save_config()
         return folder

@@ -117,3 +117,17 @@ def test_study_variants_share_stages(tmp_path, stage_cache):
     assert json.loads((tmp_path / "c" / "config.json").read_text())["config"]["stage1"]["iterations"] == 30
     assert c["seconds"]["init"] == a["seconds"]["init"]  # same init, new stage 1
     assert (tmp_path / "c" / "model_stage1.ply").read_bytes() != (tmp_path / "a" / "model_stage1.ply").read_bytes()
+
+
+def test_a_rerun_removes_what_a_killed_write_left(tmp_path):
+    run = tmp_path / "r"
+    RunFolder.create(run, tiny_config())
+    (run / "eval").mkdir()
+    leftovers = [run / ".model_stage1.ply.k3j_9xa2.ply", run / "eval" / ".metrics.json.ab12cd34.json",
+                 run / ".round_0.tmp.zz99yy88"]
+    for p in leftovers[:2]:
+        p.write_text("half")
+    leftovers[2].mkdir()
+    (run / ".keep_me").write_text("not ours")
+    RunFolder.create(run, tiny_config())
+    assert not any(p.exists() for p in leftovers) and (run / ".keep_me").exists()
