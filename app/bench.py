@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from app.gl.sync import finish as gl_finish
 from fixer4d.atomic import write_json
 
 DEFAULT_COUNTS = (10_000, 100_000, 1_000_000)
@@ -39,6 +40,8 @@ DEFAULT_COUNTS = (10_000, 100_000, 1_000_000)
 SCALE_PER_SPACING = 0.5
 # Live-training steps left out of the timing (first renders, allocator warm-up).
 LIVE_WARMUP_STEPS = 10
+# Steps per turn when the plain loop and the viewer take turns (see bench_live).
+LIVE_CHUNK_STEPS = 10
 
 
 def synthetic_gaussians(n: int, seed: int = 0):
@@ -94,12 +97,14 @@ def bench_splats(ctx, counts, width: int, height: int, repeats: int) -> list[dic
     return rows
 
 
-def bench_live(iterations: int, steps: int, warmup: int, scene_name: str = "demo") -> dict:
-    """Live training in the viewer vs the same stage 1 without it: one setup function
+def bench_live(iterations: int, steps: int, warmup: int, scene_name: str = "demo", chunk: int = LIVE_CHUNK_STEPS) -> dict:
+    """Live training in the viewer vs the same stage 1 without it. One setup function
     (``live_stage1_trainer``: the pipeline's stage-1 config, sparse init on 2 frames) builds two
-    trainers; steps ``warmup..steps`` are timed (a) in a plain loop, as ``fixer4d run`` steps,
-    (b) in the viewer's training thread while the whole UI draws headless, paced like the
-    window loop (app.main.pace_frame). Returns steps/s of both and their ratio."""
+    trainers: one stepped in a plain loop, as ``fixer4d run`` steps, one in the viewer's
+    training thread while the whole UI draws headless (1440x900), paced like the window loop
+    (app.main.pace_frame, nobody at the mouse). After ``warmup`` steps each, they take turns in
+    chunks of ``chunk`` steps up to ``steps``, so a shared machine's changing load hits both
+    alike. Returns steps/s of both and their ratio."""
     import moderngl
 
     from app.main import initial_state, pace_frame
@@ -112,48 +117,67 @@ def bench_live(iterations: int, steps: int, warmup: int, scene_name: str = "demo
     def setup(report=lambda text: None):
         return live_stage1_trainer(scene, iterations, "sparse", 2, report)
 
-    trainer = setup()
-    tic = None
-    for k in range(steps):
-        if k == warmup:
-            tic = time.perf_counter()
-        trainer.step()
-    pipeline_rate = (steps - warmup) / (time.perf_counter() - tic)
-    gaussians_plain = trainer.model.num_gaussians
-    del trainer
-
+    plain = setup()
     ctx = moderngl.create_standalone_context(backend="egl", require=330)
     training = TrainingSession(setup)
     src = ViewerSource(scene=scene, label="bench", training=training)
     viewer = Viewer(ctx, initial_state(src, None), src)
     fbo = ctx.simple_framebuffer((1440, 900))
-    frames, tic, tic_step = 0, None, None
-    try:
-        training.start()
+    plain_s = viewer_s = 0.0
+    plain_steps = viewer_steps = ui_frames = 0
+
+    def ui_until(target: int) -> None:
+        nonlocal ui_frames
         deadline = time.monotonic() + 1800
-        while training.step < steps and training.state not in ("failed", "done") and time.monotonic() < deadline:
+        while training.step < target and training.state not in ("failed", "done") and time.monotonic() < deadline:
             start = time.perf_counter()
             viewer.frame(1.0 / 10, fbo)
-            ctx.finish()
-            frames += 1
-            if tic is None and training.step >= warmup:
-                tic, tic_step = time.perf_counter(), training.step
+            gl_finish(ctx)  # as a window's swap: the wait releases the GIL
+            ui_frames += 1
             pace_frame(viewer, start)
         if training.state == "failed":
             raise RuntimeError(f"live training failed: {training.error}")
-        viewer_rate = (training.step - tic_step) / (time.perf_counter() - tic)
+
+    def pause() -> None:  # and let a step already begun finish before the plain loop's turn
+        training.pause()
+        while training.stepping:
+            time.sleep(0.005)
+
+    try:
+        for _ in range(warmup):
+            plain.step()
+        training.start()
+        ui_until(warmup)
+        pause()
+        while plain.step_count < steps:
+            n = min(chunk, steps - plain.step_count)
+            tic = time.perf_counter()
+            for _ in range(n):
+                plain.step()
+            plain_s += time.perf_counter() - tic
+            plain_steps += n
+            start_step, frames0 = training.step, ui_frames
+            tic = time.perf_counter()
+            training.resume()
+            ui_until(start_step + n)
+            pause()
+            viewer_s += time.perf_counter() - tic
+            viewer_steps += training.step - start_step
+            if ui_frames == frames0:
+                break
         gaussians_viewer = 0 if viewer.state.gaussians is None else viewer.state.gaussians.n
-        ui_fps = frames / max(time.perf_counter() - tic, 1e-9) if tic else 0.0
     finally:
         viewer.close()
         ctx.release()
-    out = {"scene": scene_name, "iterations": iterations, "timed_steps": [warmup, steps],
+    pipeline_rate, viewer_rate = plain_steps / plain_s, viewer_steps / viewer_s
+    out = {"scene": scene_name, "iterations": iterations, "timed_steps": [warmup, steps], "chunk": chunk,
            "pipeline_steps_per_s": pipeline_rate, "viewer_steps_per_s": viewer_rate,
-           "live_vs_pipeline_ratio": viewer_rate / pipeline_rate, "gaussians_pipeline": gaussians_plain,
-           "gaussians_viewer_shown": gaussians_viewer, "ui_frames_per_s_while_training": ui_fps}
-    print(f"  live training ({scene_name}, stage-1 config for {iterations} iterations, steps {warmup}..{steps}): "
-          f"{viewer_rate:.2f} steps/s in the viewer vs {pipeline_rate:.2f} without it "
-          f"(ratio {out['live_vs_pipeline_ratio']:.2f}; UI {ui_fps:.1f} frames/s meanwhile)", flush=True)
+           "live_vs_pipeline_ratio": viewer_rate / pipeline_rate, "gaussians_pipeline": plain.model.num_gaussians,
+           "gaussians_viewer_shown": gaussians_viewer, "ui_frames_per_s_while_training": ui_frames / viewer_s}
+    print(f"  live training ({scene_name}, stage-1 config for {iterations} iterations, steps {warmup}..{steps} in "
+          f"turns of {chunk}): {viewer_rate:.2f} steps/s in the viewer vs {pipeline_rate:.2f} without it "
+          f"(ratio {out['live_vs_pipeline_ratio']:.2f}; UI {out['ui_frames_per_s_while_training']:.1f} frames/s)",
+          flush=True)
     return out
 
 
@@ -258,7 +282,7 @@ def bench_orbit(ctx, model: str | None, frames: int, window: tuple[int, int]) ->
                 io.add_mouse_pos_event(x0 + w / 2 + 4.0 * (k + 1), y0 + h / 2)
                 tic = time.perf_counter()
                 viewer.frame(1 / 60, fbo)
-                ctx.finish()
+                gl_finish(ctx)
                 times.append(time.perf_counter() - tic)
                 scales.append(viewer.adaptive.scale)
             io.add_mouse_button_event(0, False)

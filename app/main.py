@@ -48,8 +48,13 @@ LIVE_INIT_METHOD = "mvs"
 LIVE_INIT_FRAMES = 3
 # While live training runs the UI draws at most this many frames per second: on a CPU the
 # window's drawing (software GL) competes with the trainer for the same cores, and 10 frames a
-# second keeps orbiting usable while leaving the cores to training.
+# second keeps orbiting usable while leaving the cores to training ...
 TRAINING_UI_FPS = 10.0
+# ... and this many while nobody touches the window (the panels' numbers and the published
+# model still update a few times a second).
+TRAINING_UI_FPS_UNATTENDED = 3.0
+# Input within this many seconds counts as "the user is interacting".
+INTERACTION_S = 1.5
 # With nothing moving, playing or training, the loop sleeps until an input event or this long.
 IDLE_WAIT_S = 0.25
 
@@ -304,11 +309,13 @@ def run_window(args: argparse.Namespace) -> int:
 
 
 def pace_frame(viewer: Viewer, frame_start: float) -> None:
-    """Sleep out the rest of the frame period while live training runs (TRAINING_UI_FPS), so
-    the trainer gets the CPU the UI does not need."""
+    """Sleep out the rest of the frame period while live training runs (TRAINING_UI_FPS while
+    the user interacts, TRAINING_UI_FPS_UNATTENDED otherwise), so the trainer gets the CPU the
+    UI does not need."""
     tr = viewer.source.training
     if tr is not None and tr.state in ("setup", "running"):
-        rest = 1.0 / TRAINING_UI_FPS - (time.perf_counter() - frame_start)
+        attended = time.monotonic() - viewer.last_input < INTERACTION_S
+        rest = 1.0 / (TRAINING_UI_FPS if attended else TRAINING_UI_FPS_UNATTENDED) - (time.perf_counter() - frame_start)
         if rest > 0:
             time.sleep(rest)
 

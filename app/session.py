@@ -86,6 +86,7 @@ class TrainingSession:
         self._quit = threading.Event()
         self._thread: threading.Thread | None = None
         self.step_seconds = 0.0
+        self.stepping = False  # inside Trainer.step() right now
 
     # ---- control (UI thread) ------------------------------------------------------------------
     def start(self) -> None:
@@ -168,8 +169,12 @@ class TrainingSession:
                     self.state = "done"
                     break
                 self.state = "running"
+                self.stepping = True
                 tic = time.perf_counter()
-                rec = self.trainer.step()
+                try:
+                    rec = self.trainer.step()
+                finally:
+                    self.stepping = False
                 self.step_seconds = time.perf_counter() - tic
                 self._step_times.append(self.step_seconds)
                 del self._step_times[:-RATE_WINDOW]

@@ -103,6 +103,7 @@ class Viewer:
         self.depth_range = (0.1, 10.0)  # near, far of the depth colour map (last render)
         self.scalar_version = 0  # bumped when the blur/mask map changes
         self.adaptive = AdaptiveResolution()
+        self.last_input = -1e9  # time.monotonic() of the last mouse/keyboard input
         self.heat_scale = 1.0  # speed at the top of the speed heatmap (scene units per clip time)
         self.blur_key: tuple | None = None  # the view the blur map was computed for
         self.mask_note = ""  # why the moving-content overlay shows nothing, if it does not
@@ -143,6 +144,8 @@ class Viewer:
             io.display_size = imgui.ImVec2(float(fbo.size[0]), float(fbo.size[1]))
         imgui.backends.opengl3_new_frame()
         imgui.new_frame()
+        if io.mouse_delta.x or io.mouse_delta.y or io.mouse_wheel or any(io.mouse_down) or io.want_text_input:
+            self.last_input = time.monotonic()
         imgui.dock_space_over_viewport(0, imgui.get_main_viewport(),
                                        imgui.DockNodeFlags_.passthru_central_node.value)
         with guard(self, "menu"):

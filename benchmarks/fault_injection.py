@@ -11,9 +11,10 @@
    wait until the target stage is under way, sleep a random fraction of that stage's reference
    duration and SIGKILL the process group. Targets cycle through every stage so each gets at
    least one kill when there are at least as many kills as stages (the rest on random stages);
-   where a kill lands is read back from stages.json (a resumed stage can be shorter than in the
-   reference, so a kill may land in a later stage; the coverage check reports stages no kill
-   reached). Then one last resume runs to the end.
+   where a kill lands is read back from stages.json. A kill that overshoots into a later stage
+   (the stage ran faster than in the reference) is retried from a copy of the folder as the
+   kill found it, at half the delay (``OVERSHOOT_RETRIES``); the coverage check reports stages
+   no kill reached. Then one last resume runs to the end.
 3. Checks (any failure makes the exit status 1):
    * report.json rows are equal to the reference's: method names, order and every metric
      (psnr, dssim1, dssim2, lpips) EXACTLY, tolerance 0. The pipeline is deterministic: every
@@ -40,6 +41,7 @@ import hashlib
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -74,6 +76,10 @@ POLL_S = 0.02
 # A kill is placed at a uniform fraction of the target stage's reference duration in this
 # range: away from the exact boundaries, which the neighbouring stages' kills already probe.
 KILL_FRACTION = (0.05, 0.95)
+# A kill that lands past its target stage (the stage ran faster than in the reference, e.g. the
+# machine's load dropped) is retried this many times from a copy of the folder as it was, each
+# time at half the delay.
+OVERSHOOT_RETRIES = 3
 # Reported metrics of a report row, compared exactly.
 METRIC_KEYS = ("method", "psnr", "dssim1", "dssim2", "lpips")
 
@@ -327,11 +333,27 @@ def run_experiment(out: Path, kills: int, settings: dict[str, Any], seed: int = 
         kills = len(plan)
     else:
         plan = plan_kills(durations, kills, rng)
+    backup = out / "killed.before_attempt"
     for stage, delay in plan:
         if stage in _stages(run_dir):  # an earlier kill landed past it: too late to hit this stage
             log(f"kill target {stage}: already finished, skipped")
             continue
-        att = launch(run_dir, settings, kill_stage=stage, order=order, delay_s=delay, timeout_s=timeout_s)
+        for attempt in range(OVERSHOOT_RETRIES + 1):
+            if run_dir.exists():  # the folder as this kill finds it, to retry from if the kill overshoots
+                shutil.rmtree(backup, ignore_errors=True)
+                shutil.copytree(run_dir, backup)
+            att = launch(run_dir, settings, kill_stage=stage, order=order, delay_s=delay, timeout_s=timeout_s)
+            late = att.killed_after_s is None or att.landed is None or order.index(att.landed) > order.index(stage)
+            if not late or attempt == OVERSHOOT_RETRIES:
+                break
+            # the stage ran faster than in the reference (load varies): put the folder back as it
+            # was and kill earlier; the discarded attempt only finished stages normally
+            log(f"  kill in {stage} +{delay:.2f}s overshot to {att.landed or 'the end'}; retrying at +{delay / 2:.2f}s")
+            shutil.rmtree(run_dir)
+            if backup.exists():
+                shutil.copytree(backup, run_dir)
+            delay /= 2
+        shutil.rmtree(backup, ignore_errors=True)
         attempts.append(att)
         if att.killed_after_s is None:
             log(f"kill {len(attempts)}: the run ended (exit {att.returncode}) before the kill in {stage}")

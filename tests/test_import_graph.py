@@ -146,8 +146,9 @@ def test_the_walker_sees_lazy_imports_and_finds_a_known_cycle(tmp_path):
     assert graph["fixer4d.sub.a"] == {"fixer4d.sub.b"}  # the TYPE_CHECKING import is not an edge
     assert graph["fixer4d.sub"] == {"fixer4d.sub.a"}
     assert cycles(graph) == [["fixer4d.c", "fixer4d.sub.a", "fixer4d.sub.b", "fixer4d.c"]]
-    (pkg / "c.py").write_text("")
+    (pkg / "c.py").write_text("def show():\n    import glfw.library\n    from app.viewer import Viewer\n")
     assert cycles(import_graph(module_names(pkg))) == []
+    assert external_imports(module_names(pkg))["fixer4d.c"] == {"glfw", "app"}
 
 
 def test_fixer4d_has_no_import_cycles():
@@ -155,3 +156,26 @@ def test_fixer4d_has_no_import_cycles():
     assert len(modules) > 50 and "fixer4d.render.api" in modules
     found = cycles(import_graph(modules))
     assert not found, "import cycles in fixer4d/:\n" + "\n".join(" -> ".join(c) for c in found)
+
+
+# DESIGN.md §2: "the library has no GUI import" and "fixer4d never imports app".
+GUI_MODULES = ("app", "glfw", "moderngl", "imgui", "imgui_bundle", "OpenGL")
+
+
+def external_imports(modules: dict[str, Path]) -> dict[str, set[str]]:
+    """module -> top-level names of every non-fixer4d module it imports (lazy ones included)."""
+    out: dict[str, set[str]] = {}
+    for name, path in modules.items():
+        found = set()
+        for node in _imports(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                found |= {a.name.split(".")[0] for a in node.names}
+            elif not node.level and node.module:
+                found.add(node.module.split(".")[0])
+        out[name] = found - {PACKAGE}
+    return out
+
+
+def test_the_library_has_no_gui_import():
+    bad = {m: sorted(e & set(GUI_MODULES)) for m, e in external_imports(module_names()).items() if e & set(GUI_MODULES)}
+    assert not bad, f"GUI imports in the library: {bad}"

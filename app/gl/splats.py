@@ -22,6 +22,7 @@ import numpy as np
 
 from app.gaussians import GaussianArrays
 from app.gl.programs import load_program, shader_source
+from app.gl.sync import finish
 from fixer4d.geometry.camera import Camera
 from fixer4d.model.spacetime import T_LOG_SCALE_MIN
 # One constant set with the torch rasterizer, so the two agree (a test measures it).
@@ -312,7 +313,7 @@ class SplatRenderer:
         self.ctx.blend_equation = moderngl.FUNC_ADD
         if self._instances:
             self._vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._instances)
-        self.ctx.finish()
+        finish(self.ctx)  # the wait without the GIL: training threads keep running
         self.ctx.disable(moderngl.BLEND)
         stats.draw_ms = 1e3 * (time.perf_counter() - t0)
         stats.instances = self._instances

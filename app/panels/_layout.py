@@ -49,6 +49,8 @@ def panel(viewer, name: str, title: str, x: float, y: float, w: float, h: float)
     place(x, y, w, h)
     try:
         expanded, _ = imgui.begin(title)
+        pos, size = imgui.get_window_pos(), imgui.get_window_size()
+        viewer.item_rects[f"window_{name}"] = (pos.x, pos.y, pos.x + size.x, pos.y + size.y)
         yield expanded
     except Exception as exc:
         imgui.internal.error_recovery_try_to_recover_state(saved)  # ends the panel window too

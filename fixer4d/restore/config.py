@@ -40,7 +40,7 @@ class LearnedRestorerConfig:
     random ``crop`` x ``crop`` crops at learning rate ``lr``, ``threads`` torch threads, ``seed``.
     """
 
-    loo_iterations: int = 200
+    loo_iterations: int = 100
     loo_scale: float = 0.5
     early_fraction: float = 0.25
     pair_frames: int = 5

@@ -3,7 +3,8 @@
 ``load_scene(source)`` is the only entry most code needs; the classes are exported for typing
 and for callers that want a specific layout. ``parse_frame_range`` is the one ``a:b`` frame
 range syntax (half-open); ``validate_scene`` decodes the first and last frame of every camera
-so that damaged input files fail before training starts.
+so that damaged input files fail before training starts; ``open_scene_checked`` does all of
+it (the call a run makes before writing anything).
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from fixer4d.scene.frames import check_frame_range, parse_frame_range
 from fixer4d.scene.synthetic import SyntheticScene, builtin_spec_path, is_builtin_name
 from fixer4d.scene.validate import validate_scene
 
-__all__ = ["load_scene", "detect_layout", "builtin_scene_names", "parse_frame_range", "check_frame_range",
+__all__ = ["load_scene", "open_scene_checked", "detect_layout", "builtin_scene_names", "parse_frame_range", "check_frame_range",
            "validate_scene", "MultiViewVideo", "SceneBounds", "SyntheticScene", "Neural3DVScene", "PanopticScene"]
 
 
@@ -84,6 +85,27 @@ def load_scene(source: str | Path, *, scale: float = 1.0, frame_range: tuple[int
     if src.suffix == ".json":
         return SyntheticScene(src, scale=scale, frame_range=frame_range, train_ids=train_ids, test_ids=test_ids)
     raise InputError(f"scene {source!s}: not a directory or a .json spec; pass 'demo', a spec .json or a scene folder")
+
+
+def open_scene_checked(source: str | Path, *, scale: float = 1.0, frame_range: str | tuple[int, int] | list[int] | None = None,
+                       train_ids: list[int] | None = None, test_ids: list[int] | None = None,
+                       what: str = "--frames") -> MultiViewVideo:
+    """``load_scene`` with every input check a run needs before it writes anything.
+
+    frame_range: "a:b" text (``parse_frame_range``) or (a, b); checked against the source's own
+    length with one line naming ``what``, the value and the valid range. The scene's files are
+    then probed with ``validate_scene`` (first and last frame of every camera decode). Raises
+    InputError for a missing scene, a bad range or an undecodable file; returns the scene.
+    """
+    if frame_range is not None:
+        full = load_scene(source, scale=scale, train_ids=train_ids, test_ids=test_ids)
+        if isinstance(frame_range, str):
+            frame_range = parse_frame_range(frame_range, full.num_frames, what)
+        else:
+            frame_range = check_frame_range(frame_range, full.num_frames, what)
+    scene = load_scene(source, scale=scale, frame_range=frame_range, train_ids=train_ids, test_ids=test_ids)
+    validate_scene(scene)
+    return scene
 
 
 def __getattr__(name: str):

@@ -114,3 +114,39 @@ def test_gl_view_dependent_colour_matches_torch(gl_ctx, sh_degree):
             assert _psnr(dc_only, out.rgb.numpy()) < MIN_PSNR_DB - 10.0  # SH really changes the image
     finally:
         r.release()
+
+
+def test_gl_wait_lets_other_threads_run(gl_ctx):
+    """The splat draw's wait for the GL releases the GIL: a Python thread keeps ticking while
+    a heavy frame renders (it stalls for the whole frame when the wait holds the GIL)."""
+    import threading
+    import time
+
+    from app.bench import synthetic_gaussians
+
+    r = SplatRenderer(gl_ctx)
+    try:
+        r.set_gaussians(synthetic_gaussians(40_000))
+        cam = Camera.look_at([0.0, 0.2, -2.2], [0, 0, 0], width=1280, height=720)
+        r.render(cam, 0.3, wait_sort=True)
+        ticks, stop = [], threading.Event()
+
+        def spin() -> None:
+            while not stop.is_set():
+                ticks.append(time.perf_counter())
+                time.sleep(0)
+
+        th = threading.Thread(target=spin)
+        th.start()
+        time.sleep(0.05)
+        t0 = time.perf_counter()
+        stats = r.render(cam, 0.3)
+        t1 = time.perf_counter()
+        stop.set()
+        th.join()
+        during = [t for t in ticks if t0 <= t <= t1]
+        longest = max(b - a for a, b in zip(ticks, ticks[1:]) if t0 <= b and a <= t1)
+        assert stats.instances > 0 and t1 - t0 > 0.0
+        assert len(during) > 0 and longest < 0.5 * (t1 - t0) + 0.02, (longest, t1 - t0)
+    finally:
+        r.release()

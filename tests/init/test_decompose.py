@@ -129,3 +129,30 @@ def test_static_scene_picks_no_dynamic_effects(tmp_path):
     cfg = dec.model_config
     assert not cfg.has_time_terms and cfg.sh_degree == 0
     assert int(dec.dynamic_keep.sum()) == 0
+
+
+@pytest.fixture(scope="module")
+def spec_decisions(tmp_path_factory):
+    """Effects decided on the two specs that call for different effects (4 init frames, 64 planes)."""
+    from fixer4d.model.effects import decide_effects
+    from fixer4d.scene import load_scene
+
+    out = {}
+    for name in ("slow_rigid", "fast_thin"):
+        scene = load_scene(name)
+        cfg = InitConfig()
+        cfg.mvs.planes = 64
+        folder = tmp_path_factory.mktemp(name)
+        run_init(scene, "mvs", folder, frames=list(range(0, scene.num_frames, 3)), config=cfg, progress=False)
+        out[name] = decide_effects(D.DecomposedInit.load(folder))
+    return out
+
+
+def test_specs_pick_different_effects(spec_decisions):
+    slow, fast = spec_decisions["slow_rigid"].model_config, spec_decisions["fast_thin"].model_config
+    # measured: slow_rigid (1, no rotation, temporal, SH 0); fast_thin (1, rotation, temporal, SH 0)
+    assert slow.temporal_opacity and fast.temporal_opacity
+    assert slow.motion_degree >= 1 and fast.motion_degree >= 1
+    assert not slow.rotation_velocity and slow.sh_degree == 0  # slow, matte, barely turning
+    assert fast.rotation_velocity  # blades spinning at 540 deg/s
+    assert slow != fast

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from fixer4d.errors import InputError
-from fixer4d.scene import check_frame_range, load_scene, parse_frame_range, validate_scene
+from fixer4d.scene import check_frame_range, load_scene, open_scene_checked, parse_frame_range, validate_scene
 from fixer4d.scene.video import validate_video, write_video
 
 
@@ -94,3 +94,16 @@ def test_validate_scene_catches_damaged_frames_before_training(n3dv_copy):
 
 def test_validate_scene_skips_raycast_scenes():
     validate_scene(load_scene("tiny"))
+
+
+def test_open_scene_checked_does_every_check_before_returning(n3dv_copy):
+    scene = open_scene_checked("tiny", frame_range="1:3")
+    assert scene.num_frames == 2
+    assert open_scene_checked("tiny", frame_range=[0, 4]).num_frames == 4
+    with pytest.raises(InputError, match=r"^scene.frame_range 0:9: out of range, this scene has 4 frames"):
+        open_scene_checked("tiny", frame_range=(0, 9), what="scene.frame_range")
+    with pytest.raises(InputError, match=r"^--frames 5:4: empty range"):
+        open_scene_checked("tiny", frame_range="5:")
+    _zero_frame_data(n3dv_copy / "cam01.mp4", 0.6)
+    with pytest.raises(InputError, match=r"cam01\.mp4: cannot decode frame"):
+        open_scene_checked(n3dv_copy)
