@@ -57,15 +57,15 @@ REPO = Path(__file__).resolve().parents[1]
 # from a checkpoint rather than restarting the stage: the path under test.
 TINY_SETTINGS = {
     "stage1.iterations": 40, "stage1.checkpoint_every": 10, "stage2.rounds": 1, "stage2.refresh_every": 20,
-    "trajectories.frames": 3, "trajectories.time_stride": 4, "init_frame_stride": 2, "eval_stride": 2,
+    "trajectories.frames": 3, "trajectories.time_stride": 4, "init_frame_stride": 2, "eval.stride": 2,
     "init.mvs.planes": 24,
 }
 # Smaller still for the pytest: no sparse baseline and no restoration rows (their stages are the
 # same code paths as the main ones), half resolution, fewer steps.
 FAST_SETTINGS = {
-    "scene.scale": 0.5, "baseline_sparse": False, "restoration_rows": False,
+    "scene.scale": 0.5, "baseline_sparse": False, "eval.restoration_rows": False, "eval.matched_row": False,
     "stage1.iterations": 16, "stage1.checkpoint_every": 4, "stage2.rounds": 1, "stage2.refresh_every": 8,
-    "trajectories.frames": 3, "trajectories.time_stride": 4, "init_frame_stride": 4, "eval_stride": 4,
+    "trajectories.frames": 3, "trajectories.time_stride": 4, "init_frame_stride": 4, "eval.stride": 4,
     "init.mvs.planes": 8,
 }
 # The config change of check 4: another trajectory seed draws other arc amplitudes, so every
@@ -95,9 +95,10 @@ def command(out: Path, settings: dict[str, Any], scene: str = "tiny") -> list[st
 def _stages(run: Path) -> list[str]:
     """Finished stage names in the order stages.json lists them ([] while absent or mid-write)."""
     try:
-        return list(json.loads((run / "stages.json").read_text()))
+        records = json.loads((run / "stages.json").read_text())
     except (OSError, ValueError):
         return []
+    return [name for name, rec in records.items() if not isinstance(rec, dict) or rec.get("done")]
 
 
 def _started(run: Path, launched_ns: int) -> bool:
@@ -267,7 +268,7 @@ def check_config_change(killed: Path, fresh: Path, settings: dict[str, Any], cha
     changed = {**settings, **change}
     att = launch(killed, changed, timeout_s=timeout_s)
     info: dict[str, Any] = {"change": change, "returncode": att.returncode, "message": att.stderr_tail.strip()[-400:]}
-    if att.returncode in (1, 2):  # InputError through the CLI handler (issue 13 asks for 2)
+    if att.returncode == 2:  # InputError through the CLI handler: exit 2
         after = {str(p.relative_to(killed)): p.stat().st_mtime_ns for p in killed.rglob("*") if p.is_file()}
         info["outcome"] = "refused"
         if "error:" not in att.stderr_tail:
