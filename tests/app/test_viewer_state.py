@@ -102,3 +102,13 @@ def test_compare_grid_fills_the_panel():
     # a square panel: a 2-column grid beats both a row and a column
     cols, scale = grid_layout(3, 200, 150, 700, 600, 20)
     assert cols == 2 and scale > 1.5  # one row: 1.13, one column: 1.15
+
+
+def test_loss_plot_shows_only_terms_that_exist():
+    from app.panels.training import plotted_series
+
+    stage1 = [{"loss": 0.5 - 0.01 * i, "loss_stg": 0.5 - 0.01 * i, "loss_gen": 0.0, "psnr": 20.0} for i in range(5)]
+    assert list(plotted_series(stage1)) == ["loss"]
+    stage2 = [{"loss": 0.6 - 0.01 * i, "loss_stg": 0.5 - 0.01 * i, "loss_gen": 0.1} for i in range(5)]
+    assert list(plotted_series(stage2)) == ["loss", "loss_stg", "loss_gen"]
+    assert plotted_series([{"psnr": 20.0}]) == {}
