@@ -48,6 +48,7 @@ class AdaptiveResolution:
     moving: bool = False
     scale: float = 1.0  # scale of the last render
     rest: int = 0  # frames since the key last changed
+    max_scale: float = 1.0  # the "full size" scale (lowered while live training shares the CPU)
 
     def plan(self, key: object) -> float | None:
         if key != self.last_key:
@@ -57,17 +58,17 @@ class AdaptiveResolution:
         if self.final:
             self.moving = False
             return None
-        if self.scale < 1.0 and self.rest < REFINE_AFTER_FRAMES:
+        if self.scale < self.max_scale and self.rest < REFINE_AFTER_FRAMES:
             return None  # maybe still moving: keep the quick image a moment
         self.moving = False
-        return 1.0
+        return self.max_scale
 
     def _moving_scale(self) -> float:
         if not self.enabled or self.full_cost_ms is None:
-            return 1.0
+            return self.max_scale
         s = math.sqrt(self.budget_ms / max(self.full_cost_ms, 1e-3))
-        if s >= 1.0:
-            return 1.0
+        if s >= self.max_scale:
+            return self.max_scale
         return max(MIN_SCALE, math.floor(s / SCALE_STEP) * SCALE_STEP)
 
     def done(self, scale: float, draw_ms: float, complete: bool) -> None:
@@ -75,7 +76,7 @@ class AdaptiveResolution:
         self.full_cost_ms = full if self.full_cost_ms is None else \
             COST_SMOOTHING * full + (1.0 - COST_SMOOTHING) * self.full_cost_ms
         self.scale = scale
-        self.final = scale >= 1.0 and complete
+        self.final = scale >= self.max_scale and complete
 
     def invalidate(self) -> None:
         """Render again next frame although the key did not change."""

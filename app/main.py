@@ -55,8 +55,10 @@ TRAINING_UI_FPS = 10.0
 TRAINING_UI_FPS_UNATTENDED = 3.0
 # Input within this many seconds counts as "the user is interacting".
 INTERACTION_S = 1.5
-# With nothing moving, playing or training, the loop sleeps until an input event or this long.
-IDLE_WAIT_S = 0.25
+# With nothing moving, playing or training, the loop sleeps until an input event or this long
+# (one frame a second then keeps clocks and file lists fresh; measured idle cost at 0.25 s:
+# 17% of a core on llvmpipe under load).
+IDLE_WAIT_S = 1.0
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -30,6 +30,9 @@ from fixer4d.geometry.camera import Camera
 
 # Largest viewport render (pixels per side): keeps llvmpipe interactive on big windows.
 MAX_RENDER_SIDE = 1600
+# Largest render scale of the 3D view while live training runs: every full-size splat frame on a
+# software GL takes CPU from the trainer (the view is upscaled; pausing training restores it).
+TRAINING_RENDER_SCALE = 0.5
 # Brush radius for Gaussian selection, in viewport pixels.
 BRUSH_RADIUS = 25.0
 # Frustum drawing depth as a fraction of the scene radius.
@@ -255,6 +258,13 @@ class Viewer:
             return None
         cam = self.view_camera(width, height)
         self.display_camera = cam
+        tr = self.source.training
+        training = tr is not None and tr.state in ("setup", "running")
+        # live training shares the CPU: the 3D view then rests at a reduced size
+        max_scale = TRAINING_RENDER_SCALE if training and not wait_sort else 1.0
+        if max_scale != self.adaptive.max_scale:
+            self.adaptive.max_scale = max_scale
+            self.adaptive.invalidate()
         key = self._view_key(cam)
         if wait_sort:
             self.adaptive.last_key = key

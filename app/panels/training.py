@@ -70,12 +70,14 @@ LOSS_KEYS = ("loss", "loss_stg", "loss_gen")
 
 
 def plotted_series(rows: list[dict]) -> dict[str, np.ndarray]:
-    """The loss curves worth a line: terms with finite values, leaving out one that repeats
-    an earlier curve exactly (stage 1's loss is its loss_stg)."""
+    """The loss curves worth a line: terms with finite non-zero values (stage 1 records
+    loss_gen = 0), leaving out one that repeats an earlier curve exactly (stage 1's loss is its
+    loss_stg)."""
     out: dict[str, np.ndarray] = {}
     for key in LOSS_KEYS:
         ys = np.array([r.get(key, np.nan) for r in rows], np.float64)
-        if not np.isfinite(ys).any():
+        finite = ys[np.isfinite(ys)]
+        if not finite.size or not np.any(finite):  # absent, or recorded as 0 (no such term now)
             continue
         if any(np.array_equal(ys, other, equal_nan=True) for other in out.values()):
             continue

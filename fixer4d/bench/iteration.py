@@ -147,6 +147,9 @@ def effects_comparison(scene, init, cfg, iterations: int, warmup: int) -> dict:
     from fixer4d.model.effects import EffectsConfig
     from fixer4d.train.trainer import Trainer, model_from_init
 
+    for f in range(scene.num_frames):  # decode every train frame first: no row pays the loading
+        for c in scene.train_ids:
+            scene.frame(f, c)
     trainers = {}
     for name, (decomposed, mode) in EFFECT_ROWS.items():
         src = init if decomposed else init.frame_clouds()

@@ -102,3 +102,37 @@ def test_compare_grid_fills_the_panel():
     # a square panel: a 2-column grid beats both a row and a column
     cols, scale = grid_layout(3, 200, 150, 700, 600, 20)
     assert cols == 2 and scale > 1.5  # one row: 1.13, one column: 1.15
+
+
+def test_loss_plot_shows_only_terms_that_exist():
+    from app.panels.training import plotted_series
+
+    stage1 = [{"loss": 0.5 - 0.01 * i, "loss_stg": 0.5 - 0.01 * i, "loss_gen": 0.0, "psnr": 20.0} for i in range(5)]
+    assert list(plotted_series(stage1)) == ["loss"]
+    stage2 = [{"loss": 0.6 - 0.01 * i, "loss_stg": 0.5 - 0.01 * i, "loss_gen": 0.1} for i in range(5)]
+    assert list(plotted_series(stage2)) == ["loss", "loss_stg", "loss_gen"]
+    assert plotted_series([{"psnr": 20.0}]) == {}
+
+
+def test_adaptive_resolution_plans():
+    from app.adaptive import MIN_SCALE, REFINE_AFTER_FRAMES, AdaptiveResolution
+
+    a = AdaptiveResolution(budget_ms=40.0)
+    assert a.plan("v0") == 1.0  # no cost estimate yet: full size
+    a.done(1.0, 640.0, complete=True)
+    assert a.final and a.plan("v0") is None  # unchanged and final: nothing to draw
+    s = a.plan("v1")  # the view moves: 640 ms at full size -> 1/4 of the pixels fits 40 ms
+    assert s == 0.25 and a.moving
+    a.done(s, 40.0, complete=True)
+    assert not a.final
+    for _ in range(REFINE_AFTER_FRAMES - 1):
+        assert a.plan("v1") is None  # resting briefly: keep the quick image
+    assert a.plan("v1") == 1.0 and not a.moving  # then refine once at full size
+    a.done(1.0, 640.0, complete=False)  # drawn with an old depth order: not final yet
+    assert a.plan("v1") == 1.0
+    a.full_cost_ms = 1e6
+    assert a.plan("v2") == MIN_SCALE  # never below the floor
+    a.max_scale = 0.5  # live training: half size is "full"
+    a.invalidate()
+    a.full_cost_ms = 1.0
+    assert a.plan("v3") == 0.5

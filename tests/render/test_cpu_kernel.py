@@ -56,3 +56,49 @@ def test_tile_orders_balance_work():
     half = (301 + 1) // 2  # prange's static split: the first block goes to thread 0
     a, b = work[dealt[:half]].sum(), work[dealt[half:]].sum()
     assert abs(a - b) <= work.max()
+
+
+def test_row_test_never_skips_a_blending_pixel():
+    """_active_rows may only skip tile rows where no pixel can pass the per-pixel tests: check it
+    against those tests (float32, as the kernels evaluate them) on random splats, needles among
+    them, at every tile they are binned to."""
+    rng = np.random.default_rng(5)
+    n, width, height = 120, 64, 48
+    means = rng.uniform([-20, -20], [width + 20, height + 20], (n, 2))
+    long_sd = np.exp(rng.uniform(np.log(0.3), np.log(3000.0), n))  # up to needles 9000 px long
+    short_sd = np.exp(rng.uniform(np.log(0.55), np.log(6.0), n))
+    ang = rng.uniform(0, np.pi, n)
+    c, s = np.cos(ang), np.sin(ang)
+    ca = (long_sd * c) ** 2 + (short_sd * s) ** 2
+    cb = (long_sd ** 2 - short_sd ** 2) * c * s
+    cc = (long_sd * s) ** 2 + (short_sd * c) ** 2
+    det = ca * cc - cb * cb
+    conic = torch.tensor(np.stack([cc / det, -cb / cc, 1.0 / cc], 1), dtype=torch.float32)
+    op = torch.tensor(rng.uniform(0.004, 1.0, n), dtype=torch.float32)
+    rec = cpu._records(torch.tensor(means, dtype=torch.float32), conic, op, torch.rand(n, 3),
+                       torch.tensor(rng.uniform(1, 5, n), dtype=torch.float32))
+    radii = np.full(n, 10 ** 6, np.int64)
+    order = np.arange(n, dtype=np.int64)
+    offsets, ids = cpu._bin_tiles(rec, radii, order, width, height, cpu._TILE)
+    n_tx = (width + cpu._TILE - 1) // cpu._TILE
+    gate = np.full(cpu._TILE, cpu._GATE_OPEN, np.float32)
+    act = np.zeros(cpu._TILE, np.bool_)
+    checked = skipped = 0
+    f = np.float32
+    for t in range(len(offsets) - 1):
+        x0, y0 = (t % n_tx) * cpu._TILE, (t // n_tx) * cpu._TILE
+        px = np.arange(x0, x0 + cpu._TILE, dtype=f) + f(0.5)
+        for g in ids[offsets[t]:offsets[t + 1]]:
+            cpu._active_rows(rec, g, f(0), x0, y0, min(cpu._TILE, height - y0), gate, act)
+            mx, my, a, r, q, o = (rec[g, k] for k in (cpu._R_MX, cpu._R_MY, cpu._R_A, cpu._R_R, cpu._R_Q, cpu._R_O))
+            for row in range(min(cpu._TILE, height - y0)):
+                dx = px - mx
+                dy = f(y0 + row) + f(0.5) - my
+                e = dx + r * dy
+                power = f(0.5) * (a * e * e + q * dy * dy)
+                alpha = np.minimum(o * np.exp(-power.astype(np.float64)).astype(f), f(0.99))
+                blends = (power <= cpu._POWER_MAX) & (alpha >= cpu._ALPHA_MIN)
+                checked += 1
+                skipped += not act[row]
+                assert act[row] or not blends.any(), (t, g, row)
+    assert checked > 3_000 and skipped > checked // 10  # the test has teeth: many rows are skipped
