@@ -137,7 +137,7 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
     ctx.run.records.finish(name, key, time.perf_counter() - t0 + prior)
     _drop_checkpoints(model_path.parent, 1)
     if ctx.cache is not None:
-        ctx.cache.store(key, [model_path], ctx.run.records.seconds(name))
+        ctx.cache.store(key, [model_path, model_path.parent / EFFECTS_NAME], ctx.run.records.seconds(name))
     return trainer.model
 
 
