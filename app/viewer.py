@@ -182,7 +182,7 @@ class Viewer:
         self.state.status = f"error in {source}: {text}"
 
     def _notifications_window(self) -> None:
-        from app.panels._layout import error_text, place
+        from app.panels._layout import error_text
 
         notes = self.notifications
         if notes.serial != self._notifications_seen:

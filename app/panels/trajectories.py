@@ -21,7 +21,6 @@ def draw(viewer) -> None:
     ui = viewer.__dict__.setdefault("_traj_ui", {"preset": "viewer/trajectories.json",
                                                  "camera_path": "viewer/camera_path.json",
                                                  "pending": {}})
-    train = [] if scene is None else scene.train_cameras
     with panel(viewer, "trajectories", "Trajectories", 5, 300, 290, 595) as expanded:
         if not expanded:
             return

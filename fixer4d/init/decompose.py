@@ -475,7 +475,7 @@ def decompose(scene, cams: Sequence[Camera], frames: Sequence[int], estimator, r
     scene: the MultiViewVideo (train views only are read); cams: the V posed train cameras;
     frames: init frame indices (F); estimator: a DepthEstimator; ranges: per-view (near, far);
     fusion_config: FusionConfig; masks: (V, F, H, W) bool moving-content masks of those frames.
-    timer: optional object with ``add(stage, t0)`` (fixer4d.init.run._Timer).
+    timer: optional object with ``add(stage, t0)`` (fixer4d.init.report.Timer).
     """
     import time
 
@@ -609,7 +609,7 @@ def run_decomposed(scene, cams: Sequence[Camera], frames: list[int], estimator, 
     from fixer4d.init.cloud import save_frame_clouds
     from fixer4d.init.constants import QUALITY_COMPLETENESS_REL
     from fixer4d.init.masks import MASKS_NAME, moving_masks_for_scene, save_masks
-    from fixer4d.init.run import _gt_depth_at, finish_report
+    from fixer4d.init.report import finish_report, gt_depth_at
 
     out_dir = Path(out_dir)
     from fixer4d.init.masks import statistics_frames
@@ -653,7 +653,7 @@ def run_decomposed(scene, cams: Sequence[Camera], frames: list[int], estimator, 
         j = len(frames) // 2
         st = [Q.depth_quality(r.depth, r.valid & ~_resize_mask(masks[v, j], r.depth.shape),
                               np.where(_resize_mask(masks[v, j], r.depth.shape), np.nan,
-                                       _gt_depth_at(scene, i, frames[j], r.camera)))
+                                       gt_depth_at(scene, i, frames[j], r.camera)))
               for v, (r, i) in enumerate(zip(static_res, scene.train_ids))]
         quality.update(Q.summarize_depth(st))
         report["quality"] = quality

@@ -15,17 +15,17 @@ from typing import Any, Literal
 
 import numpy as np
 
-from fixer4d.atomic import write_json
 from fixer4d.errors import InputError
 from fixer4d.init.cloud import FrameCloud, save_frame_clouds
 from fixer4d.init.constants import QUALITY_COMPLETENESS_REL
 from fixer4d.init.fusion import FusionConfig
 from fixer4d.init.mvs import MVSAnywhereConfig, PlaneSweepConfig
 from fixer4d.init.poses import PoseConfig
+from fixer4d.init.report import REPORT_NAME, Timer, finish_report, gt_depth_at  # noqa: F401 (REPORT_NAME re-exported)
 from fixer4d.init.sparse import SparseConfig
 
 METHODS = ("sparse", "mvs")
-REPORT_NAME = "init_report.json"
+
 
 
 @dataclass
@@ -73,38 +73,8 @@ class InitConfig:
         return cls(**kwargs)
 
 
-class _Timer:
-    """Accumulates wall time per stage, and the process CPU time of every thread since the
-    previous ``add`` (a load-independent measure when cores are shared)."""
-
-    def __init__(self) -> None:
-        self.seconds: dict[str, float] = {}
-        self.cpu_seconds: dict[str, float] = {}
-        self._cpu = time.process_time()
-
-    def add(self, stage: str, t0: float) -> float:
-        dt = time.perf_counter() - t0
-        cpu = time.process_time()
-        self.seconds[stage] = self.seconds.get(stage, 0.0) + dt
-        self.cpu_seconds[stage] = self.cpu_seconds.get(stage, 0.0) + cpu - self._cpu
-        self._cpu = cpu
-        return dt
-
-
 def _train_images(scene, frame: int) -> list[np.ndarray]:
     return [np.asarray(scene.frame(frame, i), np.float32) for i in scene.train_ids]
-
-
-def _gt_depth_at(scene, cam_index: int, frame: int, camera) -> np.ndarray:
-    """Ground-truth depth of scene camera ``cam_index`` at ``camera``'s resolution."""
-    full = scene.cameras[cam_index]
-    if (camera.width, camera.height) == (full.width, full.height):
-        return scene.depth(frame, cam_index)
-    if hasattr(scene, "render_gt"):
-        return scene.render_gt(full.resized(camera.width, camera.height), scene.time(frame))[1]
-    import cv2
-
-    return cv2.resize(scene.depth(frame, cam_index), (camera.width, camera.height), interpolation=cv2.INTER_NEAREST)
 
 
 def _resolve_frames(scene, frames: list[int] | None) -> list[int]:
@@ -143,7 +113,7 @@ def run_init(scene, method: str, out_dir: str | Path, frames: list[int] | None =
     frames = _resolve_frames(scene, frames)
     out_dir = Path(out_dir)
     t_start = time.perf_counter()
-    timer = _Timer()
+    timer = Timer()
     given = scene.train_cameras
     report: dict[str, Any] = {"method": method, "frames": frames, "points_per_frame": [], "seconds": {},
                               "quality": None, "scene": scene.name, "pose_source": config.poses.source,
@@ -228,7 +198,7 @@ def run_init(scene, method: str, out_dir: str | Path, frames: list[int] | None =
             surface, scale = Q.surface_samples([scene.depth(f, i) for i in all_ids], [scene.cameras[i] for i in all_ids])
             info.update(Q.cloud_quality(cloud.points, surface, scale))
             if results is not None:
-                st = [Q.depth_quality(r.depth, r.valid, _gt_depth_at(scene, i, f, r.camera))
+                st = [Q.depth_quality(r.depth, r.valid, gt_depth_at(scene, i, f, r.camera))
                       for r, i in zip(results, scene.train_ids)]
                 depth_stats.extend(st)
                 info.update(Q.summarize_depth(st))
@@ -258,22 +228,3 @@ def run_init(scene, method: str, out_dir: str | Path, frames: list[int] | None =
 
 # Stages whose time counts as preparing the init (loading, writing and quality checks do not;
 # a pose *check* with given poses is a diagnostic, not part of preparing the clouds).
-PREP_STAGES = ("depth_range", "sparse", "mvs", "fusion", "masks", "static_median", "motion", "evidence")
-
-
-def finish_report(report: dict[str, Any], timer: _Timer, t_start: float, config: InitConfig, estimator,
-                  out_dir: Path) -> None:
-    """Add seconds (wall, CPU, "preparation" = PREP_STAGES (+ poses when SfM gives them)), the
-    estimator name and the config to ``report`` and write ``out_dir/init_report.json``."""
-    prep_stages = PREP_STAGES + (("poses",) if config.poses.source == "sfm" else ())
-    seconds = dict(timer.seconds)
-    seconds["preparation"] = sum(seconds.get(k, 0.0) for k in prep_stages)
-    seconds["total"] = time.perf_counter() - t_start
-    report["seconds"] = seconds
-    cpu = dict(timer.cpu_seconds)
-    cpu["preparation"] = sum(cpu.get(k, 0.0) for k in prep_stages)
-    report["cpu_seconds"] = cpu
-    if estimator is not None:
-        report["estimator"] = estimator.name
-    report["config"] = config.to_dict()
-    write_json(out_dir / REPORT_NAME, report)

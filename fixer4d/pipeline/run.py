@@ -227,8 +227,6 @@ def run_segmented(config: RunConfig, out: str | Path, *, progress: bool = True,
             rows.append(row)
             continue
         stitched = SegmentedModel([load_ply(Path(j[1]) / model_file) for j in jobs], ranges, scene.num_frames)
-        from fixer4d.pipeline.restoration import model_render_fn
-
         m = S.evaluate_stage(ctx, name, model_render_fn(stitched, ctx.backend, config.stage1.background),
                              stage_key(key, name), {"train": seconds})
         rows.append(R.metrics_row(name, m, seconds))
