@@ -278,7 +278,8 @@ def _check_restorer(config: "PipelineConfig") -> None:
         build_restorer(config.restorer)
 
 
-def _scene_restorer(scene, clouds, config: "PipelineConfig", run_dir: Path, times: "StageTimes", progress: bool):
+def _scene_restorer(scene, clouds, config: "PipelineConfig", run_dir: Path, times: "StageTimes", progress: bool,
+                    model=None):
     # [issue 12, helper C] the learned restorer is trained (leave-one-camera-out, train cameras
     # only) into RUN/restorer before its first use; other kinds are just built
     from fixer4d.restore.config import RestoreConfig
@@ -290,7 +291,7 @@ def _scene_restorer(scene, clouds, config: "PipelineConfig", run_dir: Path, time
 
     t0 = time.perf_counter()
     restorer = train_scene_restorer(scene, clouds, stage1_config(config.stage1, progress), run_dir / "restorer", rc,
-                                    progress=progress)
+                                    progress=progress, model=model)
     if not times.done("restorer"):
         times.record("restorer", time.perf_counter() - t0)
     return restorer
@@ -518,7 +519,7 @@ def run_pipeline(config: PipelineConfig, run_dir: str | Path, *, progress: bool 
     row(init_name, m, secs_stage1)
     final_metrics = m
 
-    restorer = _scene_restorer(scene, clouds, config, run_dir, times, progress)  # [issue 12, helper C]
+    restorer = _scene_restorer(scene, clouds, config, run_dir, times, progress, model)  # [issue 12, helper C]
     secs_restorer = times.get("restorer")  # [issue 12, helper C] training the learned restorer counts
     if config.restoration_rows:
         m = _evaluate(restoration_render_fn(model, scene, restorer, backend), scene, run_dir, ROW_NAMES[2],
