@@ -106,7 +106,7 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
     final_metrics = m
 
     needs_restorer = config.eval.restoration_rows or config.stage2.rounds > 0
-    restorer = S.restorer_stage(ctx, clouds) if needs_restorer else None
+    restorer = S.restorer_stage(ctx, clouds, model) if needs_restorer else None
     del clouds
     r_key = S.restorer_key(config)
     if restorer is not None and config.eval.restoration_rows:

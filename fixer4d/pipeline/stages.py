@@ -156,10 +156,11 @@ def stage1_trainer(ctx: StageContext, init, run_dir: Path | None):
     return trainer, decision
 
 
-def restorer_stage(ctx: StageContext, clouds):
+def restorer_stage(ctx: StageContext, clouds, model):
     """The run's restorer; the learned one is first trained on the scene's own train cameras
-    (leave-one-camera-out, ``train_scene_restorer``) into RUN/restorer/ (resumable: finished folds
-    are reused). Other kinds are built as they are (no stage record)."""
+    (leave-one-camera-out trainings from ``clouds``, plus the stage-1 ``model``'s renders of the
+    train cameras as the mildest pairs; ``train_scene_restorer``) into RUN/restorer/ (resumable:
+    finished folds are reused). Other kinds are built as they are (no stage record)."""
     from fixer4d.pipeline.restoration import RESTORER_DIR, build_restorer
 
     rc = ctx.config.restorer
@@ -174,7 +175,7 @@ def restorer_stage(ctx: StageContext, clouds):
         _clear(ctx.path / RESTORER_DIR)
     t0 = time.perf_counter()
     restorer = train_scene_restorer(ctx.scene, clouds, ctx.stage1_config(), ctx.path / RESTORER_DIR, rc,
-                                    progress=ctx.progress)
+                                    progress=ctx.progress, model=model)
     ctx.run.records.finish("restorer", key, time.perf_counter() - t0)
     return restorer
 

@@ -69,3 +69,20 @@ def test_a_fold_must_leave_out_a_train_camera(small_scene, small_clouds, make_co
     with pytest.raises(Exception, match="not a train camera"):
         build_fold(small_scene, small_clouds, make_config(10), small_scene.test_ids[0],
                    RestoreConfig(kind="learned", learned=TINY))
+
+
+def test_the_stage1_model_adds_its_train_camera_renders(small_scene, small_clouds, make_config, tmp_path):
+    from fixer4d.train.trainer import model_from_clouds
+
+    scene = GuardedScene(small_scene)
+    cfg = RestoreConfig(kind="learned", learned=TINY)
+    train_scene_restorer(scene, small_clouds, make_config(10), tmp_path, cfg, progress=False)
+    plain = json.loads((tmp_path / VALIDATION_FILE).read_text())["training_pairs"]
+    model = model_from_clouds(small_clouds, small_scene, make_config(10))
+    scene.read.clear()
+    train_scene_restorer(scene, small_clouds, make_config(10), tmp_path, cfg, progress=False, model=model)
+    assert scene.read <= set(small_scene.train_ids)
+    frames = len(pair_frames(small_scene.num_frames, TINY.pair_frames))
+    # every train camera but the held-back one, at every pair timestamp; the folds were reused
+    val = json.loads((tmp_path / VALIDATION_FILE).read_text())
+    assert val["training_pairs"] == plain + (len(small_scene.train_ids) - 1) * frames
