@@ -169,9 +169,9 @@ def make_restore(cache_dir: Path, run_dir: Path | None = None) -> tuple[Any, Res
 
 
 def make_jobs(kind: str, cache: Any, run_dir: Path | None) -> Any:
-    """``RestoreJobs`` around the restorer of ``kind`` (fixer4d.restore.config.build_restorer;
+    """``RestoreJobs`` around the restorer of ``kind`` (fixer4d.restore.build_restorer;
     the learned restorer's weights come from RUN/restorer)."""
-    from fixer4d.restore.config import RestoreConfig, build_restorer
+    from fixer4d.restore import RestoreConfig, build_restorer
     from fixer4d.restore.jobs import RestoreJobs
 
     restorer = build_restorer(RestoreConfig(kind=kind), None if run_dir is None else run_dir / "restorer")

@@ -69,7 +69,7 @@ def make_request(model, scene, cameras: list[Camera], frame: int, ref_ids: tuple
 def build_restorer(config: RunConfig, run_dir: str | Path | None = None):
     """The restorer a run's config asks for; a learned one loads its weights from RUN/restorer
     (``restorer_stage`` trains them)."""
-    from fixer4d.restore.config import build_restorer as build
+    from fixer4d.restore.factory import build_restorer as build
 
     return build(config.restorer, None if run_dir is None else Path(run_dir) / RESTORER_DIR)
 

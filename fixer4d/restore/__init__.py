@@ -8,7 +8,8 @@ stores restored clips per round; RestoreJobs runs restorers off the caller's thr
 """
 from fixer4d.restore.base import RestoreCancelled, RestoreRequest, RestoreResult, Restorer
 from fixer4d.restore.cache import CacheEntry, RestoreCache
-from fixer4d.restore.config import LearnedRestorerConfig, RestoreConfig, build_restorer
+from fixer4d.restore.config import LearnedRestorerConfig, RestoreConfig
+from fixer4d.restore.factory import build_restorer
 from fixer4d.restore.jobs import Job, RestoreJobs
 from fixer4d.restore.reference_warp import ReferenceWarpConfig, ReferenceWarpRestorer
 

@@ -8,7 +8,8 @@ import json
 import pytest
 
 from fixer4d.errors import BackendUnavailable, InputError
-from fixer4d.restore.config import LearnedRestorerConfig, RestoreConfig, build_restorer
+from fixer4d.restore.config import LearnedRestorerConfig, RestoreConfig
+from fixer4d.restore.factory import build_restorer
 from fixer4d.restore.reference_warp import ReferenceWarpConfig, ReferenceWarpRestorer
 
 

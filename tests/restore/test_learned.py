@@ -9,7 +9,8 @@ import torch
 from fixer4d.bench.restore import clip_psnr, make_request
 from fixer4d.errors import InputError
 from fixer4d.restore.base import Restorer
-from fixer4d.restore.config import WEIGHTS_FILE, LearnedRestorerConfig, RestoreConfig, build_restorer
+from fixer4d.restore.config import WEIGHTS_FILE, LearnedRestorerConfig, RestoreConfig
+from fixer4d.restore.factory import build_restorer
 from fixer4d.restore.learned import (FEATURE_CHANNELS, LearnedRestorer, RestorerNet, request_features,
                                      restore_features, train_network)
 from fixer4d.restore.reference_warp import ReferenceWarpRestorer
