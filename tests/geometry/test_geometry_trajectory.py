@@ -274,7 +274,7 @@ def test_trajectories_verb_on_the_demo_scene(tmp_path):
         np.testing.assert_array_equal(t.cameras[0].c2w, train[t.pair[0]].c2w)
         np.testing.assert_array_equal(t.cameras[-1].c2w, train[t.pair[1]].c2w)
     assert load_nerfstudio(ns).frames == 5 * len(trajs)
-    assert main(["trajectories", "demo", "--out", str(out), "--only", "nope"]) == 1
+    assert main(["trajectories", "demo", "--out", str(out), "--only", "nope"]) == 2
 
 
 def test_bundled_demo_preset_matches_the_demo_rig():

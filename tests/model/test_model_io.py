@@ -144,7 +144,7 @@ def test_export_verb_converts_files_and_runs(tmp_path):
 
     run = tmp_path / "runs" / "demo"
     run.mkdir(parents=True)
-    assert main(["export", str(run), "--out", str(tmp_path / "x.npz")]) == 1  # no model yet: clear error
+    assert main(["export", str(run), "--out", str(tmp_path / "x.npz")]) == 2  # no model yet: clear error
     stage1 = random_model(5, ModelConfig(), seed=1)
     save_ply(stage1, run / "model_stage1.ply")
     assert main(["export", str(run), "--out", str(tmp_path / "s1.npz")]) == 0

@@ -19,7 +19,7 @@ def test_bench_raycast_writes_rows(tmp_path, capsys):
 def test_make_scene_reports_bad_spec(tmp_path, capsys):
     spec = tmp_path / "broken.json"
     spec.write_text(json.dumps({"frames": 2, "rig": {"layout": "grid"}, "objects": []}))
-    assert main(["make-scene", str(spec), "--out", str(tmp_path / "out"), "--no-progress"]) == 1
+    assert main(["make-scene", str(spec), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "broken.json" in err and "objects" in err
     assert not (tmp_path / "out").exists()  # nothing half-written
