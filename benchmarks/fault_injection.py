@@ -63,7 +63,7 @@ TINY_SETTINGS = {
 # Smaller still for the pytest: no sparse baseline and no restoration rows (their stages are the
 # same code paths as the main ones), half resolution, fewer steps.
 FAST_SETTINGS = {
-    "scene.scale": 0.5, "baseline_sparse": False, "eval.restoration_rows": False, "eval.matched_row": False,
+    "scene.scale": 0.5, "baseline_sparse": False, "eval.restoration_rows": False,
     "stage1.iterations": 16, "stage1.checkpoint_every": 4, "stage2.rounds": 1, "stage2.refresh_every": 8,
     "trajectories.frames": 3, "trajectories.time_stride": 4, "init_frame_stride": 4, "eval.stride": 4,
     "init.mvs.planes": 8,

@@ -19,6 +19,7 @@ Layout of the outputs in RUN/ (DESIGN.md §3):
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import logging
 import shutil
@@ -251,7 +252,8 @@ def matched_stage1(ctx: StageContext, model):
                             densify_from=min(ctx.config.stage1.densify_every, until), densify_until=until,
                             opacity_reset_every=n + 1, seed=s2.seed)
     t0 = time.perf_counter()
-    trainer = Trainer(model, ctx.scene, cfg, run_dir=out)
+    # a copy: the Trainer updates its model in place, and stage 2 must start from the stage-1 model
+    trainer = Trainer(copy.deepcopy(model), ctx.scene, cfg, run_dir=out)
     prior = trainer.train_seconds if trainer.resume() else 0.0
     trainer.train()
     save_ply(trainer.model, path)

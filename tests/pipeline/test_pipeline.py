@@ -131,3 +131,26 @@ def test_a_rerun_removes_what_a_killed_write_left(tmp_path):
     (run / ".keep_me").write_text("not ours")
     RunFolder.create(run, tiny_config())
     assert not any(p.exists() for p in leftovers) and (run / ".keep_me").exists()
+
+
+def test_matched_control_trains_a_copy_of_the_stage1_model(tiny_run, tmp_path):
+    """Stage 2 must start from the stage-1 model, not from the matched control's (a Trainer
+    updates its model in place): a fresh run and a resumed one would differ otherwise."""
+    import shutil
+
+    import torch
+
+    from fixer4d.model.io import load_ply
+    from fixer4d.pipeline import stages as S
+
+    run = tmp_path / "copy"
+    shutil.copytree(tiny_run[0], run)
+    shutil.rmtree(run / "matched")
+    folder = RunFolder.open(run)
+    ctx = S.StageContext(run=folder, scene=folder.scene, progress=False)
+    model = load_ply(run / "model_stage1.ply")
+    before = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    matched = S.matched_stage1(ctx, model)
+    assert matched is not model
+    after = model.state_dict()
+    assert before.keys() == after.keys() and all(torch.equal(before[k], after[k]) for k in before)
