@@ -35,8 +35,6 @@ DEFAULT_SIZE = (1440, 900)
 # centre and lifted by this fraction of the scene radius.
 START_PULLBACK = 1.15
 START_LIFT = 0.05
-# Above this condition number the cameras' optical axes are too close to parallel to intersect.
-PARALLEL_AXES_COND = 1e6
 # Longest a --screenshot run waits for the first model (live init + model build) before it
 # gives up with an error.
 SCREENSHOT_MODEL_TIMEOUT_S = 900.0
@@ -188,7 +186,11 @@ def initial_state(src: ViewerSource, gaussians: Any) -> AppState:
     if scene is not None:
         st.num_frames, st.fps = scene.num_frames, float(scene.fps)
         cams = scene.train_cameras or scene.cameras
-        center = rig_focus(cams, scene.bounds())
+        from fixer4d.geometry.rig import rig_focus
+
+        bounds = scene.bounds()
+        center = rig_focus(cams, None if bounds is None else
+                           (np.asarray(bounds.bbox_min, float) + np.asarray(bounds.bbox_max, float)) / 2.0)
         radius = float(np.max(np.linalg.norm(np.stack([c.center for c in scene.cameras]) - center, axis=1)))
         st.view = ViewCamera(up=rig_up(scene.cameras), fov_y=cams[0].fov_y)
         rig = np.mean([c.center for c in cams], axis=0)
@@ -208,22 +210,6 @@ def initial_state(src: ViewerSource, gaussians: Any) -> AppState:
         st.model_version = src.model_path.name
     st.set_gaussians(gaussians)
     return st
-
-
-def rig_focus(cameras: list[Any], bounds: Any) -> np.ndarray:
-    """The point the cameras look at: least-squares closest point to their optical axes; the
-    scene bounds' centre when the axes are (nearly) parallel."""
-    A = np.zeros((3, 3))
-    b = np.zeros(3)
-    for c in cameras:
-        P = np.eye(3) - np.outer(c.forward, c.forward)
-        A += P
-        b += P @ c.center
-    if np.linalg.cond(A) < PARALLEL_AXES_COND:
-        return np.linalg.solve(A, b)
-    if bounds is not None:
-        return (np.asarray(bounds.bbox_min, float) + np.asarray(bounds.bbox_max, float)) / 2.0
-    return np.mean([c.center + c.forward for c in cameras], axis=0)
 
 
 def run_window(args: argparse.Namespace) -> int:
