@@ -145,7 +145,10 @@ def resolve(source: str | None = None, *, config_file: str | Path | dict[str, An
     if config_file is not None:
         tree = config_tree.merge(tree, copy.deepcopy(_read_config_file(config_file)))
     if source is not None:
-        config_tree.set_dotted(tree, "scene.source", str(source))
+        # a scene folder or spec file is stored as an absolute path, so that the run folder's
+        # config names the same scene from any working directory (refine, eval, the viewer)
+        path = Path(str(source))
+        config_tree.set_dotted(tree, "scene.source", str(path.resolve()) if path.exists() else str(source))
     relative = relative or set()
     for key, value in (overrides or {}).items():
         if key in relative:

@@ -100,3 +100,11 @@ def test_print_config_shows_the_resolved_tree(capsys, tmp_path):
     (tmp_path / "c.json").write_text(json.dumps(printed))
     assert main(["run", "tiny", "--print-config", "--config", str(tmp_path / "c.json")]) == 0
     assert json.loads(capsys.readouterr().out) == printed
+
+
+def test_a_scene_path_is_stored_absolute(tmp_path, monkeypatch):
+    spec = tmp_path / "my_scene.json"
+    spec.write_text("{}")
+    monkeypatch.chdir(tmp_path)
+    assert resolve("my_scene.json").scene.source == str(spec.resolve())
+    assert resolve("demo").scene.source == "demo"  # bundled names stay names
