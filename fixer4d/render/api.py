@@ -71,7 +71,12 @@ def render(snapshot: Snapshot, camera: Camera, background: torch.Tensor | tuple 
     if name == "cpu" or snapshot.means.dtype not in (torch.float32, torch.float64):
         snapshot = snapshot.to(dtype=torch.float32)
     dtype = snapshot.means.dtype
-    proj = project_gaussians(snapshot, camera)
+    if name == "cpu":  # the same projection as numba loops with a hand-written backward
+        from fixer4d.render.project_cpu import project_gaussians_cpu
+
+        proj = project_gaussians_cpu(snapshot, camera)
+    else:
+        proj = project_gaussians(snapshot, camera)
     if proj.means2d.requires_grad:
         proj.means2d.retain_grad()
     if name == "reference":
