@@ -33,12 +33,13 @@ POSE_ADVICE = ("supply poses instead: load the scene from a layout that carries 
 class PoseConfig:
     """SfM settings. source: "given" (use the scene's poses) or "sfm" (estimate them).
     check: with given poses, also run SfM and report its error against them.
-    max_features: SIFT features per image. num_threads: pycolmap threads (-1 = all cores)."""
+    max_features: SIFT features per image. num_threads: pycolmap threads (-1 = all cores: faster, not reproducible;
+    see constants.COLMAP_THREADS)."""
 
     source: str = "given"
     check: bool = False
     max_features: int = C.SIFT_MAX_FEATURES
-    num_threads: int = -1
+    num_threads: int = C.COLMAP_THREADS
 
 
 @dataclass
@@ -87,7 +88,7 @@ class ColmapWorkspace:
     """
 
     def __init__(self, images: list[np.ndarray], cameras: list[Camera], *, max_features: int = C.SIFT_MAX_FEATURES,
-                 num_threads: int = -1, root: str | Path | None = None) -> None:
+                 num_threads: int = C.COLMAP_THREADS, root: str | Path | None = None) -> None:
         if len(images) != len(cameras):
             raise InputError(f"{len(images)} images but {len(cameras)} cameras; pass one camera per image")
         if len(images) < 2:
@@ -107,6 +108,7 @@ class ColmapWorkspace:
     def __enter__(self) -> "ColmapWorkspace":
         self.dir = Path(tempfile.mkdtemp(prefix="fixer4d_colmap_", dir=self._root))
         self.image_dir.mkdir()
+        _pycolmap().set_random_seed(C.COLMAP_SEED)
         return self
 
     def __exit__(self, *exc) -> None:

@@ -19,10 +19,11 @@ from fixer4d.init.poses import ColmapWorkspace
 
 @dataclass
 class SparseConfig:
-    """max_features: SIFT features per image. num_threads: pycolmap threads (-1 = all cores)."""
+    """max_features: SIFT features per image. num_threads: pycolmap threads (-1 = all cores: faster, not reproducible;
+    see constants.COLMAP_THREADS)."""
 
     max_features: int = C.SIFT_MAX_FEATURES
-    num_threads: int = -1
+    num_threads: int = C.COLMAP_THREADS
 
 
 def sparse_cloud(images: list[np.ndarray], cameras: list[Camera], frame: int, time_value: float,
