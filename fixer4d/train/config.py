@@ -51,6 +51,13 @@ class Stage1Config:
     # Hard cap on the model size during densification.
     max_gaussians: int = 150_000
 
+    # -- observed loss ---------------------------------------------------------------------
+    # Extra per-pixel weight of L_STG on the pixels each train camera's own moving-content mask
+    # marks (fixer4d.init.masks; w = 1 + this there, 1 elsewhere). Moving content is a few to
+    # ~15 % of a static rig's pixels, so with uniform weights the static world dominates every
+    # gradient, and time-local Gaussians each see only the frames near their own time.
+    moving_loss_weight: float = 0.0
+
     # -- learning rates (STGS "lite" values) ------------------------------------------------
     # positions: 1.6e-4 -> 1.6e-6 x extent, exponential decay over the run (3DGS/STGS).
     lr_means_init: float = 1.6e-4
@@ -108,6 +115,8 @@ class Stage1Config:
             raise InputError(f"Stage1Config.views_per_step must be >= 1, got {self.views_per_step}")
         if self.densify_every < 1 or self.checkpoint_every < 1 or self.opacity_reset_every < 1:
             raise InputError("Stage1Config: densify_every, checkpoint_every and opacity_reset_every must be >= 1")
+        if self.moving_loss_weight < 0:
+            raise InputError(f"Stage1Config.moving_loss_weight must be >= 0, got {self.moving_loss_weight}")
         if self.max_gaussians < 1 or self.init_max_points < 1:
             raise InputError("Stage1Config: max_gaussians and init_max_points must be >= 1")
 

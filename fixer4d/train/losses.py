@@ -77,9 +77,11 @@ def masked_l1(a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor | None = No
     return (weight * (a - b).abs()).mean()
 
 
-def ssim(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+def ssim(a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
     """Mean SSIM of two images (H, W, 3) or (B, H, W, 3) in [0, 1] -> scalar tensor (1 = identical).
 
+    weight: None, or a non-negative per-pixel weight (H, W) (batched (B, H, W)): the SSIM map is
+    then averaged as mean(weight x map) (normalized by the pixel count, as ``masked_l1``).
     Differentiable w.r.t. both inputs.
     """
     x, y = _as_batch(a, b, "ssim")
@@ -96,17 +98,33 @@ def ssim(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     var_x, var_y, cov = e_xx - mu_xx, e_yy - mu_yy, e_xy - mu_xy
     num = (2.0 * mu_xy + SSIM_C1) * (2.0 * cov + SSIM_C2)
     den = (mu_xx + mu_yy + SSIM_C1) * (var_x + var_y + SSIM_C2)
-    return (num / den).mean()
+    smap = num / den
+    if weight is None:
+        return smap.mean()
+    wt = weight if weight.dim() == 3 else weight.unsqueeze(0)
+    if tuple(wt.shape) != (n, h, w):
+        raise InputError(f"ssim: weight shape {tuple(weight.shape)} does not match images {tuple(a.shape)}")
+    return (smap * wt.unsqueeze(1).to(smap.dtype)).mean()
 
 
-def dssim(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """The training D-SSIM term 1 - SSIM (the STGS loss's convention, not the metric's (1 - SSIM)/2)."""
-    return 1.0 - ssim(a, b)
+def dssim(a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """The training D-SSIM term 1 - SSIM (the STGS loss's convention, not the metric's (1 - SSIM)/2).
+
+    weight: None, or a per-pixel weight (H, W): mean(weight x (1 - SSIM map))."""
+    if weight is None:
+        return 1.0 - ssim(a, b)
+    return weight.mean() - ssim(a, b, weight)
 
 
-def stg_loss(render: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """L_STG = 0.8 * L1 + 0.2 * (1 - SSIM) of a render and its target, (H, W, 3) each -> scalar."""
-    return (1.0 - LAMBDA_DSSIM) * l1(render, target) + LAMBDA_DSSIM * dssim(render, target)
+def stg_loss(render: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """L_STG = 0.8 * L1 + 0.2 * (1 - SSIM) of a render and its target, (H, W, 3) each -> scalar.
+
+    weight: None, or a non-negative per-pixel weight (H, W) applied to both terms' per-pixel
+    maps (normalized by the pixel count; all ones = the plain L_STG), e.g. more weight on the
+    moving pixels (Stage1Config.moving_loss_weight)."""
+    if weight is None:
+        return (1.0 - LAMBDA_DSSIM) * l1(render, target) + LAMBDA_DSSIM * dssim(render, target)
+    return (1.0 - LAMBDA_DSSIM) * masked_l1(render, target, weight) + LAMBDA_DSSIM * dssim(render, target, weight)
 
 
 def psnr_torch(a: torch.Tensor, b: torch.Tensor) -> float:

@@ -36,6 +36,7 @@ from fixer4d.model.effects import EffectsConfig, EffectsDecision, TemporalStats,
 from fixer4d.model.snapshot import Snapshot
 from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians, knn_scales
 from fixer4d.render.api import RenderOutput, render
+from fixer4d.render.constants import ALPHA_MIN
 from fixer4d.scene.base import MultiViewVideo
 from fixer4d.train.config import Stage1Config, Stage2Config
 from fixer4d.train.losses import masked_l1, psnr_torch, stg_loss
@@ -182,6 +183,15 @@ def scene_extent(cameras: Sequence[Camera], means: torch.Tensor) -> float:
     return EXTENT_MARGIN * max(r, _DEGENERATE_RIG)
 
 
+def _drawn(snap: Snapshot, out: RenderOutput) -> torch.Tensor:
+    """(N,) radii of the Gaussians the renderer really drew: on screen (radii > 0) AND opacity
+    at the render's time >= ALPHA_MIN (the renderers skip fainter ones). A time-local Gaussian
+    far from its time is on screen but invisible; counting such views in the densification
+    statistics would average its gradient over times it does not exist (it would never be
+    densified, however badly it fits its own frames)."""
+    return torch.where(snap.opacities.detach() >= ALPHA_MIN, out.radii, torch.zeros_like(out.radii))
+
+
 # ---- the trainer ---------------------------------------------------------------------------
 
 class Trainer:
@@ -242,6 +252,7 @@ class Trainer:
         self._entry_offsets = np.zeros(1, np.int64)
         self._entry_frames: list[np.ndarray] = []  # per entry: the clip frames used as pseudo-views
         self._clips: OrderedDict[str, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
+        self._moving_packed: np.ndarray | None = None  # (V, T, H, ceil(W/8)) train-view moving masks, bit-packed
         self._lock = threading.RLock()
         self._stop = threading.Event()
 
@@ -301,7 +312,7 @@ class Trainer:
         t = self.scene.time(frame)
         shared = self.model.config.sh_degree == 0  # colours do not depend on the camera
 
-        outputs: list[tuple[RenderOutput, Camera]] = []
+        outputs: list[tuple[RenderOutput, Camera, torch.Tensor]] = []
         loss_stg = torch.zeros(())
         psnrs = []
         snap = None
@@ -316,10 +327,10 @@ class Trainer:
             timing["t_render"] += dt
             tic = time.perf_counter()
             target = torch.from_numpy(np.ascontiguousarray(self.scene.frame(frame, cam_id)))
-            loss_stg = loss_stg + stg_loss(out.rgb, target)
+            loss_stg = loss_stg + stg_loss(out.rgb, target, self._pixel_weight(int(v), frame))
             psnrs.append(psnr_torch(out.rgb, target))
             timing["t_loss"] += time.perf_counter() - tic
-            outputs.append((out, cam))
+            outputs.append((out, cam, _drawn(snap, out)))
 
         # L = mean_v L_STG(view v) + lambda_gen * mean_p L1(pseudo p): both per-view means, as the
         # paper states it. The gradient taken is that of V x L: Adam is invariant to the overall
@@ -343,11 +354,11 @@ class Trainer:
         tic = time.perf_counter()
         d_from, d_until = self._densify_window()
         if self.step_count < d_until:
-            for out, cam in outputs:
+            for out, cam, drawn in outputs:
                 if out.means2d.grad is not None:
-                    self.stats.update(out.means2d.grad, out.radii, cam.width, cam.height)
+                    self.stats.update(out.means2d.grad, drawn, cam.width, cam.height)
                     if self.revise:
-                        self.temporal_stats.update(out.means2d.grad, out.radii, cam.width, cam.height, t)
+                        self.temporal_stats.update(out.means2d.grad, drawn, cam.width, cam.height, t)
         timing["t_densify"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
@@ -368,6 +379,23 @@ class Trainer:
                **{f"densify_{k}": float(v) for k, v in counts.items()}}
         self.history.append({k: rec[k] for k in ("step", "loss", "psnr", "num_gaussians")})
         return rec
+
+    def _pixel_weight(self, view: int, frame: int) -> torch.Tensor | None:
+        """(H, W) weight of the observed loss at train view ``view`` (index into train_ids) and
+        ``frame``: 1 + ``moving_loss_weight`` on the pixels of that camera's own moving-content
+        mask (fixer4d.init.masks, from its own video; no other camera), 1 elsewhere; None when
+        the weight is 0. The masks of every frame are estimated once, on first use."""
+        w = float(self.config.moving_loss_weight)
+        if w <= 0.0:
+            return None
+        if self._moving_packed is None:
+            from fixer4d.init.masks import moving_masks_for_scene
+
+            masks = moving_masks_for_scene(self.scene, self.train_ids, list(range(self.scene.num_frames)))
+            self._moving_packed = np.packbits(masks, axis=-1)
+        width = self.scene.cameras[self.train_ids[view]].width
+        m = np.unpackbits(self._moving_packed[view, frame], axis=-1, count=width).astype(np.float32)
+        return torch.from_numpy(1.0 + w * m)
 
     def _render(self, snap: Snapshot, cam: Camera) -> tuple[RenderOutput, float]:
         tic = time.perf_counter()
@@ -465,7 +493,7 @@ class Trainer:
             self._clips.popitem(last=False)
         return rgb, conf
 
-    def _pseudo_loss(self, outputs: list[tuple[RenderOutput, Camera]], timing: dict[str, float]) -> torch.Tensor:
+    def _pseudo_loss(self, outputs: list[tuple[RenderOutput, Camera, torch.Tensor]], timing: dict[str, float]) -> torch.Tensor:
         """Mean over ``batch_pseudo`` cached novel frames of the (confidence-weighted) L1 between the
         model rendered at the frame's camera *and its clip's time* and the restored frame."""
         s2 = self.stage2
@@ -492,7 +520,7 @@ class Trainer:
             weight = conf[f] if s2.confidence_weighting else None
             loss = loss + masked_l1(out.rgb, target, weight)
             timing["t_loss"] += time.perf_counter() - tic
-            outputs.append((out, cam))
+            outputs.append((out, cam, _drawn(snap, out)))
         return loss / max(len(picks), 1)
 
     # -- loops and reading --------------------------------------------------------------------

@@ -64,7 +64,7 @@ def _endpoint_clip(scene, frame: int = 1, conf: float = 1.0, nan_endpoints: bool
 
 def test_observed_loss_is_a_per_view_mean(small_scene, small_clouds, make_config, monkeypatch):
     # every view's L_STG is made exactly 1: a sum over the 2 views of a step would report 2
-    monkeypatch.setattr(trainer_module, "stg_loss", lambda render, target: (render * 0.0).sum() + 1.0)
+    monkeypatch.setattr(trainer_module, "stg_loss", lambda render, target, weight=None: (render * 0.0).sum() + 1.0)
     model, cfg = _model(small_scene, small_clouds, make_config, views_per_step=2)
     rec = Trainer(model, small_scene, cfg).step()
     assert rec["loss_stg"] == pytest.approx(1.0)
