@@ -12,7 +12,8 @@ surface), so the overdraw per pixel stays similar across counts.
 Part 2 (``orbit_fps``): the whole viewer (panels + 3D view, 1440x900 window) on the demo with a
 30k-splat model (``--model`` a run folder or model file; default the demo's true surfaces
 back-projected, see ``demo_surface_gaussians``) while a left-drag orbits the camera every
-frame: frames per second with adaptive resolution, and at full resolution for comparison.
+frame: frames per second with adaptive resolution and level of detail (the viewer's default,
+``orbit_fps``), with adaptive resolution only, and at full resolution, in alternating rounds.
 
 Part 3 (``live_vs_pipeline_ratio``): ``bench_live``.
 
@@ -193,20 +194,32 @@ def main(argv: list[str] | None = None) -> int:
                                                  "model of the demo's surfaces)")
     p.add_argument("--live-iterations", type=int, default=500, help="stage-1 iterations of the live-training config")
     p.add_argument("--live-steps", type=int, default=60, help="steps timed in each live-training run (after 10)")
+    p.add_argument("--live-runs", type=int, default=1, help="live-training measurements (each reported)")
+    p.add_argument("--parts", default="splats,orbit,live", help="which parts to run (comma-separated; a part "
+                                                                "left out is null in the JSON)")
     p.add_argument("--out", default="benchmarks/results/viewer.json")
     args = p.parse_args(argv)
+    parts = {x.strip() for x in args.parts.split(",") if x.strip()}
     width, height = (int(v) for v in args.size.lower().split("x"))
     ctx = moderngl.create_standalone_context(backend="egl", require=330)
     renderer = f"{ctx.info['GL_RENDERER']} / {ctx.info['GL_VERSION']}"
     print(f"viewer benchmark on {renderer} ({'software, CPU' if 'llvmpipe' in renderer else 'GPU'}), "
           f"{width}x{height}", flush=True)
-    splats = bench_splats(ctx, [int(c) for c in args.counts.split(",")], width, height, args.repeats)
-    orbit = bench_orbit(ctx, args.model, args.orbit_frames, (1440, 900))
-    live = bench_live(args.live_iterations, args.live_steps, LIVE_WARMUP_STEPS)
+    splats = bench_splats(ctx, [int(c) for c in args.counts.split(",")], width, height, args.repeats) \
+        if "splats" in parts else None
+    orbit = bench_orbit(ctx, args.model, args.orbit_frames, (1440, 900)) if "orbit" in parts else None
+    lives = [bench_live(args.live_iterations, args.live_steps, LIVE_WARMUP_STEPS) for _ in range(args.live_runs)] \
+        if "live" in parts else []
+    for run in lives:
+        run["load_average_1_5_15"] = list(os.getloadavg())
     load = os.getloadavg()
+    ratios = [run["live_vs_pipeline_ratio"] for run in lives]
     result = {"benchmark": "viewer", "renderer": renderer, "size": [width, height], "machine": platform.machine(),
               "cpu_count": os.cpu_count(), "load_average_1_5_15": list(load), "splats": splats, "orbit": orbit,
-              "live": live, "orbit_fps": orbit["orbit_fps"], "live_vs_pipeline_ratio": live["live_vs_pipeline_ratio"]}
+              "live": lives[0] if len(lives) == 1 else lives or None,
+              "orbit_fps": None if orbit is None else orbit["orbit_fps"],
+              # several runs: the median, each run's own in "live"
+              "live_vs_pipeline_ratio": statistics.median(ratios) if ratios else None}
     write_json(Path(args.out), result)
     print(f"wrote {args.out}")
     return 0
@@ -243,10 +256,19 @@ def demo_surface_gaussians(scene, target: int = 30_000, frame: int = 0):
                                                                    "temporal_opacity": True, "sh_degree": 0})
 
 
-def bench_orbit(ctx, model: str | None, frames: int, window: tuple[int, int]) -> dict:
+# The orbit's settings: (name, adaptive resolution on, level of detail on).
+ORBIT_MODES = (("lod", True, True), ("adaptive", True, False), ("full_resolution", False, False))
+# Rounds of the orbit measurement: the settings take turns, so a shared machine's changing load
+# hits each alike.
+ORBIT_ROUNDS = 2
+
+
+def bench_orbit(ctx, model: str | None, frames: int, window: tuple[int, int], rounds: int = ORBIT_ROUNDS) -> dict:
     """The whole viewer (panels + 3D view) on the demo while the mouse orbits the camera (a
     steady left-drag fed through imgui's io, one step per frame): frames per second with
-    adaptive resolution and with it off, each frame finished on the GPU before the next."""
+    adaptive resolution and level of detail, with adaptive resolution only and with neither,
+    each frame finished on the GPU before the next; ``rounds`` turns of ``frames`` frames each
+    (the first 3 frames of each turn, the budget's warm-up, are not timed)."""
     from imgui_bundle import imgui
 
     from app.main import initial_state, open_source
@@ -262,40 +284,48 @@ def bench_orbit(ctx, model: str | None, frames: int, window: tuple[int, int]) ->
         src = ViewerSource(scene=scene, label="demo (surface model)")
         label = f"demo scene surfaces, {g.n} static Gaussians (no run folder given)"
     fbo = ctx.simple_framebuffer(window)
-    out = {"model": label, "gaussians": int(g.n), "window": list(window)}
-    for adaptive in (True, False):
-        state = initial_state(src, g)
-        state.show_frusta = state.show_trajectories = False
-        viewer = Viewer(ctx, state, src)
-        viewer.adaptive.enabled = adaptive
-        try:
-            for _ in range(3):  # layout, first sort, shader warm-up
+    out = {"model": label, "gaussians": int(g.n), "window": list(window), "rounds": rounds, "frames": frames}
+    times: dict[str, list[float]] = {name: [] for name, _, _ in ORBIT_MODES}
+    scales: list[float] = []
+    fractions: list[float] = []
+    for _ in range(rounds):
+        for name, adaptive, lod in ORBIT_MODES:
+            state = initial_state(src, g)
+            state.show_frusta = state.show_trajectories = False
+            viewer = Viewer(ctx, state, src)
+            viewer.adaptive.enabled, viewer.adaptive.lod = adaptive, lod
+            try:
+                for _ in range(3):  # layout, first sort, shader warm-up
+                    viewer.frame(1 / 60, fbo)
+                x0, y0, w, h = viewer.viewport_rect
+                io = imgui.get_io()
+                io.add_mouse_pos_event(x0 + w / 2, y0 + h / 2)
                 viewer.frame(1 / 60, fbo)
-            x0, y0, w, h = viewer.viewport_rect
-            io = imgui.get_io()
-            io.add_mouse_pos_event(x0 + w / 2, y0 + h / 2)
-            viewer.frame(1 / 60, fbo)
-            io.add_mouse_button_event(0, True)
-            viewer.frame(1 / 60, fbo)
-            times, scales = [], []
-            for k in range(frames):
-                io.add_mouse_pos_event(x0 + w / 2 + 4.0 * (k + 1), y0 + h / 2)
-                tic = time.perf_counter()
+                io.add_mouse_button_event(0, True)
                 viewer.frame(1 / 60, fbo)
-                gl_finish(ctx)
-                times.append(time.perf_counter() - tic)
-                scales.append(viewer.adaptive.scale)
-            io.add_mouse_button_event(0, False)
-            viewer.frame(1 / 60, fbo)
-        finally:
-            viewer.close()
-        key = "adaptive" if adaptive else "full_resolution"
-        out[f"orbit_fps_{key}"] = len(times) / sum(times)
-        out[f"orbit_frame_ms_{key}_median"] = 1e3 * statistics.median(times)
-        if adaptive:
-            out["orbit_render_scale_median"] = statistics.median(scales)
-    out["orbit_fps"] = out["orbit_fps_adaptive"]
-    print(f"  orbit ({label}, {window[0]}x{window[1]} window): {out['orbit_fps_adaptive']:.1f} fps adaptive "
-          f"(median scale {out['orbit_render_scale_median']:.2f}), {out['orbit_fps_full_resolution']:.1f} fps "
-          f"at full resolution", flush=True)
+                for k in range(frames + 3):
+                    io.add_mouse_pos_event(x0 + w / 2 + 4.0 * (k + 1), y0 + h / 2)
+                    tic = time.perf_counter()
+                    viewer.frame(1 / 60, fbo)
+                    gl_finish(ctx)
+                    if k >= 3:
+                        times[name].append(time.perf_counter() - tic)
+                        if name == "lod":
+                            scales.append(viewer.adaptive.scale)
+                            fractions.append(viewer.splats.stats.fraction)
+                io.add_mouse_button_event(0, False)
+                viewer.frame(1 / 60, fbo)
+            finally:
+                viewer.close()
+    for name, ts in times.items():
+        out[f"orbit_fps_{name}"] = len(ts) / sum(ts)
+        out[f"orbit_frame_ms_{name}_median"] = 1e3 * statistics.median(ts)
+    out["orbit_render_scale_median"] = statistics.median(scales)
+    out["orbit_lod_fraction_median"] = statistics.median(fractions)
+    out["orbit_fps"] = out["orbit_fps_lod"]
+    out["load_average_1_5_15"] = list(os.getloadavg())
+    print(f"  orbit ({label}, {window[0]}x{window[1]} window, load {out['load_average_1_5_15'][0]:.1f}): "
+          f"{out['orbit_fps_lod']:.1f} fps with level of detail (median scale {out['orbit_render_scale_median']:.2f}, "
+          f"{100 * out['orbit_lod_fraction_median']:.0f}% of the splats), {out['orbit_fps_adaptive']:.1f} fps with "
+          f"adaptive resolution only, {out['orbit_fps_full_resolution']:.1f} fps at full resolution", flush=True)
     return out

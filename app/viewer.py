@@ -18,7 +18,8 @@ import moderngl
 import numpy as np
 from imgui_bundle import imgui, implot
 
-from app.adaptive import AdaptiveResolution
+from app.adaptive import FRAME_TARGET_MS, MAX_BUDGET_MS, MIN_BUDGET_MS, AdaptiveResolution
+from app.gl.sync import finish
 from app.gl.overlays import OverlayRenderer
 from app.panels._layout import guard, panel
 from app.gl.splats import SplatRenderer
@@ -113,6 +114,8 @@ class Viewer:
         self._masks: tuple | None = None  # (path, masks, camera ids, frames) of RUN/init_*/masks.npz
         self.frame_ms = 0.0
         self.frame_times: list[float] = []
+        self.ui_ms: float | None = None  # running estimate of a frame's cost besides the splat draw
+        self._draw_ms = 0.0  # the splat draw of the current frame
         self.images: dict[str, moderngl.Texture] = {}
         self.panel_errors: dict[str, str] = {}  # panel -> its current error (cleared when it draws again)
         self.notifications = Notifications()
@@ -122,6 +125,9 @@ class Viewer:
         # screen rectangles (x0, y0, x1, y1) of named widgets from the last frame, so scripts and
         # tests can click them through imgui's io like a user
         self.item_rects: dict[str, tuple[float, float, float, float]] = {}
+        # screen rectangles of the panel windows this frame and last frame (panels._layout.alone)
+        self.window_rects: dict[str, tuple[float, float, float, float]] = {}
+        self.last_window_rects: dict[str, tuple[float, float, float, float]] = {}
         self._trajectory_cache: dict[int, tuple[TrajectorySpec, list[Camera]]] = {}
         from app.panels import PANELS  # the panels import the viewer's helpers
 
@@ -137,6 +143,7 @@ class Viewer:
     def frame(self, dt: float, fbo: moderngl.Framebuffer, platform_new_frame: Callable[[], None] | None = None) -> None:
         """Advance playback by ``dt`` seconds, build the UI, draw everything into ``fbo``."""
         tic = time.perf_counter()
+        self._draw_ms = 0.0
         self._poll_models()
         self.state.advance(dt)
         io = imgui.get_io()
@@ -147,6 +154,7 @@ class Viewer:
             io.display_size = imgui.ImVec2(float(fbo.size[0]), float(fbo.size[1]))
         imgui.backends.opengl3_new_frame()
         imgui.new_frame()
+        self.last_window_rects, self.window_rects = self.window_rects, {}
         if io.mouse_delta.x or io.mouse_delta.y or io.mouse_wheel or any(io.mouse_down) or io.want_text_input:
             self.last_input = time.monotonic()
         imgui.dock_space_over_viewport(0, imgui.get_main_viewport(),
@@ -166,11 +174,20 @@ class Viewer:
         imgui.render()
         fbo.use()
         self.ctx.viewport = (0, 0, *fbo.size)
-        fbo.clear(0.08, 0.08, 0.09, 1.0)
+        bg = imgui.get_style().color_(imgui.Col_.window_bg.value)
+        fbo.clear(bg.x, bg.y, bg.z, 1.0)  # the colour of panels drawn without background
         imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
+        finish(self.ctx)  # (without the GIL) so the frame time includes the GL's work
         self.frame_ms = 1e3 * (time.perf_counter() - tic)
+        self._plan_budget(self.frame_ms - self._draw_ms)
         self.frame_times.append(self.frame_ms)
         del self.frame_times[:-240]
+
+    def _plan_budget(self, ui_ms: float) -> None:
+        """The splat draw's budget while moving: what is left of FRAME_TARGET_MS after the rest of
+        the frame (panels, imgui's GL pass, the display), from a running estimate of it."""
+        self.ui_ms = ui_ms if self.ui_ms is None else 0.5 * ui_ms + 0.5 * self.ui_ms
+        self.adaptive.budget_ms = float(np.clip(FRAME_TARGET_MS - self.ui_ms, MIN_BUDGET_MS, MAX_BUDGET_MS))
 
     def report_error(self, source: str, exc: BaseException | str) -> None:
         """An error from a panel, menu or action: into the notifications area and the log (once
@@ -266,14 +283,16 @@ class Viewer:
             self.adaptive.max_scale = max_scale
             self.adaptive.invalidate()
         key = self._view_key(cam)
+        self.adaptive.splats = st.gaussians.n
         if wait_sort:
             self.adaptive.last_key = key
-            scale = 1.0
+            scale, self.adaptive.fraction = 1.0, 1.0
         else:
             scale = self.adaptive.plan(key)
         if scale is None and self.splats.display_texture is not None:
             return self.splats.display_texture
-        scale = 1.0 if scale is None else scale
+        if scale is None:  # nothing drawn yet: everything at full size
+            scale, self.adaptive.fraction = 1.0, 1.0
         rcam = cam if scale >= 1.0 else cam.resized(max(1, int(round(cam.width * scale))),
                                                     max(1, int(round(cam.height * scale))))
         self.render_camera = rcam
@@ -281,8 +300,10 @@ class Viewer:
             speed = st.gaussians.speed_at(st.time)
             moving = speed[speed > 0]
             self.heat_scale = float(np.percentile(moving, 99)) if moving.size else 1.0
-        stats = self.splats.render(rcam, st.time, mode=st.splat_mode, heat_scale=self.heat_scale, wait_sort=wait_sort)
-        self.adaptive.done(scale, stats.draw_ms, self.splats.order_matches(rcam, st.time))
+        stats = self.splats.render(rcam, st.time, mode=st.splat_mode, heat_scale=self.heat_scale, wait_sort=wait_sort,
+                                   fraction=self.adaptive.fraction)
+        self.adaptive.done(scale, stats.draw_ms, self.splats.order_matches(rcam, st.time), stats.fraction)
+        self._draw_ms += stats.draw_ms
         self.depth_range = self._depth_range(rcam)
         mode = st.debug_mode
         if mode == "blur" and self.blur_stale:
@@ -422,11 +443,15 @@ class Viewer:
         area = imgui.get_cursor_screen_pos()
         self.item_rects["viewport_area"] = (area.x, area.y, area.x + aw, area.y + ah)
         if tex is not None:
-            # a letterboxed (snapped / preview) camera sits centred on black bars
-            imgui.get_window_draw_list().add_rect_filled(area, imgui.ImVec2(area.x + aw, area.y + ah),
-                                                         imgui.get_color_u32(imgui.ImVec4(0, 0, 0, 1)))
             w, h = self.display_camera.width, self.display_camera.height
             pos = imgui.ImVec2(area.x + (aw - w) // 2, area.y + (ah - h) // 2)
+            # a letterboxed (snapped / preview) camera sits centred on black bars (only the bars
+            # are filled: on a software GL every filled pixel costs)
+            draw, black = imgui.get_window_draw_list(), imgui.get_color_u32(imgui.ImVec4(0, 0, 0, 1))
+            for lo, hi in (((area.x, area.y), (area.x + aw, pos.y)), ((area.x, pos.y + h), (area.x + aw, area.y + ah)),
+                           ((area.x, pos.y), (pos.x, pos.y + h)), ((pos.x + w, pos.y), (area.x + aw, pos.y + h))):
+                if hi[0] > lo[0] and hi[1] > lo[1]:
+                    draw.add_rect_filled(imgui.ImVec2(*lo), imgui.ImVec2(*hi), black)
             self.viewport_rect = (pos.x, pos.y, float(w), float(h))
             imgui.set_cursor_screen_pos(pos)
             imgui.image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(w, h), imgui.ImVec2(0, 1), imgui.ImVec2(1, 0))

@@ -29,6 +29,7 @@ uniform float u_fov_clamp;     // Jacobian tangents clamped to the fov widened b
 uniform int u_mode;            // 0 colour, 1 speed heat, 2 temporal-opacity heat
 uniform float u_heat_scale;    // speed that maps to the top of the colormap
 uniform int u_show_selection;
+uniform float u_lod_area;      // level of detail: 2D covariance scale of a kept splat (1 = exact)
 
 layout(location = 0) in uint a_index;   // per instance: the Gaussian, in depth order
 
@@ -138,7 +139,7 @@ void main() {
     float iz = 1.0 / pc.z;
     // J (2x3) stored as the columns of a mat3x2 (GLSL: 3 columns of vec2).
     mat3x2 J = mat3x2(fx * iz, 0.0, 0.0, fy * iz, -fx * tx * iz * iz, -fy * ty * iz * iz);
-    mat2 cov2 = J * covc * transpose(J);
+    mat2 cov2 = u_lod_area * (J * covc * transpose(J));
     float a = cov2[0][0] + u_lowpass;
     float b = cov2[0][1];
     float c = cov2[1][1] + u_lowpass;

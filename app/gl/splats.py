@@ -21,6 +21,7 @@ import moderngl
 import numpy as np
 
 from app.gaussians import GaussianArrays
+from app.gl.lod import area_factor, importance_rank, lod_count, lod_subset
 from app.gl.programs import load_program, shader_source
 from app.gl.sync import finish
 from fixer4d.geometry.camera import Camera
@@ -171,6 +172,7 @@ class FrameStats:
     upload_ms: float = 0.0
     draw_ms: float = 0.0
     instances: int = 0
+    fraction: float = 1.0  # level of detail: the fraction of the Gaussians drawn (app.gl.lod)
 
 
 class SplatRenderer:
@@ -197,6 +199,9 @@ class SplatRenderer:
         self._scalar_tex = ctx.texture((1, 1), 1, np.zeros(1, np.float32).tobytes(), dtype="f4")
         self._order_buf: moderngl.Buffer | None = None
         self._order_key: tuple | None = None
+        self._full_order: np.ndarray | None = None  # the installed depth order (all live Gaussians)
+        self._drawn: tuple | None = None  # (order key, count) of the index buffer's contents
+        self._rank: np.ndarray | None = None  # level-of-detail rank per Gaussian (lazy)
         self._instances = 0
         self._vao: moderngl.VertexArray | None = None
         self._targets: tuple | None = None
@@ -217,6 +222,9 @@ class SplatRenderer:
         self.gaussians = g
         self.version += 1
         self._order_key = None
+        self._full_order = None
+        self._drawn = None
+        self._rank = None
         self._instances = 0
         self.set_selection(selection)
         self.stats.upload_ms = 1e3 * (time.perf_counter() - t0)
@@ -261,11 +269,13 @@ class SplatRenderer:
         return (self.version, np.round(camera.w2c[:3], 9).tobytes(), round(float(t), 9))
 
     def render(self, camera: Camera, t: float, *, mode: str = "color", heat_scale: float = 1.0,
-               show_selection: bool = True, wait_sort: bool = False) -> FrameStats:
+               show_selection: bool = True, wait_sort: bool = False, fraction: float = 1.0) -> FrameStats:
         """Draw at ``camera`` (its own width x height) and time ``t`` into the float targets.
 
         ``wait_sort``: block until the order for exactly this camera and time is ready (tests,
         screenshots); otherwise the newest finished order of the same Gaussians is drawn.
+        ``fraction`` < 1: level of detail, draw that fraction of the Gaussians (``app.gl.lod``:
+        a fixed, importance-weighted subset, each kept splat's footprint scaled by 1/fraction).
         """
         self._ensure_targets(camera.width, camera.height)
         color, depth, fbo = self._targets
@@ -282,11 +292,13 @@ class SplatRenderer:
             self.sorter.request(key, g, camera.w2c, t)
             res = self.sorter.wait(key) if (wait_sort or self._instances == 0) else self.sorter.result()
             if res is not None and res[0][0] == self.version and res[0] != self._order_key:
-                t0 = time.perf_counter()
-                self._upload_order(res[1])
+                self._full_order = res[1]
                 self._order_key = res[0]
-                stats.upload_ms = 1e3 * (time.perf_counter() - t0)
                 stats.sort_ms = self.sorter.last_sort_ms
+        t0 = time.perf_counter()
+        count = self._install(fraction)
+        stats.upload_ms = 1e3 * (time.perf_counter() - t0)
+        stats.fraction = count / g.n if self._full_order is not None and self._full_order.size else 1.0
         t0 = time.perf_counter()
         p = self.prep_prog
         self._param_tex.use(0)
@@ -298,7 +310,8 @@ class SplatRenderer:
             "u_time": float(t), "u_t_log_scale_min": T_LOG_SCALE_MIN, "u_near": NEAR_PLANE, "u_lowpass": LOWPASS_2D,
             "u_det_min": DET_MIN, "u_min_alpha": ALPHA_MIN, "u_sigma_extent": SIGMA_EXTENT,
             "u_fov_clamp": TAN_FOV_MARGIN, "u_mode": SPLAT_MODES[mode], "u_heat_scale": float(heat_scale),
-            "u_show_selection": int(show_selection), "u_max_alpha": ALPHA_MAX, "u_power_max": POWER_MAX}
+            "u_show_selection": int(show_selection), "u_max_alpha": ALPHA_MAX, "u_power_max": POWER_MAX,
+            "u_lod_area": area_factor(g.n, count)}
         for prog in (self.prep_prog, self.prog):
             for name, value in uniforms.items():
                 member = prog.get(name, None)  # each stage declares only what it uses
@@ -327,8 +340,27 @@ class SplatRenderer:
     def upload_order(self, order: np.ndarray, camera: Camera, t: float) -> None:
         """Install a depth order computed elsewhere (``depth_order``) for ``camera`` at ``t``, so
         the next ``render`` of that view draws it without sorting (benchmarks, scripts)."""
-        self._upload_order(order)
+        self._full_order = np.asarray(order, np.uint32)
         self._order_key = self._sort_key(camera, t)
+        self._install(1.0)
+
+    def _install(self, fraction: float) -> int:
+        """Put the installed order (or its level-of-detail subset at ``fraction``) into the index
+        buffer unless it is there already. Returns the number of Gaussians the subset stands
+        for (rank bound: all N when drawing everything)."""
+        g = self.gaussians
+        if self._full_order is None or g is None:
+            return 0 if g is None else g.n
+        count = g.n if fraction >= 1.0 else lod_count(g.n, fraction)
+        if self._drawn != (self._order_key, count):
+            order = self._full_order
+            if count < g.n:
+                if self._rank is None:
+                    self._rank = importance_rank(g.opacity_logits)
+                order = lod_subset(order, self._rank, count)
+            self._upload_order(order)
+            self._drawn = (self._order_key, count)
+        return count
 
     def _upload_order(self, order: np.ndarray) -> None:
         data = np.ascontiguousarray(order, np.uint32)
