@@ -13,9 +13,12 @@ from .scenes import front_camera, leaf, random_snapshot
 pytestmark = pytest.mark.skipif(cpu.unavailable_reason() is not None, reason="numba missing")
 
 
-def test_exp_neg_is_correctly_rounded_expf():
-    """The kernels' explicit exp(-power) (vectorizable, no libm call) rounds like a correct expf
-    on the whole range the blending uses, so alpha thresholds decide as with libm."""
+def test_exp_neg_error_bound():
+    """The kernels' explicit float32 exp(-power) (vectorizable, no libm call) stays within its
+    stated bound (cpu.EXP_MAX_ULP, measured exhaustively) on a dense sample of the whole range
+    the blending uses, power in [0, POWER_MAX] and up to the clamp at 6, and is mostly
+    correctly rounded. (Threshold decisions can then differ from the oracle's exp in rare
+    fragments; the parity tests show they stay within their tolerances.)"""
     from numba import njit
 
     @njit
@@ -23,15 +26,19 @@ def test_exp_neg_is_correctly_rounded_expf():
         for i in range(x.shape[0]):
             out[i] = cpu._exp_neg(x[i])
 
-    x = np.linspace(0.0, 6.0, 400_001, dtype=np.float32)
-    x = np.concatenate([x, np.nextafter(x, np.float32(7)), np.float32([-1e-7, 4.5])])
+    x = np.linspace(0.0, 6.0, 2_000_001, dtype=np.float32)
+    tiny = np.float32(2.0) ** -np.arange(1, 150, dtype=np.float32)  # down to subnormal powers
+    x = np.concatenate([x, np.nextafter(x, np.float32(7)), tiny, np.float32([0.0, -0.0, cpu._POWER_MAX])])
     x = x[x <= 6.0]  # beyond, the argument is clamped (results there are never used)
     got = np.empty_like(x)
     run(x, got)
     exact = np.exp(-x.astype(np.float64))
-    ulp = np.abs(got.astype(np.float64) - exact) / np.spacing(exact.astype(np.float32)).astype(np.float64)
-    assert ulp.max() <= 0.5 + 1e-6
-    assert (got == exact.astype(np.float32)).mean() > 0.9999
+    ulp = np.exp2(np.floor(np.log2(exact)) - 23)  # float32 spacing in the exact value's binade
+    err = np.abs(got.astype(np.float64) - exact) / ulp
+    assert err.max() <= cpu.EXP_MAX_ULP
+    assert cpu.EXP_MAX_ULP < 1.0  # faithful: the result is one of the two floats around exp(-power)
+    # 89.9 % of this sample is correctly rounded (the rest 1 ulp off, within the bound)
+    assert (got == exact.astype(np.float32)).mean() > 0.85
 
 
 def test_render_keeps_torch_thread_count():
