@@ -18,7 +18,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -51,6 +51,15 @@ TRAINING_UI_FPS = 10.0
 # ... and this many while nobody touches the window (the panels' numbers and the published
 # model still update a few times a second).
 TRAINING_UI_FPS_UNATTENDED = 3.0
+# ... and, unattended, the UI's frames take at most this share of the wall time (a frame that
+# took X ms is followed by at least X (1 - share) / share ms of sleep): a frame's cost varies
+# 10x with what it draws (a new published model re-sorts and redraws 30k splats on llvmpipe:
+# 100-400 ms, a frame without a new image: 40-60 ms), so a fixed frame rate alone left the
+# trainer anywhere from 0.6x to 1.07x of its speed without the viewer.
+TRAINING_UI_SHARE_UNATTENDED = 0.1
+# Longest such pause (s): the panels' numbers and the loss plot still move every 2 s. Input ends
+# a pause at once in the window (it waits for events, not a fixed sleep).
+TRAINING_UI_MAX_PAUSE_S = 2.0
 # Input within this many seconds counts as "the user is interacting".
 INTERACTION_S = 1.5
 # With nothing moving, playing or training, the loop sleeps until an input event or this long
@@ -122,22 +131,43 @@ def open_model(path: Path) -> tuple[ViewerSource, Any, Path]:
     return src, g, _config_dir() / _slug(str(path))
 
 
+def run_config(run: Path) -> dict:
+    """The run's configuration as a dict: format 2 folders keep it under "config" (with
+    "format_version" beside it), format 1 folders at the top level."""
+    try:
+        data = json.loads((run / "config.json").read_text())
+    except (ValueError, OSError) as exc:
+        raise InputError(f"{run / 'config.json'}: unreadable ({exc}); is this a fixer4d run folder?") from exc
+    config = data.get("config") if isinstance(data, dict) and "format_version" in data else data
+    if not isinstance(config, dict):
+        raise InputError(f"{run / 'config.json'}: not a fixer4d run config")
+    return config
+
+
 def open_run(run: Path, model: Path | None = None) -> tuple[ViewerSource, Any, Path]:
     """A run folder: its scene, a model version (``model``, else the one the session remembers,
-    else model_final / model_stage1), its restoration cache and a restorer for new jobs."""
-    from app.files import choose_model, remembered_version
+    else model_final / model_stage1; a segmented run without a top-level model: its segments'
+    models on the clip's timeline, ``app.segments``), its restoration cache and a restorer for
+    new jobs."""
+    from app.files import choose_model, model_versions, remembered_version
     from app.gaussians import GaussianArrays
+    from app.segments import SegmentTimeline, segment_models
     from fixer4d.model.io import load_model
     from fixer4d.scene import load_scene
 
     try:
-        config = json.loads((run / "config.json").read_text())
-        scene_cfg = dict(config["scene"])
-    except (ValueError, KeyError) as exc:
+        scene_cfg = dict(run_config(run)["scene"])
+    except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"{run / 'config.json'}: no 'scene' entry ({exc}); is this a fixer4d run folder?") from exc
     if scene_cfg.get("frame_range") is not None:
         scene_cfg["frame_range"] = tuple(scene_cfg["frame_range"])
     scene = load_scene(**scene_cfg)
+    if model is None and not model_versions(run) and segment_models(run):
+        timeline = SegmentTimeline.load(run, scene.num_frames)
+        cache, restore = make_restore(run / "cache", run)
+        src = ViewerSource(scene=scene, run_dir=run, label=f"{run} ({len(timeline.ranges)} segments)", cache=cache,
+                           restore=restore, segments=timeline)
+        return src, timeline.arrays[timeline.segment_of(0.0)], run / "viewer"
     model_path = model if model is not None else choose_model(run, remembered_version(run / "viewer" / "session.json"))
     g = GaussianArrays.from_model(load_model(model_path))
     cache, restore = make_restore(run / "cache", run)
@@ -156,8 +186,8 @@ def make_restore(cache_dir: Path, run_dir: Path | None = None) -> tuple[Any, Res
     kind = "warp"
     if run_dir is not None:
         try:
-            kind = str((json.loads((run_dir / "config.json").read_text()).get("restorer") or {}).get("kind", "warp"))
-        except (ValueError, OSError, AttributeError):
+            kind = str((run_config(run_dir).get("restorer") or {}).get("kind", "warp"))
+        except (InputError, AttributeError):
             kind = "warp"
     try:
         jobs = make_jobs(kind, cache, run_dir)
@@ -288,7 +318,7 @@ def run_window(args: argparse.Namespace) -> int:
                         status = 1
                     break
             glfw.swap_buffers(window)
-            pace_frame(viewer, now)
+            pace_frame(viewer, now, glfw.wait_events_timeout)
     finally:
         viewer.close(platform_shutdown=imgui.backends.glfw_shutdown)
         glfw.destroy_window(window)
@@ -296,16 +326,22 @@ def run_window(args: argparse.Namespace) -> int:
     return status
 
 
-def pace_frame(viewer: Viewer, frame_start: float) -> None:
+def pace_frame(viewer: Viewer, frame_start: float, wait: Callable[[float], Any] = time.sleep) -> None:
     """Sleep out the rest of the frame period while live training runs (TRAINING_UI_FPS while
-    the user interacts, TRAINING_UI_FPS_UNATTENDED otherwise), so the trainer gets the CPU the
-    UI does not need."""
+    the user interacts; TRAINING_UI_FPS_UNATTENDED otherwise, and then at least long enough that
+    the UI takes no more than TRAINING_UI_SHARE_UNATTENDED of the time), so the trainer gets the
+    CPU the UI does not need. ``wait(seconds)``: how to pass the time (the window waits for
+    input events, so the user's first move ends the pause)."""
     tr = viewer.source.training
     if tr is not None and tr.state in ("setup", "running"):
         attended = time.monotonic() - viewer.last_input < INTERACTION_S
-        rest = 1.0 / (TRAINING_UI_FPS if attended else TRAINING_UI_FPS_UNATTENDED) - (time.perf_counter() - frame_start)
+        spent = time.perf_counter() - frame_start
+        rest = 1.0 / (TRAINING_UI_FPS if attended else TRAINING_UI_FPS_UNATTENDED) - spent
+        if not attended:
+            rest = max(rest, min(TRAINING_UI_MAX_PAUSE_S,
+                                 spent * (1.0 - TRAINING_UI_SHARE_UNATTENDED) / TRAINING_UI_SHARE_UNATTENDED))
         if rest > 0:
-            time.sleep(rest)
+            wait(rest)
 
 
 def save_png(path: str | Path, image: np.ndarray) -> None:

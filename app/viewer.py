@@ -58,6 +58,8 @@ class ViewerSource:
     restore: a ``RestoreQueue`` to queue restorations, or None.
     render_backend: the torch rasterizer backend for compare/restore renders.
     model_path: the model file shown, or None (live training).
+    segments: a segmented run's ``app.segments.SegmentTimeline`` (the shown Gaussians follow the
+      segment that owns the current frame), or None.
     """
 
     scene: Any = None
@@ -68,6 +70,7 @@ class ViewerSource:
     restore: RestoreQueue | None = None
     render_backend: str = "auto"
     model_path: Path | None = None  # the model file shown (a run's version, or a bare model)
+    segments: Any = None
 
 
 class Viewer:
@@ -99,8 +102,9 @@ class Viewer:
         self.tool = "navigate"  # navigate | box | brush
         self._drag_start: tuple[float, float] | None = None
         self._uploaded_version = -1
+        self._segment: int | None = None  # a segmented run: the segment whose Gaussians are shown
         self._model_serial = 0
-        self._torch_model: tuple[int, Any] | None = None
+        self._torch_model: tuple[Any, Any] | None = None  # (version key, torch model)
         self.viewport_rect = (0.0, 0.0, 1.0, 1.0)  # screen x, y, w, h of the 3D image
         self.render_camera: Camera | None = None  # the camera of the last 3D image (maybe reduced)
         self.display_camera: Camera | None = None  # the full-size view camera (viewport pixels)
@@ -144,8 +148,8 @@ class Viewer:
         """Advance playback by ``dt`` seconds, build the UI, draw everything into ``fbo``."""
         tic = time.perf_counter()
         self._draw_ms = 0.0
-        self._poll_models()
         self.state.advance(dt)
+        self._poll_models()
         io = imgui.get_io()
         io.delta_time = max(float(dt), 1e-4)
         if platform_new_frame is not None:
@@ -237,9 +241,31 @@ class Viewer:
                 self.state.set_gaussians(g)
                 if sel is not None:
                     self.state.set_selection(sel)
-        if self.state.gaussians is not None and self.state.gaussians_version != self._uploaded_version:
-            self.splats.set_gaussians(self.state.gaussians, self.state.selection)
-            self._uploaded_version = self.state.gaussians_version
+        self._sync_model()
+
+    def _sync_model(self) -> None:
+        """Show the segment that owns the current frame (a segmented run) and upload the shown
+        Gaussians when they changed."""
+        timeline, st = self.source.segments, self.state
+        if timeline is not None:
+            k = timeline.segment_of(st.time)
+            if k != self._segment:
+                if self._segment is not None and st.gaussians is not None:
+                    timeline.arrays[self._segment] = st.gaussians  # keep that segment's edits
+                if self._segment is not None or st.gaussians is not timeline.arrays[k]:
+                    st.set_gaussians(timeline.arrays[k])
+                    st.undo_stack.clear()  # an undo would apply to another segment's Gaussians
+                    st.redo_stack.clear()
+                self._segment = k
+        if st.gaussians is not None and st.gaussians_version != self._uploaded_version:
+            self.splats.set_gaussians(st.gaussians, st.selection)
+            self._uploaded_version = st.gaussians_version
+
+    def model_time(self) -> float:
+        """The time the shown Gaussians are evaluated at: the clip time, or for a segmented run
+        the owning segment's local time."""
+        timeline = self.source.segments
+        return self.state.time if timeline is None else timeline.local_time(self.state.time)
 
     # ---- the 3D view ----------------------------------------------------------------------------
     def view_camera(self, width: int, height: int) -> Camera:
@@ -271,6 +297,7 @@ class Viewer:
         pixels), ``render_camera`` the one the image was drawn with (``wait_sort``: full size
         with the exact depth order, for tests and screenshots)."""
         st = self.state
+        self._sync_model()  # the frame may have changed since the frame began (timeline panel)
         if st.gaussians is None:
             return None
         cam = self.view_camera(width, height)
@@ -297,12 +324,13 @@ class Viewer:
                                                     max(1, int(round(cam.height * scale))))
         self.render_camera = rcam
         if st.splat_mode == "speed" and st.gaussians.n:
-            speed = st.gaussians.speed_at(st.time)
+            speed = st.gaussians.speed_at(self.model_time())
             moving = speed[speed > 0]
             self.heat_scale = float(np.percentile(moving, 99)) if moving.size else 1.0
-        stats = self.splats.render(rcam, st.time, mode=st.splat_mode, heat_scale=self.heat_scale, wait_sort=wait_sort,
+        t_model = self.model_time()
+        stats = self.splats.render(rcam, t_model, mode=st.splat_mode, heat_scale=self.heat_scale, wait_sort=wait_sort,
                                    fraction=self.adaptive.fraction)
-        self.adaptive.done(scale, stats.draw_ms, self.splats.order_matches(rcam, st.time), stats.fraction)
+        self.adaptive.done(scale, stats.draw_ms, self.splats.order_matches(rcam, t_model), stats.fraction)
         self._draw_ms += stats.draw_ms
         self.depth_range = self._depth_range(rcam)
         mode = st.debug_mode
@@ -407,7 +435,7 @@ class Viewer:
         g = self.state.gaussians
         if g is None or g.n == 0:
             return (0.1, 10.0)
-        z = g.means_at(self.state.time) @ cam.w2c[2, :3].astype(np.float32) + np.float32(cam.w2c[2, 3])
+        z = g.means_at(self.model_time()) @ cam.w2c[2, :3].astype(np.float32) + np.float32(cam.w2c[2, 3])
         z = z[z > 0]
         return (float(np.percentile(z, 2)), float(np.percentile(z, 98))) if z.size else (0.1, 10.0)
 
@@ -529,7 +557,7 @@ class Viewer:
         g, cam = self.state.gaussians, self.display_camera
         if g is None or cam is None:
             return np.zeros((0, 2)), np.zeros(0, bool)
-        t = self.state.time
+        t = self.model_time()
         uv, z = cam.project(g.means_at(t))
         from fixer4d.render.constants import ALPHA_MIN, NEAR_PLANE
 
@@ -598,13 +626,21 @@ class Viewer:
     def save_edited_model(self) -> Path | None:
         """Save the displayed (edited) Gaussians as a new model version next to the shown one:
         RUN/model_edit_<k>.ply, k = 1 + the highest existing (the session folder for a live
-        scene). It becomes the shown version, so the run reopens with it. Returns the path."""
+        scene; a segmented run: the shown segment's folder, app.segments.segment_model). It
+        becomes the shown version, so the run reopens with it. Returns the path."""
         from app.files import next_edit_path
 
         g = self.state.gaussians
         if g is None:
             self.state.status = "no model to save"
             return None
+        timeline = self.source.segments
+        if timeline is not None and self._segment is not None:
+            path = self.save_model(next_edit_path(timeline.paths[self._segment].parent))
+            timeline.paths[self._segment] = path
+            self.state.status = f"saved {path} ({g.n} Gaussians; segment {self._segment} opens with it)"
+            self.notifications.info("file", self.state.status)
+            return path
         path = self.save_model(next_edit_path(self.output_dir))
         self.source.model_path = path
         self.source.label = str(path)
@@ -686,6 +722,7 @@ class Viewer:
         self._trajectory_cache.clear()
         self._torch_model = None
         self._uploaded_version = -1
+        self._segment = None
         self.adaptive.invalidate()
         for key in ("_compare_ui", "_debug_ui"):
             self.__dict__.pop(key, None)
@@ -718,20 +755,37 @@ class Viewer:
             self._torch_model = (st.gaussians_version, None if st.gaussians is None else st.gaussians.to_model())
         return self._torch_model[1]
 
+    def stitched_model(self) -> Any:
+        """A segmented run's ``SegmentedModel`` of every segment's torch model (the shown
+        segment with its edits), cached per edit and shown segment."""
+        timeline, st = self.source.segments, self.state
+        key = ("segments", st.gaussians_version, self._segment)
+        if self._torch_model is None or self._torch_model[0] != key:
+            arrays = [st.gaussians if k == self._segment and st.gaussians is not None else g
+                      for k, g in enumerate(timeline.arrays)]
+            self._torch_model = (key, timeline.stitched([g.to_model() for g in arrays]))
+        return self._torch_model[1]
+
     def model_render_fn(self) -> Callable[[Camera, float], dict[str, np.ndarray]]:
         """``fn(camera, t) -> {"rgb", "depth", "alpha"}`` with the torch rasterizer on the
-        displayed Gaussians (the same set the GL view shows, edits included)."""
+        displayed Gaussians (the same set the GL view shows, edits included) at clip time t (a
+        segmented run: the segment that owns t, at its local time)."""
         import torch
 
         from fixer4d.render.api import render
 
-        model = self.torch_model()
+        if self.source.segments is not None:
+            stitched = self.stitched_model()
+            snap = lambda t, center: stitched.at(t, camera_center=center)  # noqa: E731
+        else:
+            model = self.torch_model()
+            snap = model.snapshot
         background = tuple(self.state.background)
         backend = self.source.render_backend
 
         def fn(camera: Camera, t: float) -> dict[str, np.ndarray]:
             with torch.no_grad():
-                out = render(model.snapshot(t, camera.center), camera, background=background, backend=backend)
+                out = render(snap(t, camera.center), camera, background=background, backend=backend)
             return {"rgb": out.rgb.clamp(0, 1).numpy().astype(np.float32), "depth": out.depth.numpy().astype(np.float32),
                     "alpha": out.alpha.numpy().astype(np.float32)}
         return fn
