@@ -38,13 +38,36 @@ def frame_time(frame: int, num_frames: int) -> float:
     return frame / float(num_frames)
 
 
-class LRUCache:
-    """A thread-safe least-recently-used cache bounded by item count."""
+# Memory for decoded / ray-cast frames per scene (MiB). Training draws random (frame, camera)
+# pairs over the whole clip at every step, so a cache smaller than the train set decodes (or
+# ray-casts) most frames again and again: the demo's 80 train frames plus their depth maps did
+# not fit the former 128-item cache, and a stage-2 refine re-ray-cast 271 frames instead of
+# ~130. 1 GiB holds every frame of the demo (0.47 MiB per 200x150 frame with its depth) and 4
+# train cameras x 100 frames at 640x360; past that, the least recently used frames go.
+FRAME_CACHE_MB = 1024
 
-    def __init__(self, max_items: int) -> None:
-        self.max_items = max(0, int(max_items))
+
+class LRUCache:
+    """A thread-safe least-recently-used cache bounded by the bytes of what it holds.
+
+    Values are numpy arrays (their ``nbytes`` count) or anything else (counted as 0 bytes, e.g.
+    None for "no depth"). The most recent value is always kept, even when it alone is larger
+    than the budget. ``max_bytes`` 0 disables caching.
+    """
+
+    def __init__(self, max_bytes: int) -> None:
+        self.max_bytes = max(0, int(max_bytes))
         self._items: OrderedDict[Hashable, object] = OrderedDict()
+        self._bytes = 0
         self._lock = threading.Lock()
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held now."""
+        return self._bytes
+
+    def __len__(self) -> int:
+        return len(self._items)
 
     def get_or_compute(self, key: Hashable, compute: Callable[[], object]) -> object:
         with self._lock:
@@ -53,16 +76,22 @@ class LRUCache:
                 return self._items[key]
         value = compute()
         with self._lock:
-            if self.max_items:
+            if self.max_bytes and key not in self._items:
                 self._items[key] = value
-                self._items.move_to_end(key)
-                while len(self._items) > self.max_items:
-                    self._items.popitem(last=False)
+                self._bytes += _nbytes(value)
+                while self._bytes > self.max_bytes and len(self._items) > 1:
+                    _, old = self._items.popitem(last=False)
+                    self._bytes -= _nbytes(old)
         return value
 
     def clear(self) -> None:
         with self._lock:
             self._items.clear()
+            self._bytes = 0
+
+
+def _nbytes(value: object) -> int:
+    return int(getattr(value, "nbytes", 0))
 
 
 @dataclass(frozen=True)
@@ -92,8 +121,8 @@ class MultiViewVideo(abc.ABC):
     num_frames: int
     fps: float = 30.0
 
-    def __init__(self, cache_frames: int = 64) -> None:
-        self._cache = LRUCache(cache_frames)
+    def __init__(self, cache_mb: float = FRAME_CACHE_MB) -> None:
+        self._cache = LRUCache(int(cache_mb * 2 ** 20))
         self._common_bounds: SceneBounds | None = None
 
     # -- what implementations provide --------------------------------------------------

@@ -19,7 +19,7 @@ import numpy as np
 
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
-from fixer4d.scene.base import MultiViewVideo, SceneBounds, read_json_object
+from fixer4d.scene.base import FRAME_CACHE_MB, MultiViewVideo, SceneBounds, read_json_object
 from fixer4d.scene.synthetic import centre_camera, most_separated
 from fixer4d.scene.video import VideoReader, probe_video
 
@@ -113,8 +113,8 @@ class Neural3DVScene(MultiViewVideo):
 
     def __init__(self, root: str | Path, scale: float = 1.0, frame_range: tuple[int, int] | None = None,
                  train_ids: list[int] | None = None, test_ids: list[int] | None = None,
-                 cache_frames: int = 64) -> None:
-        super().__init__(cache_frames)
+                 cache_mb: float = FRAME_CACHE_MB) -> None:
+        super().__init__(cache_mb)
         self.root = Path(root)
         self.name = self.root.name
         if scale <= 0 or not np.isfinite(scale):

@@ -13,7 +13,7 @@ import numpy as np
 
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
-from fixer4d.scene.base import MultiViewVideo, read_json_object
+from fixer4d.scene.base import FRAME_CACHE_MB, MultiViewVideo, read_json_object
 
 # Panoptic Studio HD cameras record at 30 fps (the metadata carries no rate).
 PANOPTIC_FPS = 30.0
@@ -48,8 +48,8 @@ class PanopticScene(MultiViewVideo):
 
     def __init__(self, root: str | Path, scale: float = 1.0, frame_range: tuple[int, int] | None = None,
                  train_ids: list[int] | None = None, test_ids: list[int] | None = None,
-                 cache_frames: int = 64) -> None:
-        super().__init__(cache_frames)
+                 cache_mb: float = FRAME_CACHE_MB) -> None:
+        super().__init__(cache_mb)
         self.root = Path(root)
         self.name = self.root.name
         self.fps = PANOPTIC_FPS

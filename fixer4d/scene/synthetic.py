@@ -18,7 +18,7 @@ from fixer4d.errors import InputError
 from fixer4d.geometry import quaternion
 from fixer4d.geometry.camera import Camera
 from fixer4d.scene import raycast
-from fixer4d.scene.base import MultiViewVideo, SceneBounds, read_json_object
+from fixer4d.scene.base import FRAME_CACHE_MB, MultiViewVideo, SceneBounds, read_json_object
 
 # Default supersampling (k x k rays per pixel) of ground-truth frames: 2 removes the staircase
 # on texture and silhouette edges at 4x the rays; 1 is exact-at-centre and 4x faster.
@@ -373,8 +373,8 @@ class SyntheticScene(MultiViewVideo):
 
     def __init__(self, spec: str | Path | dict = "demo", scale: float = 1.0, frame_range: tuple[int, int] | None = None,
                  supersample: int | None = None, train_ids: list[int] | None = None,
-                 test_ids: list[int] | None = None, cache_frames: int = 128) -> None:
-        super().__init__(cache_frames)
+                 test_ids: list[int] | None = None, cache_mb: float = FRAME_CACHE_MB) -> None:
+        super().__init__(cache_mb)
         raw, where = read_spec(spec)
         self.spec: dict = raw
         self.source = where
