@@ -28,8 +28,9 @@ def test_lru_cache_zero_budget_caches_nothing():
     assert len(calls) == 2 and len(cache) == 0
 
 
-def test_every_train_frame_of_a_small_scene_is_ray_cast_once(monkeypatch):
-    scene = load_scene("tiny")
+def test_every_train_frame_of_the_demo_is_ray_cast_once(monkeypatch):
+    # 20 frames x 4 train cameras, rgb + depth: 160 entries, more than the former 128-item cache
+    scene = load_scene("demo", scale=0.1)
     loads = []
     real = type(scene)._load_frame
     monkeypatch.setattr(type(scene), "_load_frame", lambda self, f, c: loads.append((f, c)) or real(self, f, c))
