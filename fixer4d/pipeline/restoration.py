@@ -21,18 +21,32 @@ RESTORER_DIR = "restorer"
 
 def render_views(model, cameras: list[Camera], t: float, backend: str = "auto",
                  background: torch.Tensor | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Render ``model`` at time ``t`` from every camera: rgb (F,H,W,3), depth (F,H,W), alpha (F,H,W)."""
+    """Render ``model`` at time ``t`` from every camera: rgb (F,H,W,3), depth (F,H,W), alpha (F,H,W).
+
+    Cameras that coincide (same size, intrinsics and pose within 1e-9) are rendered once: a pair
+    trajectory's endpoints are its reference cameras, which a restore request also needs.
+    """
     from fixer4d.render.api import render
 
+    rendered: list[tuple[Camera, tuple[np.ndarray, np.ndarray, np.ndarray]]] = []
     rgbs, depths, alphas = [], [], []
     with torch.no_grad():
         for cam in cameras:
-            snap = model.at(t, camera_center=cam.center)
-            out = render(snap, cam, background=background, backend=backend)
-            rgbs.append(out.rgb.clamp(0, 1).numpy())
-            depths.append(out.depth.numpy())
-            alphas.append(out.alpha.numpy())
+            hit = next((r for c, r in rendered if _same_view(c, cam)), None)
+            if hit is None:
+                snap = model.at(t, camera_center=cam.center)
+                out = render(snap, cam, background=background, backend=backend)
+                hit = (out.rgb.clamp(0, 1).numpy(), out.depth.numpy(), out.alpha.numpy())
+                rendered.append((cam, hit))
+            rgbs.append(hit[0])
+            depths.append(hit[1])
+            alphas.append(hit[2])
     return np.stack(rgbs).astype(np.float32), np.stack(depths).astype(np.float32), np.stack(alphas).astype(np.float32)
+
+
+def _same_view(a: Camera, b: Camera) -> bool:
+    return (a.width == b.width and a.height == b.height and np.allclose(a.K, b.K, rtol=0.0, atol=1e-9)
+            and np.allclose(a.c2w, b.c2w, rtol=0.0, atol=1e-9))
 
 
 def model_render_fn(model, backend: str = "auto",
@@ -52,12 +66,14 @@ def make_request(model, scene, cameras: list[Camera], frame: int, ref_ids: tuple
     from fixer4d.restore.base import RestoreRequest
 
     t = scene.time(frame)
-    rgb, depth, alpha = render_views(model, cameras, t, backend)
     ref_cams = [scene.cameras[i] for i in ref_ids]
-    _, ref_depth, ref_alpha = render_views(model, ref_cams, t, backend)
     extra_ids = [i for i in scene.train_ids if i not in ref_ids]
     extra_cams = [scene.cameras[i] for i in extra_ids]
-    _, extra_depth, _ = render_views(model, extra_cams, t, backend) if extra_ids else (None, [], None)
+    # one call, so a clip's endpoints (= the reference cameras) are rendered once
+    rgb_all, depth_all, alpha_all = render_views(model, list(cameras) + ref_cams + extra_cams, t, backend)
+    n, m = len(cameras), len(cameras) + len(ref_cams)
+    rgb, depth, alpha = rgb_all[:n], depth_all[:n], alpha_all[:n]
+    ref_depth, ref_alpha, extra_depth = depth_all[n:m], alpha_all[n:m], depth_all[m:]
     return RestoreRequest(
         rgb=rgb, depth=depth, alpha=alpha, cameras=list(cameras), time=t, frame=frame,
         ref_images=[scene.frame(frame, i) for i in ref_ids], ref_cameras=ref_cams,
