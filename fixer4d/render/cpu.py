@@ -43,6 +43,10 @@ import torch
 from fixer4d.render import constants as C
 from fixer4d.render.project import Projection
 
+from fixer4d.render.simd import prefer_512_bit_vectors
+
+prefer_512_bit_vectors()  # before numba builds its CPU target: 16-lane float32 loops (see simd.py)
+
 try:  # numba is a core dependency, but "auto" must still work (via the oracle) without it
     import numba
     from numba import njit, prange

@@ -23,6 +23,10 @@ from fixer4d.model.snapshot import Snapshot
 from fixer4d.render.constants import DET_MIN, LOWPASS_2D, NEAR_PLANE, SIGMA_EXTENT, TAN_FOV_MARGIN
 from fixer4d.render.project import RADIUS_MAX, Projection
 
+from fixer4d.render.simd import prefer_512_bit_vectors
+
+prefer_512_bit_vectors()  # before numba builds its CPU target: 16-lane float32 loops (see simd.py)
+
 try:
     from numba import njit, prange
 except ImportError as _exc:  # pragma: no cover - exercised only on broken installs

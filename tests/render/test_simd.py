@@ -1,0 +1,57 @@
+"""simd.prefer_512_bit_vectors: numba's float32 loops go 16 wide on AVX-512 hosts, and the
+switches that turn it off work. Each case runs in a fresh interpreter (numba reads its CPU
+features once per process)."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+llvm = pytest.importorskip("llvmlite.binding")
+pytest.importorskip("numba")
+
+HOST_AVX512 = "+avx512f" in llvm.get_host_cpu_features().flatten().split(",")
+
+PROBE = """
+import json, os
+import numpy as np
+import fixer4d.render.cpu  # sets the features at import
+import numba
+from fixer4d.render import simd
+
+@numba.njit
+def scale(x, out):
+    for i in range(x.shape[0]):
+        out[i] = x[i] * np.float32(1.5) + np.float32(0.25)
+
+x = np.ones(1024, np.float32)
+scale(x, np.empty_like(x))
+asm = next(iter(scale.inspect_asm().values()))
+print(json.dumps({"features": os.environ.get("NUMBA_CPU_FEATURES"), "zmm": "zmm" in asm,
+                  "again": simd.prefer_512_bit_vectors()}))
+"""
+
+
+def _probe(**env) -> dict:
+    base = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CPU_FEATURES", "FIXER4D_NUMBA_AVX512")}
+    out = subprocess.run([sys.executable, "-c", PROBE], env={**base, **env}, capture_output=True, text=True,
+                         check=True, cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))))
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_wide_vectors_on_avx512_hosts_only():
+    res = _probe()
+    assert res["again"] is None  # once numba's target exists, a second call changes nothing
+    if HOST_AVX512:
+        assert res["features"].endswith(",-prefer-256-bit") and "+avx512f" in res["features"]
+        assert res["zmm"]  # the loop really uses 16-lane registers
+    else:
+        assert res["features"] is None and not res["zmm"]
+
+
+def test_switch_off():
+    res = _probe(FIXER4D_NUMBA_AVX512="0")
+    assert res["features"] is None and not res["zmm"]
