@@ -42,9 +42,10 @@ def frame_time(frame: int, num_frames: int) -> float:
 # pairs over the whole clip at every step, so a cache smaller than the train set decodes (or
 # ray-casts) most frames again and again: the demo's 80 train frames plus their depth maps did
 # not fit the former 128-item cache, and a stage-2 refine re-ray-cast 271 frames instead of
-# ~130. 1 GiB holds every frame of the demo (0.47 MiB per 200x150 frame with its depth) and 4
-# train cameras x 100 frames at 640x360; past that, the least recently used frames go.
-FRAME_CACHE_MB = 1024
+# ~130. 2 GiB holds the 4 train cameras of a whole 150-frame capture at 640x360 (1.66 GB; a
+# video frame has no depth map) and every frame of the demo (0.47 MiB per 200x150 frame with
+# its depth); past that, the least recently used frames go. Longer captures run as segments.
+FRAME_CACHE_MB = 2048
 
 
 class LRUCache:
