@@ -27,7 +27,7 @@ from app.files import remember_recent
 from app.notifications import LOG
 from app.session import RestoreQueue, TrainingSession, live_stage1_trainer
 from app.state import AppState
-from app.viewer import Viewer, ViewerSource
+from app.viewer import INTERACTION_S, Viewer, ViewerSource
 from fixer4d.errors import Fixer4DError, InputError
 
 DEFAULT_SIZE = (1440, 900)
@@ -56,12 +56,16 @@ TRAINING_UI_FPS_UNATTENDED = 3.0
 # 10x with what it draws (a new published model re-sorts and redraws 30k splats on llvmpipe:
 # 100-400 ms, a frame without a new image: 40-60 ms), so a fixed frame rate alone left the
 # trainer anywhere from 0.6x to 1.07x of its speed without the viewer.
-TRAINING_UI_SHARE_UNATTENDED = 0.1
+TRAINING_UI_SHARE_UNATTENDED = 0.05
+# While live training runs, the UI thread's scheduling priority is lowered by this many nice
+# steps (Linux: per thread; not raised again, which needs privileges): when a UI frame and a
+# training step want the same core the step goes first. Measured cost of a UI frame to the
+# trainer without it: ~3x the frame's own time (torch's OpenMP team stalls when one of its two
+# threads is descheduled).
+TRAINING_UI_NICE = 10
 # Longest such pause (s): the panels' numbers and the loss plot still move every 2 s. Input ends
 # a pause at once in the window (it waits for events, not a fixed sleep).
 TRAINING_UI_MAX_PAUSE_S = 2.0
-# Input within this many seconds counts as "the user is interacting".
-INTERACTION_S = 1.5
 # With nothing moving, playing or training, the loop sleeps until an input event or this long
 # (one frame a second then keeps clocks and file lists fresh; measured idle cost at 0.25 s:
 # 17% of a core on llvmpipe under load).
@@ -334,6 +338,7 @@ def pace_frame(viewer: Viewer, frame_start: float, wait: Callable[[float], Any] 
     input events, so the user's first move ends the pause)."""
     tr = viewer.source.training
     if tr is not None and tr.state in ("setup", "running"):
+        lower_ui_priority()
         attended = time.monotonic() - viewer.last_input < INTERACTION_S
         spent = time.perf_counter() - frame_start
         rest = 1.0 / (TRAINING_UI_FPS if attended else TRAINING_UI_FPS_UNATTENDED) - spent
@@ -342,6 +347,22 @@ def pace_frame(viewer: Viewer, frame_start: float, wait: Callable[[float], Any] 
                                  spent * (1.0 - TRAINING_UI_SHARE_UNATTENDED) / TRAINING_UI_SHARE_UNATTENDED))
         if rest > 0:
             wait(rest)
+
+
+_UI_THREADS_LOWERED: set[int] = set()
+
+
+def lower_ui_priority() -> None:
+    """Lower the calling (UI) thread's CPU priority by TRAINING_UI_NICE, once per thread (a no-op
+    where threads have no nice value of their own or the call is not allowed)."""
+    tid = threading.get_native_id()
+    if tid in _UI_THREADS_LOWERED:
+        return
+    _UI_THREADS_LOWERED.add(tid)
+    try:
+        os.setpriority(os.PRIO_PROCESS, tid, min(19, os.getpriority(os.PRIO_PROCESS, tid) + TRAINING_UI_NICE))
+    except (OSError, AttributeError):
+        pass
 
 
 def save_png(path: str | Path, image: np.ndarray) -> None:
@@ -370,9 +391,27 @@ def setup_logging() -> Path:
     return path
 
 
+# Rasterizer threads of Mesa's software GL (llvmpipe) unless the user sets LP_NUM_THREADS:
+# one. By default llvmpipe starts a thread per core; on a CPU the viewer shares with live
+# training, every UI frame then makes three threads (UI + 2 rasterizers) compete with torch's
+# 2-thread OpenMP team, whose barriers degrade badly under contention: a 50-60 ms UI frame cost
+# the trainer ~0.4 s (demo, 441 Gaussians, load ~12; 4.06 vs 5.07 steps/s plain, with one
+# rasterizer thread 5.60 vs 4.91, same protocol). An orbit frame at level of detail is bound by
+# per-splat setup, which runs on one thread anyway (121 vs 125 ms per frame, load ~10). A GPU
+# driver ignores the variable.
+SOFTWARE_GL_THREADS = "1"
+
+
+def configure_software_gl() -> None:
+    """Set llvmpipe's thread count (SOFTWARE_GL_THREADS) unless the environment chose one; call
+    before the first GL context of the process."""
+    os.environ.setdefault("LP_NUM_THREADS", SOFTWARE_GL_THREADS)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
     setup_logging()
+    configure_software_gl()
     try:
         status = run_window(args)
     except Fixer4DError as exc:

@@ -34,6 +34,13 @@ MAX_RENDER_SIDE = 1600
 # Largest render scale of the 3D view while live training runs: every full-size splat frame on a
 # software GL takes CPU from the trainer (the view is upscaled; pausing training restores it).
 TRAINING_RENDER_SCALE = 0.5
+# Input within this many seconds counts as "the user is interacting" (app.main paces the UI by it).
+INTERACTION_S = 1.5
+# While live training runs and nobody interacts, a published model is taken at most this often
+# (s): each new model is re-uploaded, re-sorted and redrawn (100-400 ms of software GL for 30k
+# splats), CPU that the trainer on the same cores loses. Interacting, every published model is
+# taken (at most one a second, session.PUBLISH_MIN_S).
+MODEL_REFRESH_UNATTENDED_S = 5.0
 # Brush radius for Gaussian selection, in viewport pixels.
 BRUSH_RADIUS = 25.0
 # Frustum drawing depth as a fraction of the scene radius.
@@ -104,6 +111,7 @@ class Viewer:
         self._uploaded_version = -1
         self._segment: int | None = None  # a segmented run: the segment whose Gaussians are shown
         self._model_serial = 0
+        self._model_taken = -1e9  # time.monotonic() when the last published model was taken
         self._torch_model: tuple[Any, Any] | None = None  # (version key, torch model)
         self.viewport_rect = (0.0, 0.0, 1.0, 1.0)  # screen x, y, w, h of the 3D image
         self.render_camera: Camera | None = None  # the camera of the last 3D image (maybe reduced)
@@ -121,6 +129,7 @@ class Viewer:
         self.ui_ms: float | None = None  # running estimate of a frame's cost besides the splat draw
         self._draw_ms = 0.0  # the splat draw of the current frame
         self.images: dict[str, moderngl.Texture] = {}
+        self._image_sources: dict[str, Any] = {}  # the array each named texture holds
         self.panel_errors: dict[str, str] = {}  # panel -> its current error (cleared when it draws again)
         self.notifications = Notifications()
         self._notifications_seen = 0
@@ -232,10 +241,14 @@ class Viewer:
 
     def _poll_models(self) -> None:
         tr = self.source.training
-        if tr is not None:
+        now = time.monotonic()
+        waiting = tr is not None and self.state.gaussians is not None and tr.state == "running" \
+            and now - self.last_input >= INTERACTION_S and now - self._model_taken < MODEL_REFRESH_UNATTENDED_S
+        if tr is not None and not waiting:
             got = tr.models.take(self._model_serial)
             if got is not None:
                 self._model_serial, g = got
+                self._model_taken = now
                 keep_selection = self.state.gaussians is not None and self.state.gaussians.n == g.n
                 sel = self.state.selection if keep_selection else None
                 self.state.set_gaussians(g)
@@ -792,7 +805,12 @@ class Viewer:
 
     def image_texture(self, name: str, image: np.ndarray) -> moderngl.Texture:
         """Upload an (H, W, 3) float [0,1] or uint8 image as a named texture for imgui.image
-        (row 0 at the top; show with uv0=(0,0), uv1=(1,1))."""
+        (row 0 at the top; show with uv0=(0,0), uv1=(1,1)). The same array object as last time
+        is not uploaded again (panels pass their cached images every frame)."""
+        tex = self.images.get(name)
+        if tex is not None and self._image_sources.get(name) is image:
+            return tex
+        self._image_sources[name] = image  # held, so its id cannot be reused by a new array
         img = np.asarray(image)
         if img.dtype != np.uint8:
             img = (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
