@@ -131,25 +131,12 @@ class RunFolder:
     def open(cls, path: str | Path) -> "RunFolder":
         """An existing run (migrating a format-1 folder in place)."""
         path = Path(path)
-        cfg_path = path / CONFIG_NAME
-        if not path.is_dir():
-            raise InputError(f"{path}: no such run folder")
-        if not cfg_path.is_file():
-            raise InputError(f"{path}: not a fixer4d run folder (no {CONFIG_NAME}); make one with `fixer4d run`")
-        data = read_json_object(cfg_path, str(cfg_path), "the run folder is damaged; start a new run")
-        version = data.get("format_version")
+        config, version = _read_config(path)
+        folder = cls(path, config)
         if version is None:
-            if "scene" not in data:
-                raise InputError(f"{cfg_path}: not a fixer4d run config (no format_version, no scene)")
-            config = RunConfig.from_dict(migrate_v1(data))
-            shutil.copy2(cfg_path, path / "config.v1.json")
-            folder = cls(path, config)
+            shutil.copy2(path / CONFIG_NAME, path / "config.v1.json")
             folder.save_config()
-            return folder
-        if not isinstance(version, int) or version > FORMAT_VERSION:
-            raise InputError(f"{path}: run folder format {version!r} is newer than this fixer4d understands "
-                             f"({FORMAT_VERSION}); update fixer4d")
-        return cls(path, RunConfig.from_dict(data.get("config") or {}))
+        return folder
 
     def save_config(self) -> None:
         atomic.write_json(self.path / CONFIG_NAME, {"format_version": FORMAT_VERSION, "fixer4d": _version(),
@@ -166,6 +153,32 @@ class RunFolder:
         if self._scene is None:
             self._scene = load_scene_for(self.config)
         return self._scene
+
+
+def read_run_config(path: str | Path) -> RunConfig:
+    """The typed config of an existing run folder, read only (a format-1 folder is migrated in
+    memory, not on disk): what viewers and tools that must not write into a run call."""
+    return _read_config(Path(path))[0]
+
+
+def _read_config(path: Path) -> tuple[RunConfig, int | None]:
+    """(config, format version or None for format 1) of the run folder ``path``; InputError in one
+    sentence for a missing, foreign, damaged or newer folder."""
+    cfg_path = path / CONFIG_NAME
+    if not path.is_dir():
+        raise InputError(f"{path}: no such run folder")
+    if not cfg_path.is_file():
+        raise InputError(f"{path}: not a fixer4d run folder (no {CONFIG_NAME}); make one with `fixer4d run`")
+    data = read_json_object(cfg_path, str(cfg_path), "the run folder is damaged; start a new run")
+    version = data.get("format_version")
+    if version is None:
+        if "scene" not in data:
+            raise InputError(f"{cfg_path}: not a fixer4d run config (no format_version, no scene)")
+        return RunConfig.from_dict(migrate_v1(data)), None
+    if not isinstance(version, int) or version > FORMAT_VERSION:
+        raise InputError(f"{path}: run folder format {version!r} is newer than this fixer4d understands "
+                         f"({FORMAT_VERSION}); update fixer4d")
+    return RunConfig.from_dict(data.get("config") or {}), version
 
 
 def load_scene_for(config: RunConfig):

@@ -64,6 +64,19 @@ def test_foreign_and_newer_folders_are_refused(tmp_path):
         RunFolder.open(future)
 
 
+def test_read_run_config_never_writes(tmp_path):
+    from fixer4d.pipeline.run_folder import read_run_config
+
+    run = tmp_path / "old"
+    run.mkdir()
+    old = {"scene": {"source": "tiny", "scale": 1.0, "frame_range": None}, "stage1": {"iterations": 12}}
+    (run / "config.json").write_text(json.dumps(old))
+    assert read_run_config(run).stage1.iterations == 12
+    assert json.loads((run / "config.json").read_text()) == old and not (run / "config.v1.json").exists()
+    with pytest.raises(InputError, match="no such run folder"):
+        read_run_config(tmp_path / "missing")
+
+
 def test_format_1_folder_is_migrated_in_place(tmp_path):
     run = tmp_path / "old"
     run.mkdir()
