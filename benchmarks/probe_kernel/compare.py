@@ -1,7 +1,7 @@
 """Whole training iterations with an older CPU renderer vs the current one, as ratios in one process.
 
     PYTHONPATH=. .venv/bin/python benchmarks/probe_kernel/compare.py [--old 81f3ca1 [--old 87816b2]]
-        [--sizes 0.5,1.0] [--counts 30000,100000] [--iters 8] [--numba-threads 2]
+        [--sizes 0.5,1.0] [--counts 30000,100000] [--iters 8] [--out FILE.json]
 
 The `fixer4d bench train-step` scene (Panoptic basketball frame 0, N random points in the
 cameras' common view box, 3-NN scales, opacity 0.1, one image per iteration: render +
@@ -11,8 +11,10 @@ projection (project.project_gaussians, what every earlier release used); "new" i
 render() path (numba projection + current kernels). Every variant trains its own copy of the
 same model, and the variants take turns iteration by iteration, so a change in the machine's
 load hits them alike: on the shared 2-core machine only these ratios are meaningful, never
-the absolute seconds. Reports per variant median wall and process-CPU seconds per iteration,
-blended fragments, ns/fragment of wall, the ratios old/new and the load average.
+the absolute seconds. All variants run with the same numba vector width (numba's CPU features
+are set once per process: see fixer4d/render/simd.py). Reports per variant median wall and
+process-CPU seconds per iteration, blended fragments, ns/fragment of wall, the ratios old/new
+and the load average.
 """
 from __future__ import annotations
 
@@ -65,6 +67,11 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     olds = args.old or ["81f3ca1"]
     torch.set_num_threads(1)
+    # before any kernel module (old ones included) makes numba build its CPU target: every
+    # variant gets the library's vector width (16 lanes on AVX-512 unless FIXER4D_NUMBA_AVX512=0)
+    from fixer4d.render.simd import prefer_512_bit_vectors
+
+    print("numba CPU features set:", "host, -prefer-256-bit" if prefer_512_bit_vectors() else "default")
 
     from fixer4d.bench.train_step import DEFAULT_DATA, LRS, common_view_box
     from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians
