@@ -46,7 +46,7 @@ def test_weighted_ssim_rejects_a_wrong_weight_shape():
 
 
 def test_pixel_weight_follows_each_train_camera_own_moving_mask(small_scene, small_clouds, make_config):
-    cfg0 = make_config(5, init_max_points=300)
+    cfg0 = make_config(5, init_max_points=300, moving_loss_weight=0.0)
     model = model_from_clouds(small_clouds, small_scene, cfg0)
     assert Trainer(model, small_scene, cfg0)._pixel_weight(0, 1) is None  # weight 0: plain loss
     cfg = make_config(5, init_max_points=300, moving_loss_weight=3.0)
