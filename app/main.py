@@ -11,7 +11,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
 import sys
@@ -135,19 +134,6 @@ def open_model(path: Path) -> tuple[ViewerSource, Any, Path]:
     return src, g, _config_dir() / _slug(str(path))
 
 
-def run_config(run: Path) -> dict:
-    """The run's configuration as a dict: format 2 folders keep it under "config" (with
-    "format_version" beside it), format 1 folders at the top level."""
-    try:
-        data = json.loads((run / "config.json").read_text())
-    except (ValueError, OSError) as exc:
-        raise InputError(f"{run / 'config.json'}: unreadable ({exc}); is this a fixer4d run folder?") from exc
-    config = data.get("config") if isinstance(data, dict) and "format_version" in data else data
-    if not isinstance(config, dict):
-        raise InputError(f"{run / 'config.json'}: not a fixer4d run config")
-    return config
-
-
 def open_run(run: Path, model: Path | None = None) -> tuple[ViewerSource, Any, Path]:
     """A run folder: its scene, a model version (``model``, else the one the session remembers,
     else model_final / model_stage1; a segmented run without a top-level model: its segments'
@@ -157,15 +143,9 @@ def open_run(run: Path, model: Path | None = None) -> tuple[ViewerSource, Any, P
     from app.gaussians import GaussianArrays
     from app.segments import SegmentTimeline, segment_models
     from fixer4d.model.io import load_model
-    from fixer4d.scene import load_scene
+    from fixer4d.pipeline.run_folder import load_scene_for, read_run_config
 
-    try:
-        scene_cfg = dict(run_config(run)["scene"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"{run / 'config.json'}: no 'scene' entry ({exc}); is this a fixer4d run folder?") from exc
-    if scene_cfg.get("frame_range") is not None:
-        scene_cfg["frame_range"] = tuple(scene_cfg["frame_range"])
-    scene = load_scene(**scene_cfg)
+    scene = load_scene_for(read_run_config(run))  # read only: the viewer never rewrites config.json
     if model is None and not model_versions(run) and segment_models(run):
         timeline = SegmentTimeline.load(run, scene.num_frames)
         cache, restore = make_restore(run / "cache", run)
@@ -189,9 +169,11 @@ def make_restore(cache_dir: Path, run_dir: Path | None = None) -> tuple[Any, Res
     cache = RestoreCache(cache_dir)
     kind = "warp"
     if run_dir is not None:
+        from fixer4d.pipeline.run_folder import read_run_config
+
         try:
-            kind = str((run_config(run_dir).get("restorer") or {}).get("kind", "warp"))
-        except (InputError, AttributeError):
+            kind = read_run_config(run_dir).restorer.kind
+        except InputError:
             kind = "warp"
     try:
         jobs = make_jobs(kind, cache, run_dir)
