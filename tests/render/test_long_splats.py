@@ -27,6 +27,13 @@ pytestmark = pytest.mark.skipif(cpu.unavailable_reason() is not None, reason="nu
 # at 10^4 px), far below a pixel, so values agree to the parity tolerance; gradients are sums
 # over thousands of pixels whose float32 round-off does not cancel, hence a looser bound
 GRAD_RTOL_VS_F64 = 1e-2
+# Some needle gradients are mostly float32 round-off whatever the implementation: e.g. the
+# quaternion gradient of a needle lying in the image plane (tilt 0) is a small difference of
+# large per-pixel terms, and there the float32 *oracle* itself is 2 % (hypothesis seed 7) to
+# 50 % (seed 22) off the float64 one. Such a gradient is checked against the round-off that
+# float32 shows on it (|g_ref32 - g_ref64|, measured per case), times this factor: the fast
+# kernel must be about as accurate as float32 allows, not bit-identical to the oracle's noise.
+ROUNDOFF_FACTOR = 3.0
 
 
 def needle(long_scale: float, angle: float, tilt: float, thin: float, offset, opacity: float,
@@ -80,17 +87,23 @@ def test_needle_thousands_of_pixels_long_is_drawn(long_scale, angle):
        thin=st.floats(1e-5, 2e-2), ox=st.floats(-0.6, 0.6), oy=st.floats(-0.4, 0.4),
        opacity=st.floats(0.05, 1.0))
 def test_long_thin_splats_match_float64_oracle(long_scale, angle, tilt, thin, ox, oy, opacity):
-    """Values within the parity tolerance of the float64 oracle; gradients within 1 %; and exact
-    parity (fragment counts, radii, gradients) with the float32 oracle, which uses the same form."""
+    """Values within the parity tolerance of the float64 oracle; gradients within 1 % (plus
+    float32's own round-off on that gradient); and parity with the float32 oracle, which uses
+    the same form (fragment counts and radii exact, gradients to GRAD_RTOL plus that round-off)."""
     snap = needle(long_scale, angle, tilt, thin, (ox, oy), opacity)
     cam = front_camera(40, 30)
     weights64 = loss_weights(cam.height, cam.width, torch.float64, seed=3)
     weights32 = tuple(w.float() for w in weights64)
-    s64, s32 = leaf(snap), leaf(snap.to(dtype=torch.float32))
+    s64, s32, s32r = leaf(snap), leaf(snap.to(dtype=torch.float32)), leaf(snap.to(dtype=torch.float32))
     ref = render(s64, cam, backend="reference")
     fast = render(s32, cam, backend="cpu")
+    ref32 = render(s32r, cam, backend="reference")
     weighted_loss(ref, weights64).backward()
     weighted_loss(fast, weights32).backward()
+    weighted_loss(ref32, weights32).backward()
+    # float32's own round-off on each gradient of this case (see ROUNDOFF_FACTOR)
+    roundoff = {f: float((getattr(s32r, f).grad.double() - getattr(s64, f).grad).norm()) for f in FIELDS}
+    roundoff["means2d"] = float((ref32.means2d.grad.double() - ref.means2d.grad).norm())
     for name in ("rgb", "alpha"):
         a, b = getattr(fast, name).detach().double(), getattr(ref, name).detach()
         assert float((a - b).abs().max()) <= VALUE_TOL, name
@@ -99,5 +112,6 @@ def test_long_thin_splats_match_float64_oracle(long_scale, angle, tilt, thin, ox
     for f in FIELDS:
         g32, g64 = getattr(s32, f).grad.double(), getattr(s64, f).grad
         assert torch.isfinite(g32).all(), f
-        assert float((g32 - g64).norm()) <= GRAD_RTOL_VS_F64 * float(g64.norm()) + 1e-6, f
-    assert_parity(snap.to(dtype=torch.float32), cam)
+        bound = GRAD_RTOL_VS_F64 * float(g64.norm()) + ROUNDOFF_FACTOR * roundoff[f] + 1e-6
+        assert float((g32 - g64).norm()) <= bound, f
+    assert_parity(snap.to(dtype=torch.float32), cam, {f: ROUNDOFF_FACTOR * r for f, r in roundoff.items()})

@@ -31,7 +31,11 @@ def _both(snap: Snapshot, cam: Camera, background=(0.2, 0.4, 0.6)):
     return res
 
 
-def assert_parity(snap: Snapshot, cam: Camera) -> None:
+def assert_parity(snap: Snapshot, cam: Camera, grad_slack: dict[str, float] | None = None) -> None:
+    """Values, fragment counts and radii as the float32 oracle's; gradients within GRAD_RTOL
+    (norm-relative) plus ``grad_slack[field]`` (absolute, for gradients whose float32 value is
+    mostly round-off: see test_long_splats)."""
+    grad_slack = grad_slack or {}
     res = _both(snap.to(dtype=torch.float32), cam)
     (fast, sf), (ref, sr) = res["cpu"], res["reference"]
     assert fast.backend == "cpu" and ref.backend == "reference"
@@ -48,7 +52,7 @@ def assert_parity(snap: Snapshot, cam: Camera) -> None:
         assert a is not None and b is not None, name
         assert torch.isfinite(a).all() and torch.isfinite(b).all(), name
         err, scale = float((a - b).norm()), float(b.norm())
-        assert err <= GRAD_RTOL * scale + GRAD_ATOL, (name, err, scale)
+        assert err <= GRAD_RTOL * scale + GRAD_ATOL + grad_slack.get(name, 0.0), (name, err, scale)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
