@@ -122,6 +122,20 @@ if njit is not None:
                 a00, a01, a02, a10, a11, a12, a20, a21, a22, jx, jy, ax, ay,
                 t00, t01, t02, t10, t11, t12)
 
+    @njit(cache=True, inline="always")
+    def _cov2d(t00, t01, t02, t10, t11, t12, lp, lp2):
+        """The low-passed 2D covariance [[ca, cb], [cb, cc]] = T T^T + lp I of the rows t0, t1,
+        the cross product k = t0 x t1 and det = |k|^2 + lp (ca + cc) - lp^2 (= ca cc - cb^2,
+        written without the cancellation that loses long thin splats in float32)."""
+        ca = (t00 * t00 + t01 * t01 + t02 * t02) + lp
+        cb = t00 * t10 + t01 * t11 + t02 * t12
+        cc = (t10 * t10 + t11 * t11 + t12 * t12) + lp
+        k0 = t01 * t12 - t02 * t11
+        k1 = t02 * t10 - t00 * t12
+        k2 = t00 * t11 - t01 * t10
+        det = (k0 * k0 + k1 * k1 + k2 * k2) + lp * (ca + cc) - lp2
+        return ca, cb, cc, k0, k1, k2, det
+
     @njit(cache=True, parallel=True)
     def _project_fwd(means, quats, scales, cam, means2d, conic, depths, radii):
         """Forward for N Gaussians: fills means2d (N, 2), conic (N, 3) LDL (a, r, q), depths
@@ -136,13 +150,7 @@ if njit is not None:
             means2d[i, 0] = u
             means2d[i, 1] = v
             depths[i] = z
-            ca = (t00 * t00 + t01 * t01 + t02 * t02) + lp
-            cb = t00 * t10 + t01 * t11 + t02 * t12
-            cc = (t10 * t10 + t11 * t11 + t12 * t12) + lp
-            k0 = t01 * t12 - t02 * t11
-            k1 = t02 * t10 - t00 * t12
-            k2 = t00 * t11 - t01 * t10
-            det = (k0 * k0 + k1 * k1 + k2 * k2) + lp * (ca + cc) - lp2
+            ca, cb, cc, k0, k1, k2, det = _cov2d(t00, t01, t02, t10, t11, t12, lp, lp2)
             ok = in_front and det > cam[_K_DET_MIN] and np.isfinite(det)
             if ok:
                 conic[i, 0] = cc / det
@@ -179,13 +187,7 @@ if njit is not None:
              t00, t01, t02, t10, t11, t12) = _t_rows(means, quats, scales, cam, i)
             s0, s1, s2 = scales[i, 0], scales[i, 1], scales[i, 2]
             zero = cam[_K_ZERO]
-            ca = (t00 * t00 + t01 * t01 + t02 * t02) + lp
-            cb = t00 * t10 + t01 * t11 + t02 * t12
-            cc = (t10 * t10 + t11 * t11 + t12 * t12) + lp
-            k0 = t01 * t12 - t02 * t11
-            k1 = t02 * t10 - t00 * t12
-            k2 = t00 * t11 - t01 * t10
-            det = (k0 * k0 + k1 * k1 + k2 * k2) + lp * (ca + cc) - lp2
+            ca, cb, cc, k0, k1, k2, det = _cov2d(t00, t01, t02, t10, t11, t12, lp, lp2)
             ok = in_front and det > cam[_K_DET_MIN] and np.isfinite(det)
             # conic -> (ca, cb, cc, det) -> t0, t1
             g00 = g01 = g02 = g10 = g11 = g12 = zero
