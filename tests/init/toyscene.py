@@ -113,7 +113,7 @@ class ToyScene(MultiViewVideo):
     """A MultiViewVideo over ``render``: ground-truth depth, a render_gt for any camera."""
 
     def __init__(self, width: int = 160, height: int = 120, num_frames: int = 2, textured: bool = True) -> None:
-        super().__init__(cache_frames=32)
+        super().__init__()
         self.name = "toy"
         self.cameras = rig(width, height)
         self.train_ids = [0, 1, 2, 3]
