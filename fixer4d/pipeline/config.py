@@ -126,9 +126,9 @@ class RunConfig:
 # The defaults of `fixer4d run`: sized so that the demo (three stage-1 trainings, R = 2 restoration
 # rounds and six evaluations) ends within 10 minutes on 2 idle CPU cores; raise them for quality.
 # Stage 1 keeps its schedule scaled to its iterations (Stage1Config.from_partial). The Gaussian
-# budget is ~0.7 Gaussian per pixel of one 200x150 demo view: against a 30k cap (25k init points)
-# the demo's rows stayed within +-0.15 dB (MVS 23.51 vs 23.46, matched 23.93 vs 23.77, Full 24.03
-# vs 23.93 dB) while every training and rendering stage got cheaper.
+# budget is ~0.7 Gaussian per pixel of one 200x150 demo view: a 20k run gave MVS 23.51, matched
+# 23.93 and Full 24.03 dB where the previous release's 30k cap (25k init points) gave 23.46, 23.77
+# and 23.93, with every training and rendering stage drawing fewer splats.
 RUN_DEFAULTS: dict[str, Any] = {
     "stage1": {"iterations": 500, "init_max_points": 15_000, "max_gaussians": 20_000},
     "stage2": {"rounds": 2, "refresh_every": 150},
