@@ -87,6 +87,11 @@ class TrainingSession:
         self._thread: threading.Thread | None = None
         self.step_seconds = 0.0
         self.stepping = False  # inside Trainer.step() right now
+        # Pause by itself once the trainer has taken this many steps (None: never); the time
+        # (perf_counter) at which it did is ``paused_at_time``. "Train to step N", and how the
+        # viewer benchmark gives the live trainer turns of exactly as many steps as the plain loop.
+        self.pause_at: int | None = None
+        self.paused_at_time: float | None = None
 
     # ---- control (UI thread) ------------------------------------------------------------------
     def start(self) -> None:
@@ -186,6 +191,10 @@ class TrainingSession:
                                          and now - published >= self.publish_min_s):
                     self.models.put(GaussianArrays.from_model(self.trainer.model))
                     published = now
+                if self.pause_at is not None and self.trainer.step_count >= self.pause_at:
+                    self.pause_at = None
+                    self.paused_at_time = time.perf_counter()
+                    self.pause()
         except Exception as exc:  # shown in the training panel; the UI keeps running
             self.state = "failed"
             self.error = f"{type(exc).__name__}: {exc}"

@@ -61,3 +61,32 @@ def test_unattended_viewer_takes_models_at_most_every_refresh(make_viewer):
     v._model_taken = time.monotonic() - MODEL_REFRESH_UNATTENDED_S - 1.0  # the interval has passed
     d.frame()
     assert v.state.gaussians is newest
+
+
+def test_session_pauses_itself_at_the_requested_step(monkeypatch):
+    import app.session as session
+
+    class _Trainer:  # counts steps; nothing to train
+        def __init__(self):
+            self.step_count, self.done, self.model = 0, False, object()
+
+        def step(self):
+            self.step_count += 1
+            return {"loss": 1.0}
+
+    monkeypatch.setattr(session.GaussianArrays, "from_model", staticmethod(lambda model: model))
+    training = TrainingSession(lambda report: _Trainer())
+    training.pause_at = 7
+    training.start()
+    deadline = time.monotonic() + 10
+    while training.paused_at_time is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(0.2)  # it must stay paused, not run on
+    assert training.state == "paused" and training.trainer.step_count == 7 and training.pause_at is None
+    training.pause_at = 12
+    training.resume()
+    while training.trainer.step_count < 12 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(0.2)
+    assert training.trainer.step_count == 12 and training.state == "paused"
+    training.stop()
