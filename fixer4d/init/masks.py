@@ -192,8 +192,7 @@ def moving_masks_for_scene(scene, camera_ids: Sequence[int], frames: Sequence[in
         return out  # a one-frame clip shows no motion
     for v, cam in enumerate(camera_ids):
         clip = np.stack([scene.frame(f, cam) for f in stat])
-        # a scene view without segmentation support (e.g. the restorer's train-camera proxy) has none
-        segs = [scene.mask(f, cam) for f in stat] if hasattr(scene, "mask") else [None]
+        segs = [scene.mask(f, cam) for f in stat]
         fg = np.stack([np.asarray(m, bool) for m in segs]) if all(m is not None for m in segs) else None
         est = estimate_moving_masks(clip, fg)
         for j, f in enumerate(frames):

@@ -103,6 +103,17 @@ class _TrainViews:
             self._frames[key] = np.ascontiguousarray(img, dtype=np.float32)
         return self._frames[key]
 
+    def mask(self, frame: int, cam: int) -> np.ndarray | None:
+        """The scene's own foreground segmentation of a train camera (None where it has none),
+        resized like ``frame``: the moving-content masks of a leave-one-out stage 1 use it as the
+        main run's do."""
+        assert cam in self._allowed, f"restorer pairs: camera {cam} is not a train camera and must never be read"
+        m = self._base.mask(frame, cam)
+        c = self.cameras[cam]
+        if m is None or m.shape[:2] == (c.height, c.width):
+            return m
+        return cv2.resize(np.asarray(m, np.uint8), (c.width, c.height), interpolation=cv2.INTER_NEAREST).astype(bool)
+
 
 def _render(model, cam: Camera, t: float, backend: str, background) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     with torch.no_grad():
