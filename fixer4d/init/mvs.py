@@ -134,12 +134,16 @@ def default_depth_ranges(cameras: Sequence[Camera]) -> list[tuple[float, float]]
 # ---- plane sweep ------------------------------------------------------------------------------
 @dataclass
 class PlaneSweepConfig:
-    """planes: inverse-depth hypotheses. scale: working resolution relative to the input.
-    window: ZNCC window side (odd). topk: best source views averaged per plane. aggregation:
-    box side of cost aggregation (1 = none). chunk: planes per chunk (memory bound).
-    min_score / min_distinct / min_patch_std: validity thresholds (see constants). geo_*:
+    """planes: inverse-depth hypotheses of the full-resolution sweep. scale: working resolution
+    relative to the input. window: ZNCC window side (odd). topk: best source views averaged per
+    plane. aggregation: box side of cost aggregation (1 = none). chunk: planes per chunk (memory
+    bound). min_score / min_distinct / min_patch_std: validity thresholds (see constants). geo_*:
     forward-backward consistency (pixels, relative depth, views; geo_min_views 0 disables).
-    num_threads: reference views swept in parallel, one torch thread each (0 = every core)."""
+    num_threads: sweeps run in parallel, one torch thread each (0 = every core).
+    Coarse-to-fine: refine_band > 0 sweeps ``planes x coarse_scale`` planes at ``coarse_scale``
+    x the working resolution (ZNCC window ``coarse_window``) first, then at the working
+    resolution only 2 refine_band + 1 hypotheses per pixel around the coarse depth, spaced like
+    the full grid's planes; refine_band 0 is the single full sweep of ``planes`` planes."""
 
     planes: int = C.MVS_DEFAULT_PLANES
     scale: float = 1.0
@@ -154,6 +158,9 @@ class PlaneSweepConfig:
     geo_depth_tol: float = C.MVS_GEO_DEPTH_TOL
     geo_min_views: int = C.MVS_GEO_MIN_VIEWS
     num_threads: int = 0
+    refine_band: int = C.MVS_REFINE_BAND
+    coarse_scale: float = C.MVS_COARSE_SCALE
+    coarse_window: int = C.MVS_COARSE_WINDOW
 
     def check(self) -> None:
         if self.planes < 3:
@@ -166,6 +173,23 @@ class PlaneSweepConfig:
             raise InputError(f"MVS aggregation window must be odd and >= 1 (got {self.aggregation})")
         if self.topk < 1 or self.chunk < 1:
             raise InputError(f"MVS topk and chunk must be >= 1 (got {self.topk}, {self.chunk})")
+        if self.refine_band < 0:
+            raise InputError(f"MVS refine_band must be >= 0 (got {self.refine_band}); 0 = one full sweep")
+        if self.refine_band > 0 and not 0 < self.coarse_scale < 1:
+            raise InputError(f"MVS coarse_scale must be in (0, 1) (got {self.coarse_scale}); or set refine_band=0")
+        if self.coarse_window < 3 or self.coarse_window % 2 == 0:
+            raise InputError(f"MVS coarse_window must be odd and >= 3 (got {self.coarse_window})")
+
+    @property
+    def coarse_to_fine(self) -> bool:
+        """Whether the sweep is coarse-to-fine (a band narrower than the full plane grid)."""
+        return self.refine_band > 0 and 2 * self.refine_band + 1 < self.planes
+
+    @property
+    def coarse_planes(self) -> int:
+        """Planes of the coarse sweep: the full grid's step in pixels at the coarse resolution
+        (fewer planes alias: the ZNCC peak falls between two planes)."""
+        return max(3, int(round(self.planes * self.coarse_scale)))
 
 
 @contextlib.contextmanager
@@ -180,12 +204,35 @@ def torch_threads(n: int) -> Iterator[None]:
 
 
 def _box(x: torch.Tensor, k: int) -> torch.Tensor:
-    """Mean over a k x k window of (B, C, H, W), shrinking at the borders (no zero padding bias)."""
+    """Mean over a k x k window of (B, C, H, W), shrinking at the borders (no zero padding bias).
+
+    Separable sums of shifted slices (zero padded), divided by the per-pixel count of in-image
+    taps: the per-axis counts multiply to the 2D count, so the mean is exact. (3x faster than
+    ``avg_pool2d(count_include_pad=False)`` on CPU at 7x7, measured in one process.)"""
     if k <= 1:
         return x
-    # separable: the per-axis border counts multiply to the 2D count, so the mean stays exact
-    x = F.avg_pool2d(x, (1, k), stride=1, padding=(0, k // 2), count_include_pad=False)
-    return F.avg_pool2d(x, (k, 1), stride=1, padding=(k // 2, 0), count_include_pad=False)
+    r = k // 2
+    H, W = x.shape[-2:]
+    p = F.pad(x, (r, r, 0, 0))
+    s = p[..., 0:W].clone()
+    for i in range(1, k):
+        s += p[..., i:i + W]
+    p = F.pad(s, (0, 0, r, r))
+    s = p[..., 0:H, :].clone()
+    for i in range(1, k):
+        s += p[..., i:i + H, :]
+    return s * _inv_box_count(H, W, k)
+
+
+def _inv_box_count(H: int, W: int, k: int) -> torch.Tensor:
+    """(H, W) 1 / number of in-image taps of a k x k window centred on each pixel."""
+    r = k // 2
+
+    def axis(n: int) -> torch.Tensor:
+        i = torch.arange(n)
+        return (torch.minimum(i, torch.tensor(r)) + torch.minimum(n - 1 - i, torch.tensor(r)) + 1).to(torch.float32)
+
+    return 1.0 / (axis(H)[:, None] * axis(W)[None, :])
 
 
 def _gray(img: np.ndarray) -> np.ndarray:
@@ -201,6 +248,46 @@ def _resize(img: np.ndarray, cam: Camera) -> np.ndarray:
     return cv2.resize(img, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
 
 
+def roi_boxes(mask: np.ndarray, margin: int) -> list[tuple[int, int, int, int]]:
+    """Boxes (x0, y0, x1, y1) covering a region mask (H, W) bool: one per connected region of
+    the mask widened by ``margin`` pixels (clipped to the image), boxes merged while a merge does
+    not add pixels to sweep (union area <= the sum of both). Sorted; [] for an empty mask."""
+    import cv2
+
+    m = np.asarray(mask, bool).astype(np.uint8)
+    if margin > 0:
+        m = cv2.dilate(m, np.ones((2 * margin + 1, 2 * margin + 1), np.uint8))
+    n, _, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    boxes = [(int(x), int(y), int(x + w), int(y + h)) for x, y, w, h in stats[1:, :4]]
+
+    def area(b):
+        return (b[2] - b[0]) * (b[3] - b[1])
+
+    merged = True
+    while merged:
+        merged = False
+        for i in range(len(boxes)):
+            for j in range(i + 1, len(boxes)):
+                a, b = boxes[i], boxes[j]
+                u = (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
+                if area(u) <= area(a) + area(b):
+                    boxes[i] = u
+                    del boxes[j]
+                    merged = True
+                    break
+            if merged:
+                break
+    return sorted(boxes)
+
+
+@dataclass
+class _Source:
+    """One source view at one pyramid level: (1, 1, H, W) gray and its camera."""
+
+    gray: torch.Tensor
+    cam: Camera
+
+
 class PlaneSweepMVS:
     """Plane-sweep stereo with ZNCC in torch (see the module docstring)."""
 
@@ -212,7 +299,12 @@ class PlaneSweepMVS:
 
     # -- public --------------------------------------------------------------------------
     def estimate(self, images: Sequence[np.ndarray], cameras: Sequence[Camera],
-                 depth_ranges: Sequence[tuple[float, float]] | None = None, progress: bool = False) -> list[DepthResult]:
+                 depth_ranges: Sequence[tuple[float, float]] | None = None, progress: bool = False,
+                 rois: Sequence[np.ndarray | None] | None = None, roi_margin: int = 0) -> list[DepthResult]:
+        """Depth of every view. rois: optional V (H, W) bool masks at the input resolution (None =
+        the view is only a source): each view is then swept only over the boxes of its mask's
+        regions widened by ``roi_margin`` input pixels (``roi_boxes``), with the other views'
+        full images as sources; pixels outside the boxes get no depth."""
         cfg = self.config
         views = _check_views(images, cameras)
         cams = [c.scaled(cfg.scale) if cfg.scale != 1.0 else c for c in cameras]
@@ -222,63 +314,118 @@ class PlaneSweepMVS:
         for i, (near, far) in enumerate(ranges):
             if not (np.isfinite(near) and np.isfinite(far) and 0 < near < far):
                 raise InputError(f"view {i}: depth range ({near}, {far}) must satisfy 0 < near < far")
+        if rois is not None and len(rois) != views:
+            raise InputError(f"{len(rois)} regions of interest for {views} views; pass one mask (or None) per view")
+        grays = [_gray(_resize(np.asarray(im, np.float32), c)) for im, c in zip(images, cams)]
+        fine = [_Source(torch.from_numpy(g)[None, None], c) for g, c in zip(grays, cams)]
+        coarse = None
+        if cfg.coarse_to_fine:
+            ccams = [c.scaled(cfg.coarse_scale) for c in cams]
+            coarse = [_Source(torch.from_numpy(_resize(g, cc))[None, None], cc) for g, cc in zip(grays, ccams)]
+        # the sweeps: (view, box) with box = (x0, y0, x1, y1) at the working resolution
+        tasks = []  # (view, box, the box's region mask or None = every pixel)
+        for r, cam in enumerate(cams):
+            if rois is None:
+                tasks.append((r, (0, 0, cam.width, cam.height), None))
+            elif rois[r] is not None:
+                roi = np.asarray(rois[r], bool)
+                if roi.shape != (cameras[r].height, cameras[r].width):
+                    raise InputError(f"view {r}: region mask is {roi.shape}, the image "
+                                     f"{(cameras[r].height, cameras[r].width)}")
+                if roi.shape != (cam.height, cam.width):
+                    import cv2
+
+                    roi = cv2.resize(roi.astype(np.uint8), (cam.width, cam.height), interpolation=cv2.INTER_NEAREST) > 0
+                margin = int(np.ceil(roi_margin * cfg.scale))
+                tasks.extend((r, (x0, y0, x1, y1), torch.from_numpy(roi[y0:y1, x0:x1].copy()))
+                             for x0, y0, x1, y1 in roi_boxes(roi, margin))
         workers = cfg.num_threads if cfg.num_threads > 0 else (os.cpu_count() or 1)
-        # Parallel over reference views, one torch thread each: the ops release the GIL, and
-        # unlike torch's intra-op OpenMP threads they do not spin-wait when cores are shared.
-        with torch_threads(1), torch.no_grad(), ThreadPoolExecutor(max(1, min(workers, views))) as pool:
-            grays = [torch.from_numpy(_gray(_resize(np.asarray(im, np.float32), c)))[None, None]
-                     for im, c in zip(images, cams)]
+        # Parallel over sweeps, one torch thread each: the ops release the GIL, and unlike
+        # torch's intra-op OpenMP threads they do not spin-wait when cores are shared.
+        with torch_threads(1), torch.no_grad(), ThreadPoolExecutor(max(1, min(workers, max(len(tasks), 1)))) as pool:
 
-            def sweep(r: int):
+            def sweep(task):
+                r, box, roi = task
                 with torch.no_grad():
-                    return self._sweep(r, grays, cams, ranges[r])
+                    return self._sweep(r, box, fine, coarse, ranges[r], roi)
 
-            iterator = pool.map(sweep, range(views))
+            iterator = pool.map(sweep, tasks)
             if progress:
                 from tqdm import tqdm
 
-                iterator = tqdm(iterator, total=views, desc="plane sweep", unit="view", leave=False)
-            raw = list(iterator)
-            depths = [d for d, _, _ in raw]
-            valids = [v for _, v, _ in raw]
+                iterator = tqdm(iterator, total=len(tasks), desc="plane sweep", unit="sweep", leave=False)
+            depths = [torch.zeros((c.height, c.width)) for c in cams]
+            valids = [torch.zeros((c.height, c.width), dtype=torch.bool) for c in cams]
+            confs = [torch.zeros((c.height, c.width)) for c in cams]
+            for (r, (x0, y0, x1, y1), _), (d, v, cf) in zip(tasks, iterator):
+                depths[r][y0:y1, x0:x1] = d
+                valids[r][y0:y1, x0:x1] = v
+                confs[r][y0:y1, x0:x1] = cf
             if cfg.geo_min_views > 0:
                 valids = geometric_consistency(depths, valids, cams, cfg.geo_pixel_tol, cfg.geo_depth_tol,
                                                cfg.geo_min_views)
         out = []
-        for (depth, _, conf), valid, cam in zip(raw, valids, cams):
+        for depth, valid, conf, cam in zip(depths, valids, confs, cams):
             d = torch.where(valid, depth, torch.zeros_like(depth))
             out.append(DepthResult(d.numpy().astype(np.float32), valid.numpy().copy(),
                                    torch.where(valid, conf, torch.zeros_like(conf)).numpy().astype(np.float32), cam))
         return out
 
-    # -- one reference view ------------------------------------------------------------------
-    def _sweep(self, r: int, grays: list[torch.Tensor], cams: Sequence[Camera],
-               depth_range: tuple[float, float]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    # -- one reference image ------------------------------------------------------------------
+    def _sweep(self, r: int, box: tuple[int, int, int, int], fine: list[_Source], coarse: list[_Source] | None,
+               depth_range: tuple[float, float], roi: torch.Tensor | None = None
+               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Depth, validity and confidence of view ``r``'s pixels in ``box``, the other views'
+        full images as sources. roi: optional (h, w) bool of the box, the pixels that need a
+        depth (coarse-to-fine: the others are swept only at the coarse level, as context)."""
+        import cv2
+
         cfg = self.config
-        ref = grays[r]
-        cam_r = cams[r]
-        H, W = cam_r.height, cam_r.width
+        x0, y0, x1, y1 = box
+        cam_r = crop_camera(fine[r].cam, box)
+        ref = _RefView(fine[r].gray[..., y0:y1, x0:x1], cfg.window, cfg.min_patch_std)
+        H, W = ref.height, ref.width
         P = cfg.planes
-        sources = [s for s in range(len(cams)) if s != r]
-        k = min(cfg.topk, len(sources))
-        mu_r = _box(ref, cfg.window)
-        var_r = (_box(ref * ref, cfg.window) - mu_r * mu_r).clamp_min(0.0)
-        textured = var_r[0, 0].sqrt() >= cfg.min_patch_std
-        # plane k has inverse depth w_k = w_near + k * dw (w decreasing towards far)
         w_near, w_far = 1.0 / depth_range[0], 1.0 / depth_range[1]
         dw = (w_far - w_near) / (P - 1)
-        # per source: x_s ~ A p + w b, p = (u + 0.5, v + 0.5, 1) a reference pixel centre
-        pix = torch.from_numpy(cam_r.pixel_centers().reshape(-1, 2))
-        ph = torch.cat([pix, torch.ones(pix.shape[0], 1, dtype=pix.dtype)], 1).T  # (3, HW) float64
-        geo = []
-        for s in sources:
-            cam_s = cams[s]
-            rel = cam_s.w2c @ cam_r.c2w  # reference camera -> source camera
-            Ks = torch.tensor(cam_s.K)
-            A = Ks @ torch.tensor(rel[:3, :3] @ np.linalg.inv(cam_r.K)) @ ph
-            b = Ks @ torch.tensor(rel[:3, 3])
-            geo.append((A.to(torch.float32), b.to(torch.float32), cam_s.width, cam_s.height))
+        sources = [fine[s] for s in range(len(fine)) if s != r]
+        if coarse is None:
+            w, best, idx, mean = self._full_sweep(ref, cam_r, sources, w_near, dw, P)
+            in_band = torch.ones_like(best, dtype=torch.bool)
+        else:
+            # coarse: every plane of a sparser grid at reduced resolution -> an inverse depth per pixel
+            cam_c = cam_r.scaled(cfg.coarse_scale)
+            ref_c = _RefView(torch.from_numpy(_resize(ref.gray[0, 0].numpy(), cam_c))[None, None], cfg.coarse_window,
+                             cfg.min_patch_std)
+            Pc = cfg.coarse_planes
+            w_c, best_c, _, mean_c = self._full_sweep(ref_c, cam_c, [coarse[s] for s in range(len(coarse)) if s != r],
+                                                      w_near, (w_far - w_near) / (Pc - 1), Pc)
+            # fine: per tile, the full grid's planes within refine_band of its pixels' coarse depths
+            # (median-filtered against outliers, upsampled)
+            w_up = _upsample(cv2.medianBlur(w_c.numpy().astype(np.float32), C.MVS_COARSE_MEDIAN), W, H)
+            centre = torch.from_numpy((w_up.astype(np.float64) - w_near) / dw).round().long().clamp(0, P - 1)
+            # planes are needed only by textured pixels with some match at the coarse level
+            matched = torch.from_numpy(_upsample(best_c.numpy(), W, H)) >= C.MVS_COARSE_MIN_SCORE
+            wanted = ref.textured[0] & matched if roi is None else ref.textured[0] & matched & roi
+            need = torch.where(wanted, centre, torch.full_like(centre, -1))
+            w, best, idx, in_band = self._tile_sweep(ref, cam_r, sources, need, w_near, dw, P)
+            mean = torch.from_numpy(_upsample(mean_c.numpy(), W, H))  # the curve's mean, whole range
+        depth = (1.0 / w).to(torch.float32)
+        gap = best - mean
+        conf = best.clamp(0.0, 1.0) * (gap / (1.0 - mean).clamp_min(1e-6)).clamp(0.0, 1.0)
+        interior = (idx > 0) & (idx < P - 1)  # a winner on the range border is likely outside it
+        valid = ref.textured[0] & (best >= cfg.min_score) & (gap >= cfg.min_distinct) & interior & in_band
+        valid &= torch.isfinite(depth) & (depth > 0)
+        return depth, valid, conf.to(torch.float32)
 
+    def _full_sweep(self, ref: "_RefView", cam: Camera, sources: list[_Source], w_near: float, dw: float, P: int
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Every plane w_k = w_near + k dw, k < P, of one reference image (B = 1), streamed in
+        chunks -> (inverse depth (H, W) float64 with the parabola's sub-plane offset, best score,
+        winning plane, mean score)."""
+        cfg = self.config
+        H, W = ref.height, ref.width
+        geo = [_homography_terms(cam, s.cam, _pixel_grid(0, 0, H, W)) for s in sources]
         best = torch.full((H, W), -np.inf)
         best_idx = torch.zeros((H, W), dtype=torch.long)
         best_prev = torch.full((H, W), np.nan)
@@ -287,8 +434,8 @@ class PlaneSweepMVS:
         for a in range(0, P, cfg.chunk):
             b_end = min(a + cfg.chunk, P)
             lo, hi = max(a - 1, 0), min(b_end + 1, P)
-            ws = (w_near + dw * torch.arange(lo, hi, dtype=torch.float64)).to(torch.float32)
-            scores = self._plane_scores(ref, mu_r, var_r, grays, sources, geo, ws, k)  # (hi-lo, H, W)
+            ws = (w_near + dw * torch.arange(lo, hi, dtype=torch.float64)).to(torch.float32)[:, None]
+            scores = self._scores(ref, sources, geo, ws)[:, 0]  # (hi-lo, H, W)
             # pad with NaN where the chunk touches the ends of the sweep (no neighbour there)
             if lo == a:
                 scores = torch.cat([torch.full((1, H, W), np.nan), scores])
@@ -304,49 +451,193 @@ class PlaneSweepMVS:
             best_idx = torch.where(upd, arg + a, best_idx)
             best_prev = torch.where(upd, prev, best_prev)
             best_next = torch.where(upd, nxt, best_next)
+        w = w_near + dw * (best_idx.to(torch.float64) + _parabola_offset(best_prev, best, best_next))
+        return w, best, best_idx, score_sum / P
 
-        # parabola through (-1, prev), (0, best), (+1, next): vertex offset in plane units
-        curv = best_prev - 2.0 * best + best_next
-        offset = 0.5 * (best_prev - best_next) / curv
-        offset = torch.where(torch.isfinite(offset) & (curv < 0), offset.clamp(-0.5, 0.5), torch.zeros_like(offset))
-        w = w_near + dw * (best_idx.to(torch.float64) + offset.to(torch.float64))
-        depth = (1.0 / w).to(torch.float32)
-        mean = score_sum / P
-        gap = best - mean
-        conf = best.clamp(0.0, 1.0) * (gap / (1.0 - mean).clamp_min(1e-6)).clamp(0.0, 1.0)
-        interior = (best_idx > 0) & (best_idx < P - 1)  # a winner on the range border is likely outside it
-        valid = textured & (best >= cfg.min_score) & (gap >= cfg.min_distinct) & interior & torch.isfinite(depth)
-        valid &= depth > 0
-        return depth, valid, conf.to(torch.float32)
+    def _tile_sweep(self, ref: "_RefView", cam: Camera, sources: list[_Source], centre: torch.Tensor,
+                    w_near: float, dw: float, P: int
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Fronto-parallel planes of the full grid, per tile of MVS_TILE_PX pixels only those
+        within refine_band of its pixels' ``centre`` planes (H, W) long (-1: needs none).
 
-    def _plane_scores(self, ref, mu_r, var_r, grays, sources, geo, ws, k) -> torch.Tensor:
-        """Aggregated top-k ZNCC for the planes with inverse depths ``ws`` -> (len(ws), H, W)."""
+        Each tile is swept with a margin (ZNCC window + aggregation) on every side, so a pixel's
+        score on a plane equals the full sweep's. Tiles are batched by their number of planes.
+        Returns (inverse depth (H, W) float64 with the parabola's sub-plane offset, best score,
+        winning plane, in_band: both neighbouring planes of the winner were swept)."""
         cfg = self.config
-        _, _, H, W = ref.shape
+        H, W = ref.height, ref.width
+        margin = ref.window // 2 + cfg.aggregation // 2
+        tiles = [(ty, tx) for ty in _tile_axis(H, C.MVS_TILE_PX, margin) for tx in _tile_axis(W, C.MVS_TILE_PX, margin)]
+        th, tw = min(H, C.MVS_TILE_PX + 2 * margin), min(W, C.MVS_TILE_PX + 2 * margin)
+        plane_sets = [_tile_planes(centre[ty[0]:ty[1], tx[0]:tx[1]], cfg.refine_band, P) for ty, tx in tiles]
+        w = torch.zeros((H, W), dtype=torch.float64)
+        best = torch.full((H, W), -np.inf)
+        idx = torch.zeros((H, W), dtype=torch.long)
+        in_band = torch.zeros((H, W), dtype=torch.bool)
+        groups: dict[int, list[int]] = {}
+        for t, planes in enumerate(plane_sets):
+            groups.setdefault(len(planes), []).append(t)
+        groups.pop(0, None)  # tiles with nothing to sweep (every pixel textureless)
+        for n, members in sorted(groups.items()):
+            planes = torch.stack([plane_sets[t] for t in members], 1)  # (n, B) sorted per tile
+            pads = [(tiles[t][0][2], tiles[t][1][2]) for t in members]
+            ref_t = _RefView(torch.stack([ref.gray[0, :, py:py + th, px:px + tw] for py, px in pads]),
+                             ref.window, cfg.min_patch_std)
+            grid = torch.cat([_pixel_grid(px, py, th, tw) for py, px in pads], 1)  # (2, B th tw)
+            geo = [_homography_terms(cam, s.cam, grid) for s in sources]
+            scores = torch.empty((n, len(members), th, tw))
+            for a in range(0, n, cfg.chunk):
+                ws = (w_near + dw * planes[a:a + cfg.chunk].to(torch.float64)).to(torch.float32)
+                scores[a:a + cfg.chunk] = self._scores(ref_t, sources, geo, ws)
+            val, arg = scores.max(0)  # (B, th, tw)
+            win = planes[:, :, None, None].expand(n, len(members), th, tw).gather(0, arg[None])[0]  # plane index
+            nanpad = torch.full((1, len(members), th, tw), np.nan)
+            padded = torch.cat([nanpad, scores, nanpad])
+            prev = padded.gather(0, arg[None])[0]
+            nxt = padded.gather(0, (arg + 2)[None])[0]
+            pl = torch.cat([torch.full((1, len(members)), -10), planes, torch.full((1, len(members)), -10)])
+            pl = pl[:, :, None, None].expand(n + 2, len(members), th, tw)
+            has_prev = pl.gather(0, arg[None])[0] == win - 1  # the swept neighbour is the adjacent plane
+            has_next = pl.gather(0, (arg + 2)[None])[0] == win + 1
+            prev = torch.where(has_prev, prev, torch.full_like(prev, np.nan))
+            nxt = torch.where(has_next, nxt, torch.full_like(nxt, np.nan))
+            w_t = w_near + dw * (win.to(torch.float64) + _parabola_offset(prev, val, nxt))
+            for b, t in enumerate(members):
+                (y0, y1, py), (x0, x1, px) = tiles[t]
+                sl = (slice(y0 - py, y1 - py), slice(x0 - px, x1 - px))
+                w[y0:y1, x0:x1] = w_t[b][sl]
+                best[y0:y1, x0:x1] = val[b][sl]
+                idx[y0:y1, x0:x1] = win[b][sl]
+                in_band[y0:y1, x0:x1] = (has_prev & has_next)[b][sl] | (win[b][sl] == 0) | (win[b][sl] == P - 1)
+        return w, best, idx, in_band
+
+    def _scores(self, ref: "_RefView", sources: list[_Source], geo, ws: torch.Tensor) -> torch.Tensor:
+        """Aggregated top-k ZNCC of B reference tiles (``ref``, (B, 1, h, w)) on planes of inverse
+        depth ``ws`` (n, B) (or (n, 1): the same planes for every tile) -> (n, B, h, w).
+        geo: per source (A (3, B h w), b (3, 1)) from ``_homography_terms``."""
+        cfg = self.config
+        B, h, w = ref.gray.shape[0], ref.height, ref.width
         n = ws.shape[0]
         per_source = []
-        for s, (A, b, Ws, Hs) in zip(sources, geo):
-            x = A[None] + ws[:, None, None] * b[None, :, None]  # (n, 3, HW)
+        buf = torch.empty((n * B, 4, h, w))
+        for src, (A, b) in zip(sources, geo):
+            Ws, Hs = src.cam.width, src.cam.height
+            x = A.reshape(1, 3, B, h * w) + ws[:, None, :, None] * b.reshape(1, 3, 1, 1)  # (n, 3, B, hw)
             z = x[:, 2]
             u = x[:, 0] / z
             v = x[:, 1] / z
             inside = (z > 0) & (u >= 0) & (u <= Ws) & (v >= 0) & (v <= Hs)
-            grid = torch.stack([2.0 * u / Ws - 1.0, 2.0 * v / Hs - 1.0], -1).to(torch.float32)
-            grid = torch.where(inside[..., None], grid, torch.full_like(grid, -2.0))
-            warped = F.grid_sample(grays[s], grid.reshape(1, n * H, W, 2), mode="bilinear",
-                                   padding_mode="zeros", align_corners=False).reshape(n, 1, H, W)
-            ins = inside.to(torch.float32).reshape(n, 1, H, W)
-            # one pooling call for the four windowed means
-            means = _box(torch.cat([warped, warped * warped, warped * ref, ins], 1), cfg.window)
-            mu_s = means[:, 0:1]
-            var_s = (means[:, 1:2] - mu_s * mu_s).clamp_min(0.0)
-            cross = means[:, 2:3] - mu_s * mu_r
-            zncc = cross / torch.sqrt(var_s * var_r + C.MVS_ZNCC_EPS)
-            usable = means[:, 3:4] >= C.MVS_MIN_INSIDE
-            per_source.append(torch.where(usable, zncc, torch.full_like(zncc, -1.0))[:, 0])
-        stack = torch.stack(per_source, 0)  # (S, n, H, W)
-        score = stack.topk(k, dim=0).values.mean(0) if k < stack.shape[0] else stack.mean(0)
-        return _box(score[:, None], cfg.aggregation)[:, 0]
+            grid = torch.stack([u * (2.0 / Ws) - 1.0, v * (2.0 / Hs) - 1.0], -1)
+            grid.masked_fill_(~inside[..., None], -2.0)
+            warped = F.grid_sample(src.gray, grid.reshape(1, n * B * h, w, 2), mode="bilinear",
+                                   padding_mode="zeros", align_corners=False).reshape(n, B, h, w)
+            # one box filter for the four windowed means
+            bv = buf.view(n, B, 4, h, w)
+            bv[:, :, 0] = warped
+            torch.mul(warped, warped, out=bv[:, :, 1])
+            torch.mul(warped, ref.gray[:, 0], out=bv[:, :, 2])
+            bv[:, :, 3] = inside.reshape(n, B, h, w)
+            means = _box(buf, ref.window).view(n, B, 4, h, w)
+            mu_s = means[:, :, 0]
+            var_s = (means[:, :, 1] - mu_s * mu_s).clamp_min_(0.0)
+            cross = means[:, :, 2] - mu_s * ref.mu
+            zncc = cross / torch.sqrt(var_s * ref.var + C.MVS_ZNCC_EPS)
+            per_source.append(zncc.masked_fill_(means[:, :, 3] < C.MVS_MIN_INSIDE, -1.0))
+        k = min(cfg.topk, len(per_source))
+        stack = torch.stack(per_source, 0)  # (S, n, B, h, w)
+        if k == stack.shape[0]:
+            score = stack.mean(0)
+        elif k == stack.shape[0] - 1:  # the best S - 1: all but the worst
+            score = (stack.sum(0) - stack.min(0).values) / k
+        else:
+            score = stack.topk(k, dim=0).values.mean(0)
+        return _box(score.reshape(n * B, 1, h, w), cfg.aggregation).reshape(n, B, h, w)
+
+
+class _RefView:
+    """B reference images or tiles (B, 1, h, w) with their windowed mean, variance (B, h, w)
+    and texture test."""
+
+    def __init__(self, gray: torch.Tensor, window: int, min_patch_std: float) -> None:
+        self.gray = gray.contiguous()
+        self.height, self.width = gray.shape[-2:]
+        self.window = window
+        self.mu = _box(self.gray, window)[:, 0]
+        self.var = (_box(self.gray * self.gray, window)[:, 0] - self.mu * self.mu).clamp_min(0.0)
+        self.textured = self.var.sqrt() >= min_patch_std
+
+
+def crop_camera(cam: Camera, box: tuple[int, int, int, int]) -> Camera:
+    """The camera of the sub-image ``box`` = (x0, y0, x1, y1) (principal point shifted)."""
+    x0, y0, x1, y1 = box
+    if (x0, y0, x1, y1) == (0, 0, cam.width, cam.height):
+        return cam
+    K = cam.K.copy()
+    K[0, 2] -= x0
+    K[1, 2] -= y0
+    return Camera(K, cam.c2w, x1 - x0, y1 - y0, cam.name)
+
+
+def _upsample(x: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Bilinear resize of an (h, w) float map to (height, width), pixel centres aligned."""
+    import cv2
+
+    return cv2.resize(np.asarray(x, np.float32), (width, height), interpolation=cv2.INTER_LINEAR)
+
+
+def _tile_axis(n: int, size: int, margin: int) -> list[tuple[int, int, int]]:
+    """Tiles of one image axis of length n: (start, end, padded start) with inner extent
+    [start, end) of at most ``size`` and a padded extent of min(n, size + 2 margin) from the
+    padded start, kept inside the image (at the image border the window shrinks as it does in
+    a whole-image sweep; elsewhere the padding holds the margin)."""
+    padded = size + 2 * margin
+    if n <= padded:
+        return [(0, n, 0)]
+    return [(a, min(a + size, n), min(max(a - margin, 0), n - padded)) for a in range(0, n, size)]
+
+
+def _tile_planes(centre: torch.Tensor, band: int, P: int) -> torch.Tensor:
+    """Sorted planes (long) a tile sweeps: every plane within ``band`` of one of its pixels'
+    ``centre`` planes (-1 = a pixel that needs none), at most MVS_TILE_MAX_PLANES of them (then
+    those serving the most pixels, ties to the nearer plane: a tile mixing many depths keeps its
+    main surfaces)."""
+    c = centre.reshape(-1)
+    c = c[c >= 0]
+    count = torch.zeros(P, dtype=torch.long)
+    for off in range(-band, band + 1):
+        count += torch.bincount((c + off).clamp(0, P - 1), minlength=P)
+    planes = torch.nonzero(count).squeeze(1)
+    if planes.numel() > C.MVS_TILE_MAX_PLANES:
+        order = torch.argsort(count[planes], descending=True, stable=True)
+        planes = planes[order[:C.MVS_TILE_MAX_PLANES]].sort().values
+    return planes
+
+
+def _pixel_grid(x0: int, y0: int, h: int, w: int) -> torch.Tensor:
+    """(2, h w) float64 pixel centres (u + 0.5, v + 0.5) of the h x w block at (x0, y0)."""
+    v, u = torch.meshgrid(torch.arange(y0, y0 + h, dtype=torch.float64) + 0.5,
+                          torch.arange(x0, x0 + w, dtype=torch.float64) + 0.5, indexing="ij")
+    return torch.stack([u.reshape(-1), v.reshape(-1)])
+
+
+def _homography_terms(cam_r: Camera, cam_s: Camera, pix: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Source pixel x_s ~ A p + w b for reference pixel centres ``pix`` (2, N) (p = (u, v, 1),
+    coordinates of ``cam_r``'s image) at inverse depth w: A (3, N), b (3, 1) float32."""
+    ph = torch.cat([pix, torch.ones(1, pix.shape[1], dtype=pix.dtype)], 0)  # (3, N) float64
+    rel = cam_s.w2c @ cam_r.c2w  # reference camera -> source camera
+    Ks = torch.tensor(cam_s.K)
+    A = (Ks @ torch.tensor(rel[:3, :3] @ np.linalg.inv(cam_r.K))) @ ph
+    b = Ks @ torch.tensor(rel[:3, 3])
+    return A.to(torch.float32), b.to(torch.float32)[:, None]
+
+
+def _parabola_offset(prev: torch.Tensor, best: torch.Tensor, nxt: torch.Tensor) -> torch.Tensor:
+    """Vertex of the parabola through (-1, prev), (0, best), (+1, next), in plane units within
+    [-0.5, 0.5]; 0 where it is no maximum or a neighbour is missing (NaN). float64."""
+    curv = prev - 2.0 * best + nxt
+    offset = 0.5 * (prev - nxt) / curv
+    ok = torch.isfinite(offset) & (curv < 0)
+    return torch.where(ok, offset.clamp(-0.5, 0.5), torch.zeros_like(offset)).to(torch.float64)
 
 
 def geometric_consistency(depths: list[torch.Tensor], valids: list[torch.Tensor], cams: Sequence[Camera],

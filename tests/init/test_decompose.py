@@ -54,15 +54,22 @@ def test_static_median_ignores_moving_pixels():
     assert np.allclose(med[0, 0], 0.2) and np.allclose(med[1, 1], 0.0) and np.allclose(med[2, 2], 0.7)
 
 
-def test_crop_camera_and_mask_box():
+def test_crop_camera_and_roi_boxes():
+    from fixer4d.init.mvs import crop_camera, roi_boxes
+
     cam = _rig(1)[0]
-    crop = D.crop_camera(cam, 10, 5, 50, 45)
+    crop = crop_camera(cam, (10, 5, 50, 45))
     X = np.array([[0.1, 0.1, 0.0]])
     assert np.allclose(crop.project(X)[0], cam.project(X)[0] - [10, 5])
     mask = np.zeros((60, 80), bool)
     mask[20:30, 40:45] = True
-    assert D.mask_box(mask, 3) == (37, 17, 48, 33)
-    assert D.mask_box(np.zeros((60, 80), bool), 3) is None
+    assert roi_boxes(mask, 3) == [(37, 17, 48, 33)]
+    assert roi_boxes(np.zeros((60, 80), bool), 3) == []
+    # two regions far apart stay two boxes (less to sweep than their union); near ones merge
+    mask[2:6, 2:6] = True
+    assert roi_boxes(mask, 1) == [(1, 1, 7, 7), (39, 19, 46, 31)]
+    mask[20:30, 46:50] = True  # overlaps the first region's box once widened
+    assert roi_boxes(mask, 1) == [(1, 1, 7, 7), (39, 19, 51, 31)]
 
 
 def test_local_angular_velocity_of_a_spinning_blob():
