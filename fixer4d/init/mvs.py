@@ -206,22 +206,22 @@ def torch_threads(n: int) -> Iterator[None]:
 def _box(x: torch.Tensor, k: int) -> torch.Tensor:
     """Mean over a k x k window of (B, C, H, W), shrinking at the borders (no zero padding bias).
 
-    Separable sums of shifted slices (zero padded), divided by the per-pixel count of in-image
-    taps: the per-axis counts multiply to the 2D count, so the mean is exact. (3x faster than
+    Separable sums of shifted slices added in place, divided by the per-pixel count of in-image
+    taps: the per-axis counts multiply to the 2D count, so the mean is exact. (5x faster than
     ``avg_pool2d(count_include_pad=False)`` on CPU at 7x7, measured in one process.)"""
     if k <= 1:
         return x
     r = k // 2
     H, W = x.shape[-2:]
-    p = F.pad(x, (r, r, 0, 0))
-    s = p[..., 0:W].clone()
-    for i in range(1, k):
-        s += p[..., i:i + W]
-    p = F.pad(s, (0, 0, r, r))
-    s = p[..., 0:H, :].clone()
-    for i in range(1, k):
-        s += p[..., i:i + H, :]
-    return s * _inv_box_count(H, W, k)
+    s = x.clone()
+    for i in range(1, min(r, W - 1) + 1):
+        s[..., :-i] += x[..., i:]
+        s[..., i:] += x[..., :-i]
+    t = s.clone()
+    for i in range(1, min(r, H - 1) + 1):
+        t[..., :-i, :] += s[..., i:, :]
+        t[..., i:, :] += s[..., :-i, :]
+    return t.mul_(_inv_box_count(H, W, k))
 
 
 def _inv_box_count(H: int, W: int, k: int) -> torch.Tensor:
@@ -519,7 +519,6 @@ class PlaneSweepMVS:
         B, h, w = ref.gray.shape[0], ref.height, ref.width
         n = ws.shape[0]
         per_source = []
-        buf = torch.empty((n * B, 4, h, w))
         for src, (A, b) in zip(sources, geo):
             Ws, Hs = src.cam.width, src.cam.height
             x = A.reshape(1, 3, B, h * w) + ws[:, None, :, None] * b.reshape(1, 3, 1, 1)  # (n, 3, B, hw)
@@ -531,18 +530,21 @@ class PlaneSweepMVS:
             grid.masked_fill_(~inside[..., None], -2.0)
             warped = F.grid_sample(src.gray, grid.reshape(1, n * B * h, w, 2), mode="bilinear",
                                    padding_mode="zeros", align_corners=False).reshape(n, B, h, w)
-            # one box filter for the four windowed means
-            bv = buf.view(n, B, 4, h, w)
+            # one box filter for the windowed means (and the inside share where a warp leaves the image)
+            c = 3 if bool(inside.all()) else 4
+            buf = torch.empty((n * B, c, h, w))
+            bv = buf.view(n, B, c, h, w)
             bv[:, :, 0] = warped
             torch.mul(warped, warped, out=bv[:, :, 1])
             torch.mul(warped, ref.gray[:, 0], out=bv[:, :, 2])
-            bv[:, :, 3] = inside.reshape(n, B, h, w)
-            means = _box(buf, ref.window).view(n, B, 4, h, w)
+            if c == 4:
+                bv[:, :, 3] = inside.reshape(n, B, h, w)
+            means = _box(buf, ref.window).view(n, B, c, h, w)
             mu_s = means[:, :, 0]
             var_s = (means[:, :, 1] - mu_s * mu_s).clamp_min_(0.0)
             cross = means[:, :, 2] - mu_s * ref.mu
             zncc = cross / torch.sqrt(var_s * ref.var + C.MVS_ZNCC_EPS)
-            per_source.append(zncc.masked_fill_(means[:, :, 3] < C.MVS_MIN_INSIDE, -1.0))
+            per_source.append(zncc.masked_fill_(means[:, :, 3] < C.MVS_MIN_INSIDE, -1.0) if c == 4 else zncc)
         k = min(cfg.topk, len(per_source))
         stack = torch.stack(per_source, 0)  # (S, n, B, h, w)
         if k == stack.shape[0]:
