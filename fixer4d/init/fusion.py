@@ -140,7 +140,7 @@ def statistical_inliers(points: np.ndarray, neighbors: int, std_ratio: float) ->
     from scipy.spatial import cKDTree
 
     dist, _ = cKDTree(points).query(points, k=neighbors, workers=-1)
-    avg = dist.mean(1)
+    avg = dist.reshape(len(points), -1).mean(1)  # k = 1 returns (N,)
     ok = avg > 0
     if ok.sum() < 2:
         return ok

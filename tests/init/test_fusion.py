@@ -83,3 +83,26 @@ def test_single_view_and_mismatched_sizes_raise():
         fuse_depths(imgs[:2] + [imgs[2][:, :10]] + imgs[3:], depths, cams)
     with pytest.raises(InputError, match="one of each"):
         fuse_depths(imgs, depths[:3], cams)
+
+
+def test_voxel_down_sample_averages_each_voxel():
+    from fixer4d.init.fusion import voxel_down_sample
+
+    pts = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [5.0, 5.0, 5.0], [0.2, 0.2, 0.2]])
+    cols = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [1.0, 1.0, 1.0]])
+    p, c = voxel_down_sample(pts, cols, 1.0)
+    # the grid starts half a voxel below the minimum: the first, second and last points share
+    # a voxel; voxels in lexicographic order of their index
+    assert np.allclose(p, [[0.1, 0.2 / 3, 0.2 / 3], [5.0, 5.0, 5.0]])
+    assert np.allclose(c, [[2 / 3, 2 / 3, 1 / 3], [0, 0, 1.0]])
+
+
+def test_statistical_inliers_drop_an_isolated_point():
+    from fixer4d.init.fusion import statistical_inliers
+
+    rng = np.random.default_rng(0)
+    pts = np.concatenate([rng.normal(0, 0.1, (300, 3)), [[5.0, 5.0, 5.0]]])
+    keep = statistical_inliers(pts, 20, 2.0)
+    assert not keep[-1] and keep[:-1].mean() > 0.9
+    # a duplicated point has mean neighbour distance 0 with k = 1: open3d drops it, so do we
+    assert not statistical_inliers(np.array([[0.0, 0, 0], [0.0, 0, 0], [1.0, 0, 0]]), 1, 2.0).any()

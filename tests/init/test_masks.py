@@ -140,3 +140,14 @@ def test_thin_fast_objects_are_not_erased():
     est = M.moving_masks_for_scene(scene, [cam], frames)[0]
     exact = np.stack([scene.moving_mask(f, cam) for f in frames])
     assert (est & exact).sum() / exact.sum() >= 0.9
+
+
+def test_fast_medians_equal_numpy():
+    rng = np.random.default_rng(3)
+    for F in (2, 5, 30, 31):
+        x = rng.random((F, 7, 9, 3)).astype(np.float32)
+        assert np.array_equal(M._median0(x), np.median(x, axis=0))
+        ex = rng.random((F, 7, 9)) > 0.5
+        ex[0] = False  # at least one sample kept per pixel
+        ref = np.nanmedian(np.where(ex[..., None], np.nan, x), axis=0)
+        assert np.allclose(M._median_without(x, ex), ref, rtol=0, atol=1e-7)
