@@ -283,11 +283,13 @@ def fit_tracks(dts: np.ndarray, X: np.ndarray, ok: np.ndarray, obs: np.ndarray, 
         fit = np.einsum("sk,nkc->snc", B, c)  # (S, n, 3)
         err2 = np.zeros(idx.size)
         cnt = np.zeros(idx.size)
-        for v, cam in enumerate(cams):  # every sample of a view in one projection
+        for v, cam in enumerate(cams):
             m = obs_ok[:, v, idx] & ok[:, idx]  # (S, n)
-            uv, _ = cam.project(fit.reshape(-1, 3))
+            # one projection per sample: (n, 3) @ (3, 3) stays under OpenBLAS's threading size
+            # (~65k rows), whose threads cost 40 ms per product on the shared 2-core machine
+            uv = np.stack([cam.project(fit[j])[0] for j in range(S)])
             with np.errstate(over="ignore", invalid="ignore"):
-                e = np.sum((np.nan_to_num(uv.reshape(S, -1, 2), nan=1e6) - obs[:, v, idx]) ** 2, -1)
+                e = np.sum((np.nan_to_num(uv, nan=1e6) - obs[:, v, idx]) ** 2, -1)
             err2 += np.where(m, np.minimum(e, 1e6), 0.0).sum(0)
             cnt += m.sum(0)
         r = np.sqrt(err2 / np.maximum(cnt, 1))

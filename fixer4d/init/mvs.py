@@ -518,18 +518,24 @@ class PlaneSweepMVS:
         cfg = self.config
         B, h, w = ref.gray.shape[0], ref.height, ref.width
         n = ws.shape[0]
+        k = min(cfg.topk, len(sources))
         per_source = []
+        total = worst = None
         for src, (A, b) in zip(sources, geo):
             Ws, Hs = src.cam.width, src.cam.height
-            x = A.reshape(1, 3, B, h * w) + ws[:, None, :, None] * b.reshape(1, 3, 1, 1)  # (n, 3, B, hw)
-            z = x[:, 2]
-            u = x[:, 0] / z
-            v = x[:, 1] / z
+            A = A.reshape(3, 1, B, h * w)
+            wb = ws[:, :, None]  # (n, B, 1)
+            z = A[2] + wb * b[2]  # (n, B, hw)
+            grid = torch.empty((n, B, h * w, 2))
+            u, v = grid[..., 0], grid[..., 1]
+            torch.div(A[0] + wb * b[0], z, out=u)
+            torch.div(A[1] + wb * b[1], z, out=v)
             inside = (z > 0) & (u >= 0) & (u <= Ws) & (v >= 0) & (v <= Hs)
-            grid = torch.stack([u * (2.0 / Ws) - 1.0, v * (2.0 / Hs) - 1.0], -1)
+            u.mul_(2.0 / Ws).sub_(1.0)
+            v.mul_(2.0 / Hs).sub_(1.0)
             grid.masked_fill_(~inside[..., None], -2.0)
-            warped = F.grid_sample(src.gray, grid.reshape(1, n * B * h, w, 2), mode="bilinear",
-                                   padding_mode="zeros", align_corners=False).reshape(n, B, h, w)
+            warped = F.grid_sample(src.gray, grid.view(1, n * B * h, w, 2), mode="bilinear",
+                                   padding_mode="zeros", align_corners=False).view(n, B, h, w)
             # one box filter for the windowed means (and the inside share where a warp leaves the image)
             c = 3 if bool(inside.all()) else 4
             buf = torch.empty((n * B, c, h, w))
@@ -538,21 +544,24 @@ class PlaneSweepMVS:
             torch.mul(warped, warped, out=bv[:, :, 1])
             torch.mul(warped, ref.gray[:, 0], out=bv[:, :, 2])
             if c == 4:
-                bv[:, :, 3] = inside.reshape(n, B, h, w)
+                bv[:, :, 3] = inside.view(n, B, h, w)
             means = _box(buf, ref.window).view(n, B, c, h, w)
             mu_s = means[:, :, 0]
             var_s = (means[:, :, 1] - mu_s * mu_s).clamp_min_(0.0)
             cross = means[:, :, 2] - mu_s * ref.mu
-            zncc = cross / torch.sqrt(var_s * ref.var + C.MVS_ZNCC_EPS)
-            per_source.append(zncc.masked_fill_(means[:, :, 3] < C.MVS_MIN_INSIDE, -1.0) if c == 4 else zncc)
-        k = min(cfg.topk, len(per_source))
-        stack = torch.stack(per_source, 0)  # (S, n, B, h, w)
-        if k == stack.shape[0]:
-            score = stack.mean(0)
-        elif k == stack.shape[0] - 1:  # the best S - 1: all but the worst
-            score = (stack.sum(0) - stack.min(0).values) / k
+            zncc = cross.div_(torch.sqrt(var_s.mul_(ref.var).add_(C.MVS_ZNCC_EPS)))
+            if c == 4:
+                zncc.masked_fill_(means[:, :, 3] < C.MVS_MIN_INSIDE, -1.0)
+            if k == len(sources) - 1:  # the mean of all but the worst source: running sum and minimum
+                total = zncc.clone() if total is None else total.add_(zncc)
+                worst = zncc if worst is None else torch.minimum(worst, zncc)
+            else:
+                per_source.append(zncc)
+        if per_source:
+            stack = torch.stack(per_source, 0)  # (S, n, B, h, w)
+            score = stack.mean(0) if k == stack.shape[0] else stack.topk(k, dim=0).values.mean(0)
         else:
-            score = stack.topk(k, dim=0).values.mean(0)
+            score = total.sub_(worst).div_(k)
         return _box(score.reshape(n * B, 1, h, w), cfg.aggregation).reshape(n, B, h, w)
 
 
