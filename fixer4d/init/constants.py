@@ -65,8 +65,10 @@ MVS_TILE_PX = 16
 # coarse best < 0.2, and 47% of the textured pixels; demo: 0.0% and 20%).
 MVS_COARSE_MIN_SCORE = 0.2
 # At most this many planes per tile (a tile spanning a large depth jump or noisy coarse depths
-# keeps the planes most of its pixels need).
-MVS_TILE_MAX_PLANES = 32
+# keeps the planes most of its pixels need). Static medians, share of the full sweep's valid
+# depths kept / sweep CPU s: demo 0.979 / 0.83 at 32, 0.971 / 0.79 at 24, 0.965 / 0.78 at 20;
+# Panoptic 0.948 / 1.66, 0.945 / 1.44, 0.935 / 1.39.
+MVS_TILE_MAX_PLANES = 24
 # A pixel whose reference patch has an intensity std below this (on [0, 1]) has no texture:
 # ZNCC is undefined there, so it is invalid (1/255 quantization noise is ~0.003).
 MVS_MIN_PATCH_STD = 0.01
