@@ -111,11 +111,12 @@ def _restore_job(job):
 
 
 def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, progress: bool = True,
-                          backend: str = "auto", executor=None) -> Callable[[Any, int], None]:
+                          backend: str = "auto", executor=None, restorer=None) -> Callable[[Any, int], None]:
     """The stage-2 cache refresh: render every trajectory at every restored timestamp with the
     current model, restore the clips (on ``executor``: local by default, Ray when configured),
     write them to RUN/cache/round_<r>. Complete entries of a round are reused (a resumed run does
-    not redo them)."""
+    not redo them). restorer: the run's configured one when None (a diagnostic may pass another,
+    e.g. benchmarks/stage2_ceiling.py's ground-truth oracle)."""
     from fixer4d.pipeline.executors import LocalExecutor
     from fixer4d.restore.cache import RestoreCache
 
@@ -124,7 +125,7 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
     # entries written under other settings (restorer, trajectories, stage-1 model) are set aside
     cache = RestoreCache(Path(run_dir) / "cache", fingerprint=stage2_key(config))
     cache.clean_temporary()  # leftovers of a killed write; complete entries are reused below
-    restorer = build_restorer(config, run_dir)
+    restorer = restorer if restorer is not None else build_restorer(config, run_dir)
     executor = executor or LocalExecutor()
     trajectories = scene_trajectories_for(scene, config.trajectories)
     frames = list(range(0, scene.num_frames, max(1, config.trajectories.time_stride)))
