@@ -2,8 +2,9 @@
 
     static   = MVS once on the per-view temporal median of the non-moving pixels, fused (Eq. 1-2)
                -> ONE cloud for every frame (Eq. 1-2 applied over time as well as views)
-    dynamic  = per init frame, MVS only on the crop around the moving-content mask of each view,
-               kept where the mask says, fused -> the frame's moving points
+    dynamic  = per init frame, MVS only over the boxes of each view's moving-content regions (the
+               other views' full frames as sources), kept where the mask says, fused -> the
+               frame's moving points
     motion   = per moving point, 2D optical flow (OpenCV Farneback) chained over the neighbouring
                frames in every view where the point is visible, triangulated back to 3D (DLT):
                a short 3D track -> polynomial fits of degree 0..3 (smallest degree whose
@@ -12,9 +13,9 @@
     evidence = per static point, the colour spread across the train views (exposure-corrected):
                the view-dependent residual that decides the SH degree (fixer4d.model.effects)
 
-Cost: the static plane sweep runs once for the clip; the per-frame sweeps cover only the masks'
-bounding boxes (a few percent of the image on the demo), so a clip costs about one full-frame
-sweep plus the moving crops, instead of one full sweep per frame.
+Cost: the static plane sweep runs once for the clip; the per-frame sweeps cover only the moving
+regions' boxes (15% of the demo's pixels, 34% of Panoptic's), so a clip costs about one
+full-frame sweep plus the moving regions, instead of one full sweep per frame.
 
 Output files in the init folder: ``decomposed.npz`` (``DecomposedInit.save``), ``masks.npz``
 (fixer4d.init.masks format) and, for viewers and older readers, ``frame_XXXX.ply`` = the static

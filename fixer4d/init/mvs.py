@@ -14,6 +14,13 @@
      peak score, peak distinctiveness, range borders and a forward-backward geometric check
      between views.
 
+Coarse-to-fine (default; ``refine_band=0`` is the single full sweep): steps 1-4 at half
+resolution with planes x 0.5 planes (the same step in pixels) and a 3x3 window give each pixel a
+plane; at full resolution each tile then sweeps only the full grid's planes within ``refine_band``
+of its pixels' (fronto-parallel, with a window margin, so a score equals the full sweep's).
+``estimate(..., rois=masks)`` sweeps each view only over its mask's region boxes, the other views'
+full images as sources.
+
 ``MVSAnywhereEstimator`` runs the real ``mvsanywhere`` package (Izquierdo et al., CVPR 2025) when
 it is importable and local weights are given; otherwise it raises BackendUnavailable.
 """
