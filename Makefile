@@ -11,8 +11,8 @@ PIP    := $(PY) -m pip
 STAMP  := $(VENV)/.fixer4d-installed
 LPIPS  := $(VENV)/share/fixer4d/lpips/alexnet.ckpt
 # Debian packages: EGL/Mesa for headless GL (viewer, GL tests), xvfb + xauth for real windows,
-# libusb for open3d's shared library, ffmpeg libs come inside PyAV's wheel.
-DEB_PKGS := libusb-1.0-0 libegl1 libgl1 libgl1-mesa-dri libegl-mesa0 libglx-mesa0 xvfb xauth
+# ffmpeg libs come inside PyAV's wheel.
+DEB_PKGS := libegl1 libgl1 libgl1-mesa-dri libegl-mesa0 libglx-mesa0 xvfb xauth
 TORCH  := torch==2.13.0
 RUN    ?= runs/demo
 PYTEST_ARGS ?=

@@ -172,7 +172,11 @@ class Stage2Config:
     refresh_every: int = 500
     rounds: int = 2
     iterations: int | None = None
-    # cached frames per iteration (each one a pseudo-view render + L1)
+    # cached frames per iteration (each one a pseudo-view render + L1). With ground-truth
+    # pseudo-targets (benchmarks/stage2_ceiling.py, demo, 1500-iteration stage 1) 2 would pay: Full
+    # over the matched control +0.53 / +0.75 dB with 1, +0.85 / +1.36 dB with 2 (two stage-1
+    # models); with the warp restorer's targets it does not (Full 24.58 -> 24.85 on one model,
+    # 25.32 -> 25.11 on the other), so the cheaper 1 stays until a restorer gets closer to the truth.
     batch_pseudo: int = 1
     # weight the pseudo L1 per pixel by the restorer's confidence (masked L1)
     confidence_weighting: bool = True

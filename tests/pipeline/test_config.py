@@ -14,7 +14,7 @@ from fixer4d.pipeline.config import FORMAT_VERSION, RunConfig, migrate_v1, resol
 
 def test_defaults_and_schedule_scaling():
     c = resolve("demo")
-    assert c.scene.source == "demo" and c.stage1.iterations == 500 and c.stage1.max_gaussians == 20_000
+    assert c.scene.source == "demo" and c.stage1.iterations == 1500 and c.stage1.max_gaussians == 20_000
     # the densification schedule follows the iterations unless given explicitly
     short = resolve("demo", overrides={"stage1.iterations": 100})
     assert short.stage1.densify_until == 50
