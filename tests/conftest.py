@@ -2,9 +2,12 @@
 
 tiny_scene: the bundled 8-camera, 64x48, 4-frame synthetic scene (assets/scenes/tiny.json).
 panoptic_dir: the real Panoptic basketball subset in ../shared/data (skips when absent).
+benchmark_script(name): a script of benchmarks/ loaded as a module (registered while in use).
 """
 from __future__ import annotations
 
+import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -30,3 +33,27 @@ def panoptic_dir() -> Path:
         pytest.skip(f"real-data test skipped: the Panoptic basketball subset is not at {PANOPTIC_DIR} "
                     f"(expected ../shared/data/panoptic_basketball next to the repository)")
     return PANOPTIC_DIR
+
+
+def load_benchmark(name: str):
+    """benchmarks/<name>.py as a module named ``name``, registered in sys.modules (dataclasses
+    look their module up while a class is built); the caller unregisters it."""
+    spec = importlib.util.spec_from_file_location(name, REPO_ROOT / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def benchmark_script():
+    """``benchmark_script(name)`` -> the module of benchmarks/<name>.py, unregistered afterwards."""
+    loaded: list[str] = []
+
+    def load(name: str):
+        loaded.append(name)
+        return load_benchmark(name)
+
+    yield load
+    for name in loaded:
+        sys.modules.pop(name, None)

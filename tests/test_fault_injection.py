@@ -7,27 +7,15 @@ memory (float colours) when the init ran in the same process, but from the cloud
 (uint8 colours) after a kill, so the resumed run's metrics differed in the 4th digit."""
 from __future__ import annotations
 
-import importlib.util
 import json
 import random
-import sys
-from pathlib import Path
 
 import pytest
 
-_SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "fault_injection.py"
-
 
 @pytest.fixture(scope="module")
-def fi():
-    spec = importlib.util.spec_from_file_location("fault_injection", _SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up while the class is built
-    try:
-        spec.loader.exec_module(module)
-        yield module
-    finally:
-        sys.modules.pop(spec.name, None)
+def fi(benchmark_script):
+    return benchmark_script("fault_injection")
 
 
 def test_checks_catch_what_they_are_for(fi, tmp_path):

@@ -1,21 +1,15 @@
 """benchmarks/segment_estimate.py: the long-capture estimate follows its stated model."""
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 @pytest.fixture(scope="module")
-def estimate():
-    spec = importlib.util.spec_from_file_location("segment_estimate", ROOT / "benchmarks" / "segment_estimate.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+def estimate(benchmark_script):
+    return benchmark_script("segment_estimate")
 
 
 def _run(tmp_path: Path) -> Path:

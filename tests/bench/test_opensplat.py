@@ -76,7 +76,9 @@ meta = json.loads((proj / "transforms.json").read_text())
 assert all((proj / f["file_path"]).is_file() for f in meta["frames"])
 print("Reading", len(meta["frames"]), "cameras", flush=True)
 for k in range(1, 31):
-    time.sleep(0.002)
+    t = time.process_time()
+    while time.process_time() - t < 0.004:  # an iteration's CPU work
+        pass
     if k % 10 == 0:
         print(f"Step {{k}}: 0.25 ({{100 * k // 30}}%)", flush=True)
 """)
@@ -84,8 +86,64 @@ for k in range(1, 31):
     res = opensplat.run_opensplat(fake, root, iters=30)
     assert res.timing == "step lines 10..30" and res.s_per_iter > 0 and res.iters == 30
     assert res.command[0] == str(fake) and "--cpu" in res.command
-    row = train_step.opensplat_row(res, s_it=res.s_per_iter / 4.0)
+    # CPU time of the child: per iteration from its /proc stat at the step lines, and the whole run
+    assert res.cpu_timing == "step lines 10..30" and res.cpu_s_per_iter is not None
+    assert 0.002 <= res.cpu_s_per_iter <= 0.05 and res.cpu_s_total >= 30 * 0.004 * 0.9
+    row = train_step.opensplat_row(res, s_it=res.s_per_iter / 4.0, cpu_s_it=res.cpu_s_per_iter / 2.0)
     assert row["speedup_vs_opensplat"] == 4.0 and row["opensplat_timing"] == "step lines 10..30"
+    assert row["cpu_speedup_vs_opensplat"] == 2.0 and row["opensplat_cpu_timing"] == "step lines 10..30"
+
+
+def _stand_in_result(s_it, cpu_it):
+    return opensplat.OpenSplatResult(s_per_iter=s_it, timing="step lines 1..60", iters=60, wall_s=60 * s_it,
+                                     command=["opensplat", "proj"], cpu_s_per_iter=cpu_it,
+                                     cpu_timing="step lines 1..60", cpu_s_total=60 * cpu_it)
+
+
+def test_alternate_takes_turns_and_reads_the_load_around_every_run():
+    log = []
+    loads = iter(f"{x:.2f} 1.00 1.00 1/90 123" for x in range(100))
+
+    def loadavg():
+        log.append("load")
+        return next(loads)
+
+    def ours():
+        log.append("ours")
+        return {"s_per_iter": 0.1 * (1 + log.count("ours")), "cpu_s_per_iter": 0.15, "fragments": 1000.0}
+
+    def theirs():
+        log.append("theirs")
+        return _stand_in_result(0.6 * log.count("theirs"), 0.8)
+
+    runs = train_step.alternate(ours, theirs, 3, loadavg=loadavg)
+    assert [x for x in log if x != "load"] == ["ours", "theirs"] * 3
+    assert log[:6] == ["load", "ours", "load", "load", "theirs", "load"]
+    row = train_step.summarize_row(runs, backend="cpu", n=30, width=10, height=10)
+    # medians over the runs: ours 0.2/0.3/0.4 -> 0.3, theirs 0.6/1.2/1.8 -> 1.2
+    assert row["s_per_iter"] == 0.3 and row["opensplat_s_per_iter"] == 1.2 and row["speedup_vs_opensplat"] == 4.0
+    assert row["cpu_speedup_vs_opensplat"] == round(0.8 / 0.15, 2) and row["repeats"] == 3
+    assert row["ns_per_fragment"] == round(0.3e9 / 1000, 2) and row["fragments_per_pixel"] == 10.0
+    assert row["load_avg_range"] == [0.0, 11.0] and len(row["runs"]) == 3
+    assert row["runs"][1]["opensplat"]["s_per_iter"] == 1.2 and row["runs"][0]["load_before"].startswith("0.00")
+    assert "not run" not in train_step.format_table([row]).splitlines()[1]
+    json.dumps(row)  # JSON-ready
+
+
+def test_alternate_without_opensplat_repeats_ours_only():
+    runs = train_step.alternate(lambda: {"s_per_iter": 0.2, "cpu_s_per_iter": 0.3, "fragments": 5.0}, None, 2,
+                                loadavg=lambda: "1.00 1.00 1.00 1/9 9")
+    row = train_step.summarize_row(runs, backend="cpu", n=3, width=1, height=1)
+    assert len(runs) == 2 and all("opensplat" not in r for r in runs) and "opensplat_s_per_iter" not in row
+    assert "not run" in train_step.format_table([row]).splitlines()[1]
+
+
+def test_process_cpu_seconds_of_self_and_of_nobody():
+    import os
+
+    t = opensplat.process_cpu_s(os.getpid())
+    assert t is None or t > 0
+    assert opensplat.process_cpu_s(2 ** 31 - 1) is None
 
 
 def test_failing_binary_reports_its_output(tmp_path):
@@ -106,7 +164,7 @@ def test_not_run_table_cites_issue_figures_and_divides_by_none():
              "fragments_per_pixel": 230.0, "ns_per_fragment": 9.6, "load_avg": 1.0}]
     table = train_step.format_table(rows)
     first_row = table.splitlines()[1]
-    assert "not run" in first_row and "x" not in first_row.split()[-2]  # no speed-up without a measurement
+    assert "not run" in first_row and not any(c.endswith("x") for c in first_row.split()[-5:])  # no speed-up
     assert "cited, not measured here" in table and "issue 15, 2026-11" in table
     assert "1.362 / 0.554" in table  # 30k at 640x360: OpenSplat then / fixer4d then
     assert not hasattr(train_step, "OPENSPLAT_S")  # the old hard-coded divisors are gone

@@ -2,27 +2,15 @@
 own stage function and refresh callback (the restorer is the only thing it replaces)."""
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-_SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "stage2_ceiling.py"
-
 
 @pytest.fixture(scope="module")
-def ceiling():
-    spec = importlib.util.spec_from_file_location("stage2_ceiling", _SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    try:
-        spec.loader.exec_module(module)
-        yield module
-    finally:
-        sys.modules.pop(spec.name, None)
+def ceiling(benchmark_script):
+    return benchmark_script("stage2_ceiling")
 
 
 def test_oracle_targets_are_the_ground_truth_and_the_rows_are_reported(ceiling, tiny_run, tmp_path):
