@@ -7,10 +7,16 @@ The project is nerfstudio format, which OpenSplat reads: ``transforms.json`` (pe
 pinhole intrinsics and OpenGL-axes camera-to-world matrices), one PNG per camera at the
 benchmark's size, and a binary PLY of the initial points with colours. OpenSplat is run on its
 CPU backend (``--cpu``) at full size (``-d 1 --num-downscales 0``), with refinement held off past
-the run (``--warmup-length``) so that every iteration does the same work as ours: render one
-image, L1 + 0.2 D-SSIM, backward, Adam. Seconds per iteration are taken from the wall-clock
-times at which its "Step k" progress lines appear (startup, image loading and the final PLY
-write excluded); if it prints none, from the whole run (then marked as including startup).
+the run so that every iteration does the same work as ours: render one image, L1 + 0.2 D-SSIM,
+backward, Adam. How refinement is held off depends on the version, read from its ``--help``:
+up to 1.1.x ``--warmup-length`` (refine only after that step); from 1.2.0 (the WebODM/OpenSplat
+line) ``--densify-from`` past the run and ``--densify-until`` past it too, because 1.2.0 steps
+Adam on every iteration only until densify-until (after it, every 32nd or 64th). Seconds per
+iteration are taken from the wall-clock times at which its "Step k" progress lines appear
+(startup, image loading and the final PLY write excluded); if it prints none, from the whole run
+(then marked as including startup). CPU seconds per iteration (all its threads) come the same way from its /proc/PID/stat user + system
+time read at each step line (Linux); where that cannot be read, from the whole run's
+RUSAGE_CHILDREN delta (marked so). The whole run's CPU seconds are kept too.
 
 Reference figures of another program are only ever *cited* next to our own (OPENSPLAT_CITED),
 with their date and conditions; nothing divides by them.
@@ -20,6 +26,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import resource
 import shutil
 import subprocess
 import time
@@ -46,6 +53,8 @@ OPENSPLAT_CITED = {
 _STEP_RE = re.compile(r"\bStep\s+(\d+)\b")
 # OpenSplat densifies only after this many steps; set past the run so no step refines
 _NO_REFINE_MARGIN = 10
+# The option that holds refinement off, by OpenSplat line: 1.0-1.1.x, then 1.2.0 (WebODM/OpenSplat)
+REFINE_FLAGS = {"warmup-length": ("--warmup-length",), "densify-from": ("--densify-from", "--densify-until")}
 
 
 @dataclass
@@ -57,6 +66,9 @@ class OpenSplatResult:
     iters: int
     wall_s: float
     command: list[str]
+    cpu_s_per_iter: float | None = None  # CPU seconds (user + system, all threads) per iteration
+    cpu_timing: str = "not measured"
+    cpu_s_total: float | None = None  # the whole run's CPU seconds (RUSAGE_CHILDREN delta)
 
 
 def _write_ply(path: Path, points: np.ndarray, colors: np.ndarray) -> None:
@@ -108,14 +120,39 @@ def write_nerfstudio_project(out_dir: str | os.PathLike, cameras, images, points
     return out
 
 
-def opensplat_command(binary: str | os.PathLike, project: Path, iters: int, output: Path) -> list[str]:
-    """The OpenSplat command line for a benchmark run of ``iters`` iterations."""
+def opensplat_command(binary: str | os.PathLike, project: Path, iters: int, output: Path,
+                      refine: str = "warmup-length") -> list[str]:
+    """The OpenSplat command line for a benchmark run of ``iters`` iterations; ``refine`` names
+    the option line that holds refinement off (a key of REFINE_FLAGS, from ``opensplat_info``)."""
+    hold = [x for flag in REFINE_FLAGS[refine] for x in (flag, str(iters + _NO_REFINE_MARGIN))]
     return [str(binary), str(project), "--cpu", "-n", str(iters), "-d", "1", "--num-downscales", "0",
-            "--warmup-length", str(iters + _NO_REFINE_MARGIN), "-o", str(output)]
+            *hold, "-o", str(output)]
+
+
+def opensplat_info(binary: str | os.PathLike) -> dict:
+    """{"version", "refine"} of an OpenSplat binary, from ``--version`` and ``--help``; InputError
+    when its help names neither way of holding refinement off (not an OpenSplat we know)."""
+    exe = resolve_binary(binary)
+
+    def ask(flag: str) -> str:
+        try:
+            res = subprocess.run([exe, flag], capture_output=True, text=True, timeout=60)
+        except (OSError, subprocess.TimeoutExpired) as e:
+            raise InputError(f"--opensplat {binary}: `{flag}` failed: {e}") from e
+        return res.stdout + res.stderr
+
+    help_text = ask("--help")
+    found = [k for k in REFINE_FLAGS if f"--{k}" in help_text]
+    if not found:
+        raise InputError(f"--opensplat {binary}: its --help names none of "
+                         f"{', '.join('--' + k for k in REFINE_FLAGS)}; is it OpenSplat?\n{help_text[-2000:]}")
+    version = ask("--version").strip().splitlines()
+    return {"version": version[-1] if version else "unknown", "refine": found[0]}
 
 
 def seconds_per_iter(events: list[tuple[float, int]], wall_s: float, iters: int) -> tuple[float, str]:
-    """(seconds per iteration, how timed) from (time, step) progress events of one run."""
+    """(seconds per iteration, how timed) from (time, step) progress events of one run; the
+    times may be wall-clock or CPU seconds (then wall_s is the whole run's CPU seconds)."""
     steps: dict[int, float] = {}
     for t, k in events:
         steps.setdefault(k, t)  # first time each step was reported
@@ -123,6 +160,23 @@ def seconds_per_iter(events: list[tuple[float, int]], wall_s: float, iters: int)
         k0, k1 = min(steps), max(steps)
         return (steps[k1] - steps[k0]) / (k1 - k0), f"step lines {k0}..{k1}"
     return wall_s / max(iters, 1), "whole run incl. startup"
+
+
+def process_cpu_s(pid: int) -> float | None:
+    """User + system CPU seconds so far of a running process (all its threads), from
+    /proc/PID/stat; None where that cannot be read (not Linux, process gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            stat = fh.read()
+    except OSError:
+        return None
+    fields = stat[stat.rindex(")") + 2:].split()  # after "pid (comm) "; fields[0] is the state
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
+
+
+def _children_cpu_s() -> float:
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
 
 
 def resolve_binary(binary: str | os.PathLike) -> str:
@@ -134,11 +188,16 @@ def resolve_binary(binary: str | os.PathLike) -> str:
     return exe
 
 
-def run_opensplat(binary: str | os.PathLike, project: Path, iters: int, timeout_s: float | None = None) -> OpenSplatResult:
-    """Run OpenSplat on ``project`` for ``iters`` iterations and time its iterations."""
+def run_opensplat(binary: str | os.PathLike, project: Path, iters: int, timeout_s: float | None = None,
+                  refine: str | None = None) -> OpenSplatResult:
+    """Run OpenSplat on ``project`` for ``iters`` iterations and time its iterations; ``refine``
+    as in opensplat_command (None: asked of the binary)."""
     exe = resolve_binary(binary)
-    cmd = opensplat_command(exe, project, iters, project / "opensplat_out.ply")
+    refine = refine or opensplat_info(exe)["refine"]
+    cmd = opensplat_command(exe, project, iters, project / "opensplat_out.ply", refine=refine)
     events: list[tuple[float, int]] = []
+    cpu_events: list[tuple[float, int]] = []
+    c0 = _children_cpu_s()
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1)
     tail: list[str] = []
@@ -148,13 +207,19 @@ def run_opensplat(binary: str | os.PathLike, project: Path, iters: int, timeout_
         m = _STEP_RE.search(line)
         if m:
             events.append((now, int(m.group(1))))
+            cpu = process_cpu_s(proc.pid)
+            if cpu is not None:
+                cpu_events.append((cpu, int(m.group(1))))
         tail = (tail + [line.rstrip()])[-20:]
         if timeout_s is not None and now - t0 > timeout_s:
             proc.kill()
             break
     rc = proc.wait()
     wall = time.perf_counter() - t0
+    cpu_total = _children_cpu_s() - c0
     if rc != 0:
         raise InputError(f"OpenSplat exited with status {rc}: {' '.join(cmd)}\n" + "\n".join(tail))
     s_it, how = seconds_per_iter(events, wall, iters)
-    return OpenSplatResult(s_per_iter=s_it, timing=how, iters=iters, wall_s=wall, command=cmd)
+    cpu_it, cpu_how = seconds_per_iter(cpu_events, cpu_total, iters)
+    return OpenSplatResult(s_per_iter=s_it, timing=how, iters=iters, wall_s=wall, command=cmd,
+                           cpu_s_per_iter=cpu_it, cpu_timing=cpu_how, cpu_s_total=cpu_total)

@@ -61,6 +61,41 @@ def test_project_rejects_mismatched_images(tmp_path):
         opensplat.write_nerfstudio_project(tmp_path, cams, [np.zeros((3, 3, 3))] * 3, np.zeros((1, 3)), np.zeros((1, 3)))
 
 
+# What a stand-in binary answers to --version / --help: OpenSplat up to 1.1.x, and 1.2.0
+_OLD_CLI = """if args in (["--version"], ["--help"]):
+    print("1.1.5" if args == ["--version"] else "  --warmup-length arg  Split/duplicate/prune gaussians only after")
+    raise SystemExit(0)"""
+_NEW_CLI = """if args in (["--version"], ["--help"]):
+    print("1.2.0" if args == ["--version"] else "  --densify-from arg\\n  --densify-until arg")
+    raise SystemExit(0)"""
+
+
+def _stand_in(path, body: str, cli: str = _OLD_CLI):
+    path.write_text(f"#!{sys.executable}\nimport sys\nargs = sys.argv[1:]\n{cli}\n{body}\n")
+    path.chmod(path.stat().st_mode | stat.S_IXUSR)
+    return path
+
+
+def test_refinement_is_held_off_by_each_version_own_option(tmp_path):
+    old = _stand_in(tmp_path / "os11", "raise SystemExit(0)")
+    new = _stand_in(tmp_path / "os12", "raise SystemExit(0)", _NEW_CLI)
+    assert opensplat.opensplat_info(old) == {"version": "1.1.5", "refine": "warmup-length"}
+    assert opensplat.opensplat_info(new) == {"version": "1.2.0", "refine": "densify-from"}
+    cmd = opensplat.opensplat_command("os", tmp_path, 60, tmp_path / "o.ply", refine="densify-from")
+    # 1.2.0 steps Adam every iteration only up to densify-until: both past the run
+    assert cmd[cmd.index("--densify-from") + 1] == cmd[cmd.index("--densify-until") + 1] == "70"
+    assert "--warmup-length" not in cmd
+    cmd = opensplat.opensplat_command("os", tmp_path, 60, tmp_path / "o.ply")
+    assert cmd[cmd.index("--warmup-length") + 1] == "70" and "--densify-from" not in cmd
+    # the run passes the option the binary has
+    seen = tmp_path / "seen.txt"
+    run = _stand_in(tmp_path / "os12run", f"open({str(seen)!r}, 'w').write(' '.join(args))", _NEW_CLI)
+    res = opensplat.run_opensplat(run, tmp_path, iters=5)
+    assert "--densify-until 15" in seen.read_text() and res.timing == "whole run incl. startup"
+    with pytest.raises(InputError, match="is it OpenSplat"):
+        opensplat.opensplat_info(_stand_in(tmp_path / "other", "", cli="print('usage: other')"))
+
+
 def test_runner_times_step_lines_with_a_stand_in_binary(tmp_path):
     """A stand-in executable checks the command line and the project, then prints OpenSplat-style
     progress; the runner must time from the step lines and record the command."""
@@ -69,6 +104,7 @@ def test_runner_times_step_lines_with_a_stand_in_binary(tmp_path):
     fake.write_text(f"""#!{sys.executable}
 import json, sys, time, pathlib
 args = sys.argv[1:]
+{_OLD_CLI}
 proj = pathlib.Path(args[0])
 assert "--cpu" in args and args[args.index("-n") + 1] == "30" and args[args.index("-d") + 1] == "1"
 assert args[args.index("--num-downscales") + 1] == "0" and int(args[args.index("--warmup-length") + 1]) > 30
@@ -147,9 +183,7 @@ def test_process_cpu_seconds_of_self_and_of_nobody():
 
 
 def test_failing_binary_reports_its_output(tmp_path):
-    fake = tmp_path / "broken"
-    fake.write_text(f"#!{sys.executable}\nprint('cannot read project'); raise SystemExit(3)\n")
-    fake.chmod(fake.stat().st_mode | stat.S_IXUSR)
+    fake = _stand_in(tmp_path / "broken", "print('cannot read project'); raise SystemExit(3)")
     with pytest.raises(InputError, match="status 3.*\\n.*cannot read project"):
         opensplat.run_opensplat(fake, tmp_path, iters=5)
 
