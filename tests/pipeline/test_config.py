@@ -46,7 +46,7 @@ def test_bad_values_name_the_key(overrides, message):
 def test_relative_knobs_multiply():
     c = resolve("tiny", overrides={"stage1.iterations": 0.5, "init.mvs.planes": 0.5},
                 relative={"stage1.iterations", "init.mvs.planes"})
-    assert c.stage1.iterations == 250 and isinstance(c.init.mvs.planes, int)
+    assert c.stage1.iterations == 750 and isinstance(c.init.mvs.planes, int)
 
 
 def test_set_overrides_parse_json_values():
