@@ -14,9 +14,10 @@ line) ``--densify-from`` past the run and ``--densify-until`` past it too, becau
 Adam on every iteration only until densify-until (after it, every 32nd or 64th). Seconds per
 iteration are taken from the wall-clock times at which its "Step k" progress lines appear
 (startup, image loading and the final PLY write excluded); if it prints none, from the whole run
-(then marked as including startup). CPU seconds per iteration (all its threads) come the same way from its /proc/PID/stat user + system
-time read at each step line (Linux); where that cannot be read, from the whole run's
-RUSAGE_CHILDREN delta (marked so). The whole run's CPU seconds are kept too.
+(then marked as including startup). CPU seconds per iteration (all its threads) come the same
+way from its /proc/PID/stat user + system time read at each step line (Linux); where that cannot
+be read, from the whole run's RUSAGE_CHILDREN delta (marked so). The whole run's CPU seconds are
+kept too.
 
 Reference figures of another program are only ever *cited* next to our own (OPENSPLAT_CITED),
 with their date and conditions; nothing divides by them.
@@ -37,16 +38,26 @@ import numpy as np
 
 from fixer4d.errors import InputError
 
-# Side-by-side measurement of issue 15 (2026-11, idle 2-core machine, one after the other; same
-# 5 Panoptic cameras, same random points, same loss, one image per iteration; OpenSplat = the
-# WebODM fork 1.2.0 built from source with -DGPU_RUNTIME=CPU). Seconds per iteration, keyed by
-# (Gaussians, width, height). Cited in tables, never used as a divisor.
+# The last side-by-side measurement (docs/render.md, "OpenSplat side by side, measured"):
+# 2026-11-24, `fixer4d bench train-step --opensplat ... --repeats 3 --iters 10 --opensplat-iters 30`
+# on the shared 2-core machine (load 2.6-5.2 from another engineer's jobs), the two programs
+# taking turns, medians of 3 runs each; same 5 Panoptic cameras, random points, sizes and loss,
+# one image per iteration; OpenSplat 1.2.0 (github.com/WebODM/OpenSplat bd0400d, the newest line)
+# built from source with -DGPU_RUNTIME=CPU -DCMAKE_BUILD_TYPE=Release. Wall and CPU seconds
+# (all threads) per iteration, keyed by (Gaussians, width, height). Cited in tables when no
+# binary is given, never used as a divisor. (Issue 15's older idle-machine figures, with the
+# previous kernel, are kept in docs/render.md.)
 OPENSPLAT_CITED = {
-    "source": "issue 15, 2026-11, idle 2-core machine, OpenSplat WebODM fork 1.2.0 CPU build",
-    "opensplat_s_per_iter": {(30_000, 320, 180): 0.365, (100_000, 320, 180): 0.509,
-                             (30_000, 640, 360): 1.362, (100_000, 640, 360): 1.734},
-    "fixer4d_s_per_iter_then": {(30_000, 320, 180): 0.191, (100_000, 320, 180): 0.339,
-                                (30_000, 640, 360): 0.554, (100_000, 640, 360): 0.794},
+    "source": "2026-11-24, shared 2-core machine at load 2.6-5.2, alternating, medians of 3; "
+              "OpenSplat 1.2.0 (WebODM/OpenSplat bd0400d) CPU build",
+    "opensplat_s_per_iter": {(30_000, 320, 180): 0.606, (100_000, 320, 180): 0.925,
+                             (30_000, 640, 360): 2.410, (100_000, 640, 360): 2.313},
+    "fixer4d_s_per_iter_then": {(30_000, 320, 180): 0.137, (100_000, 320, 180): 0.230,
+                                (30_000, 640, 360): 0.406, (100_000, 640, 360): 0.564},
+    "opensplat_cpu_s_per_iter": {(30_000, 320, 180): 0.601, (100_000, 320, 180): 0.896,
+                                 (30_000, 640, 360): 2.482, (100_000, 640, 360): 3.089},
+    "fixer4d_cpu_s_per_iter_then": {(30_000, 320, 180): 0.136, (100_000, 320, 180): 0.229,
+                                    (30_000, 640, 360): 0.403, (100_000, 640, 360): 0.569},
 }
 # Step lines OpenSplat prints while training ("Step 10: 0.2345 (0%)"); at least two distinct
 # steps are needed to time iterations without startup.

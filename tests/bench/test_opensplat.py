@@ -193,17 +193,20 @@ def test_seconds_per_iter_without_step_lines_counts_the_whole_run():
     assert opensplat.seconds_per_iter([(1.0, 10), (1.0, 10), (3.0, 20)], 9.0, 20) == (0.2, "step lines 10..20")
 
 
-def test_not_run_table_cites_issue_figures_and_divides_by_none():
+def test_not_run_table_cites_the_last_side_by_side_and_divides_by_none():
     rows = [{"n_gaussians": 30_000, "width": 640, "height": 360, "s_per_iter": 0.5, "cpu_s_per_iter": 0.9,
              "fragments_per_pixel": 230.0, "ns_per_fragment": 9.6, "load_avg": 1.0}]
     table = train_step.format_table(rows)
     first_row = table.splitlines()[1]
     assert "not run" in first_row and not any(c.endswith("x") for c in first_row.split()[-5:])  # no speed-up
-    assert "cited, not measured here" in table and "issue 15, 2026-11" in table
-    assert "1.362 / 0.554" in table  # 30k at 640x360: OpenSplat then / fixer4d then
+    assert "cited, not measured here" in table and "2026-11-24" in table and "OpenSplat 1.2.0" in table
+    # 30k at 640x360: OpenSplat then / fixer4d then, wall and CPU
+    assert "2.410 / 0.406 wall, 2.482 / 0.403 CPU" in table
     assert not hasattr(train_step, "OPENSPLAT_S")  # the old hard-coded divisors are gone
     cited = train_step.cited_json()
-    assert cited["opensplat_s_per_iter"]["100000 640x360"] == 1.734
+    assert cited["opensplat_s_per_iter"]["100000 640x360"] == 2.313
+    assert cited["fixer4d_cpu_s_per_iter_then"]["100000 640x360"] == 0.569
+    json.dumps(cited)
 
 
 def test_missing_binary_fails_before_timing(tmp_path):
