@@ -12,8 +12,9 @@ from pathlib import Path
 # a 2-core machine: measured 137 ms vs 15 ms for one 200x150 render + loss. OpenMP reads this
 # once, when the runtime loads, so it must be set before torch is imported.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-# numba ships its OpenMP pool on Linux; naming it skips numba's probe of an older TBB that
-# open3d's dependencies install (a warning on every run, and a layer numba refuses anyway).
+# numba ships its OpenMP pool on Linux; naming it keeps numba on the same OpenMP runtime as
+# torch (and the wait policy above) and skips its probe of whatever TBB a venv may hold (an
+# older one gave a warning on every run).
 if sys.platform.startswith("linux"):
     os.environ.setdefault("NUMBA_THREADING_LAYER", "omp")
 
