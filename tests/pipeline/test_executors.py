@@ -21,6 +21,24 @@ def test_unknown_executor_is_refused():
         make_executor("slurm")
 
 
+def test_ray_tasks_run_with_the_driver_thread_counts():
+    """Ray gives its workers OMP_NUM_THREADS=1; torch's results depend on its thread count, so a
+    task must run with the driver's (else a Ray segment trains another model than a local one)."""
+    ray = pytest.importorskip("ray", reason="Ray not installed (pip install 'fixer4d[ray]')")
+    import torch
+
+    from fixer4d.pipeline.executors import RayExecutor
+
+    try:
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False,
+                 runtime_env={"env_vars": {"OMP_NUM_THREADS": "1"}})
+        assert RayExecutor(threads=2).worker_threads() == (2, 2)
+        assert RayExecutor(threads=1).worker_threads() == (1, 1)
+        assert RayExecutor().threads == torch.get_num_threads()
+    finally:
+        ray.shutdown()
+
+
 def test_ray_runs_give_the_local_results(tmp_path, stage_cache):
     """On a local Ray instance (2 CPUs): segments as Ray tasks, and stage 2's restore jobs as Ray
     tasks, give exactly the rows of the local executor (the pipeline is deterministic)."""
