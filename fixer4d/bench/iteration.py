@@ -93,8 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     total = float(np.mean([r["t_total"] for r in recs]))
     split["other"] = max(total - sum(split.values()), 0.0)
 
-    # one densify/prune call (size prunes on, as after the first opacity reset) on the statistics
-    # gathered over the timed steps
+    # one densify/prune call (the configured size prunes, as after the first opacity reset) on
+    # the statistics gathered over the timed steps
     tic = time.perf_counter()
     counts = densify_and_prune(trainer.model, trainer.optimizer, trainer.stats, extent=trainer.extent,
                                grad_threshold=cfg.densify_grad_threshold, percent_dense=cfg.percent_dense,

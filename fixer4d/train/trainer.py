@@ -409,8 +409,9 @@ class Trainer:
         s = self.step_count
         counts: dict[str, int] = {}
         if d_from < s < d_until and s % cfg.densify_every == 0:
-            # 3DGS applies the size prunes only after the first opacity reset; stage 2 never does
-            # (its pseudo-views are less trustworthy than the real views that shaped the model).
+            # the size prunes (off by default) apply only after the first opacity reset, as in
+            # 3DGS; stage 2 never applies them (its pseudo-views are less trustworthy than the
+            # real views that shaped the model).
             first_reset_done = self.stage2 is None and s > cfg.opacity_reset_every
             if self.revise:
                 rev = revise_effects(self.model, self.optimizer, self.temporal_stats,

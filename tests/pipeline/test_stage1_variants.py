@@ -1,0 +1,41 @@
+"""benchmarks/stage1_variants.py: stage 1 alone from a finished run's init under config variants."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+
+@pytest.fixture(scope="module")
+def variants(benchmark_script):
+    return benchmark_script("stage1_variants")
+
+
+def test_overrides_apply_on_the_run_config(variants, tiny_run):
+    from fixer4d.pipeline.run_folder import read_run_config
+
+    run_dir, _ = tiny_run
+    base = read_run_config(run_dir)
+    cfg = variants.variant_config(run_dir, ["stage1.prune_world_scale=0.1", "stage1.seed=3"])
+    assert cfg.stage1.prune_world_scale == 0.1 and cfg.stage1.seed == 3
+    assert cfg.stage1.iterations == base.stage1.iterations and cfg.scene == base.scene
+
+
+def test_reproduces_the_runs_stage1_row_and_leaves_the_run_alone(variants, tiny_run, tmp_path):
+    """With no override the variant is the run's own stage 1: the same held-out PSNR as the
+    run's "STGS w/ MVS" row (training is deterministic), and RUN is only read."""
+    run_dir, report = tiny_run
+    before = {p: p.stat().st_mtime_ns for p in run_dir.rglob("*")}
+    out = tmp_path / "variant.json"
+    assert variants.main([str(run_dir), "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    row = next(r for r in report["rows"] if r["method"] == "STGS w/ MVS")
+    assert doc["psnr"] == pytest.approx(row["psnr"], abs=1e-6)
+    assert np.isfinite(doc["train_view_psnr"]) and doc["gaussians"] > 0
+    assert {p: p.stat().st_mtime_ns for p in run_dir.rglob("*")} == before
+
+
+def test_a_run_without_dense_init_is_refused(variants, tmp_path, capsys):
+    assert variants.main([str(tmp_path)]) == 2
+    assert "no decomposed dense init" in capsys.readouterr().err
