@@ -39,25 +39,25 @@ import numpy as np
 from fixer4d.errors import InputError
 
 # The last side-by-side measurement (docs/render.md, "OpenSplat side by side, measured"):
-# 2026-11-24, `fixer4d bench train-step --opensplat ... --repeats 3 --iters 10 --opensplat-iters 30`
-# on the shared 2-core machine (load 2.6-5.2 from another engineer's jobs), the two programs
-# taking turns, medians of 3 runs each; same 5 Panoptic cameras, random points, sizes and loss,
-# one image per iteration; OpenSplat 1.2.0 (github.com/WebODM/OpenSplat bd0400d, the newest line)
-# built from source with -DGPU_RUNTIME=CPU -DCMAKE_BUILD_TYPE=Release. Wall and CPU seconds
-# (all threads) per iteration, keyed by (Gaussians, width, height). Cited in tables when no
-# binary is given, never used as a divisor. (Issue 15's older idle-machine figures, with the
-# previous kernel, are kept in docs/render.md.)
+# 2026-11-24, `fixer4d bench train-step --opensplat ... --repeats 3` (10 timed iterations of
+# fixer4d, 60 of OpenSplat) on the idle 2-core machine (nothing else running; the 1-minute load
+# 0.0-2.0 is the benchmark's own two busy cores), the two programs taking turns, medians of 3
+# runs each; same 5 Panoptic cameras, random points, sizes and loss, one image per iteration;
+# OpenSplat 1.2.0 (github.com/WebODM/OpenSplat bd0400d, the newest line) built from source with
+# -DGPU_RUNTIME=CPU -DCMAKE_BUILD_TYPE=Release. Wall and CPU seconds (all threads) per
+# iteration, keyed by (Gaussians, width, height). Cited in tables when no binary is given, never
+# used as a divisor. (Earlier side-by-side figures are kept in docs/render.md.)
 OPENSPLAT_CITED = {
-    "source": "2026-11-24, shared 2-core machine at load 2.6-5.2, alternating, medians of 3; "
+    "source": "2026-11-24, idle 2-core machine, alternating, medians of 3; "
               "OpenSplat 1.2.0 (WebODM/OpenSplat bd0400d) CPU build",
-    "opensplat_s_per_iter": {(30_000, 320, 180): 0.606, (100_000, 320, 180): 0.925,
-                             (30_000, 640, 360): 2.410, (100_000, 640, 360): 2.313},
-    "fixer4d_s_per_iter_then": {(30_000, 320, 180): 0.137, (100_000, 320, 180): 0.230,
-                                (30_000, 640, 360): 0.406, (100_000, 640, 360): 0.564},
-    "opensplat_cpu_s_per_iter": {(30_000, 320, 180): 0.601, (100_000, 320, 180): 0.896,
-                                 (30_000, 640, 360): 2.482, (100_000, 640, 360): 3.089},
-    "fixer4d_cpu_s_per_iter_then": {(30_000, 320, 180): 0.136, (100_000, 320, 180): 0.229,
-                                    (30_000, 640, 360): 0.403, (100_000, 640, 360): 0.569},
+    "opensplat_s_per_iter": {(30_000, 320, 180): 0.321, (100_000, 320, 180): 0.479,
+                             (30_000, 640, 360): 1.192, (100_000, 640, 360): 1.502},
+    "fixer4d_s_per_iter_then": {(30_000, 320, 180): 0.083, (100_000, 320, 180): 0.151,
+                                (30_000, 640, 360): 0.251, (100_000, 640, 360): 0.334},
+    "opensplat_cpu_s_per_iter": {(30_000, 320, 180): 0.589, (100_000, 320, 180): 0.862,
+                                 (30_000, 640, 360): 2.273, (100_000, 640, 360): 2.837},
+    "fixer4d_cpu_s_per_iter_then": {(30_000, 320, 180): 0.131, (100_000, 320, 180): 0.222,
+                                    (30_000, 640, 360): 0.399, (100_000, 640, 360): 0.525},
 }
 # Step lines OpenSplat prints while training ("Step 10: 0.2345 (0%)"); at least two distinct
 # steps are needed to time iterations without startup.

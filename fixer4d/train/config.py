@@ -128,6 +128,10 @@ class Stage1Config:
             raise InputError(f"Stage1Config.moving_loss_weight must be >= 0, got {self.moving_loss_weight}")
         if self.max_gaussians < 1 or self.init_max_points < 1:
             raise InputError("Stage1Config: max_gaussians and init_max_points must be >= 1")
+        for name in ("prune_world_scale", "prune_screen_fraction"):
+            value = getattr(self, name)
+            if value is not None and not value > 0:
+                raise InputError(f"Stage1Config.{name} must be > 0 or null (off), got {value}")
 
     @classmethod
     def for_iterations(cls, iterations: int, **overrides: Any) -> "Stage1Config":

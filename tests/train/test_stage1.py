@@ -104,6 +104,31 @@ def test_init_keeps_frame_times_and_caps_points(small_scene, small_clouds):
     assert torch.equal(model.means, again.means)  # seeded subsample
 
 
+@pytest.mark.parametrize("sizes", [{}, {"prune_world_scale": 0.1, "prune_screen_fraction": 0.1}])
+def test_size_prunes_only_when_configured_and_after_the_reset(small_scene, small_clouds, make_config, monkeypatch, sizes):
+    """Off by default; when set, passed to densification only at rounds after the first reset."""
+    from fixer4d.train import trainer as trainer_module
+
+    calls = []
+    real = trainer_module.densify_and_prune
+
+    def spy(*args, **kw):
+        calls.append((kw["prune_world_scale"], kw["prune_screen_fraction"]))
+        return real(*args, **kw)
+
+    monkeypatch.setattr(trainer_module, "densify_and_prune", spy)
+    cfg = make_config(12, densify_from=1, densify_every=3, densify_until=11, opacity_reset_every=5, **sizes)
+    Trainer(model_from_clouds(small_clouds, small_scene, cfg), small_scene, cfg).train()
+    assert len(calls) == 3  # rounds at steps 3, 6, 9; the reset at step 5
+    expected = (sizes.get("prune_world_scale"), sizes.get("prune_screen_fraction"))
+    assert calls == [(None, None), expected, expected]
+
+
+def test_size_prune_thresholds_must_be_positive():
+    with pytest.raises(InputError, match="prune_world_scale"):
+        Stage1Config(prune_world_scale=0.0)
+
+
 def test_exponential_lr():
     assert exponential_lr(0, 1e-2, 1e-4, 100) == pytest.approx(1e-2)
     assert exponential_lr(100, 1e-2, 1e-4, 100) == pytest.approx(1e-4)
