@@ -31,8 +31,8 @@ class LocalExecutor:
 
 
 class RayExecutor:
-    """Each job is a Ray task with ``threads`` CPUs, run with the same torch and numba thread counts
-    as this process; results come back in job order.
+    """Each job is a Ray task run with the same torch and numba thread counts as this process,
+    asking Ray for that many CPUs (at most the largest node's); results come back in job order.
 
     Why the thread counts travel with the job: torch's CPU reductions and convolutions split their
     work by thread count, so the same stage 1 run with 1 and 2 torch threads drifts apart in the
@@ -60,7 +60,10 @@ class RayExecutor:
                      ignore_reinit_error=True, configure_logging=False)
 
     def map(self, fn: Callable[[Any], Any], jobs: Sequence[Any]) -> list[Any]:
-        remote = self._ray.remote(num_cpus=self.threads)(_run_with_threads)
+        # a task that asks for more CPUs than any node has would wait forever; on a smaller node
+        # it keeps the driver's thread count anyway (same results, oversubscribed)
+        largest = max((n["Resources"].get("CPU", 0.0) for n in self._ray.nodes() if n.get("Alive")), default=1.0)
+        remote = self._ray.remote(num_cpus=max(min(float(self.threads), largest), 1e-3))(_run_with_threads)
         return self._ray.get([remote.remote(fn, self.threads, job) for job in jobs])
 
     def worker_threads(self) -> tuple[int, int]:

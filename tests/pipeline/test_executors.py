@@ -39,6 +39,19 @@ def test_ray_tasks_run_with_the_driver_thread_counts():
         ray.shutdown()
 
 
+def test_ray_tasks_fit_a_node_smaller_than_the_driver_threads():
+    """A task asks for at most the largest node's CPUs (else it would never be scheduled) and
+    still runs with the driver's thread count."""
+    ray = pytest.importorskip("ray", reason="Ray not installed (pip install 'fixer4d[ray]')")
+    from fixer4d.pipeline.executors import RayExecutor
+
+    try:
+        ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False, configure_logging=False)
+        assert RayExecutor(threads=2).worker_threads()[0] == 2
+    finally:
+        ray.shutdown()
+
+
 def test_ray_runs_give_the_local_results(tmp_path, stage_cache):
     """On a local Ray instance (2 CPUs): segments as Ray tasks, and stage 2's restore jobs as Ray
     tasks, give exactly the rows of the local executor (the pipeline is deterministic)."""
