@@ -39,25 +39,25 @@ import numpy as np
 from fixer4d.errors import InputError
 
 # The last side-by-side measurement (docs/render.md, "OpenSplat side by side, measured"):
-# 2026-11-24, `fixer4d bench train-step --opensplat ... --repeats 3` (10 timed iterations of
+# 2026-11-24 (stop 21: fused loss, parallel binning, fused Adam), `fixer4d bench train-step --opensplat ... --repeats 3` (10 timed iterations of
 # fixer4d, 60 of OpenSplat) on the idle 2-core machine (nothing else running; the 1-minute load
-# 0.0-2.0 is the benchmark's own two busy cores), the two programs taking turns, medians of 3
+# 0.6-1.9 is the benchmark's own two busy cores), the two programs taking turns, medians of 3
 # runs each; same 5 Panoptic cameras, random points, sizes and loss, one image per iteration;
 # OpenSplat 1.2.0 (github.com/WebODM/OpenSplat bd0400d, the newest line) built from source with
 # -DGPU_RUNTIME=CPU -DCMAKE_BUILD_TYPE=Release. Wall and CPU seconds (all threads) per
 # iteration, keyed by (Gaussians, width, height). Cited in tables when no binary is given, never
 # used as a divisor. (Earlier side-by-side figures are kept in docs/render.md.)
 OPENSPLAT_CITED = {
-    "source": "2026-11-24, idle 2-core machine, alternating, medians of 3; "
+    "source": "2026-11-24 (stop 21), idle 2-core machine, alternating, medians of 3; "
               "OpenSplat 1.2.0 (WebODM/OpenSplat bd0400d) CPU build",
-    "opensplat_s_per_iter": {(30_000, 320, 180): 0.321, (100_000, 320, 180): 0.479,
-                             (30_000, 640, 360): 1.192, (100_000, 640, 360): 1.502},
-    "fixer4d_s_per_iter_then": {(30_000, 320, 180): 0.083, (100_000, 320, 180): 0.151,
-                                (30_000, 640, 360): 0.251, (100_000, 640, 360): 0.334},
-    "opensplat_cpu_s_per_iter": {(30_000, 320, 180): 0.589, (100_000, 320, 180): 0.862,
-                                 (30_000, 640, 360): 2.273, (100_000, 640, 360): 2.837},
-    "fixer4d_cpu_s_per_iter_then": {(30_000, 320, 180): 0.131, (100_000, 320, 180): 0.222,
-                                    (30_000, 640, 360): 0.399, (100_000, 640, 360): 0.525},
+    "opensplat_s_per_iter": {(30_000, 320, 180): 0.323, (100_000, 320, 180): 0.470,
+                             (30_000, 640, 360): 1.185, (100_000, 640, 360): 1.513},
+    "fixer4d_s_per_iter_then": {(30_000, 320, 180): 0.068, (100_000, 320, 180): 0.121,
+                                (30_000, 640, 360): 0.186, (100_000, 640, 360): 0.271},
+    "opensplat_cpu_s_per_iter": {(30_000, 320, 180): 0.592, (100_000, 320, 180): 0.852,
+                                 (30_000, 640, 360): 2.268, (100_000, 640, 360): 2.866},
+    "fixer4d_cpu_s_per_iter_then": {(30_000, 320, 180): 0.119, (100_000, 320, 180): 0.203,
+                                    (30_000, 640, 360): 0.345, (100_000, 640, 360): 0.485},
 }
 # Step lines OpenSplat prints while training ("Step 10: 0.2345 (0%)"); at least two distinct
 # steps are needed to time iterations without startup.

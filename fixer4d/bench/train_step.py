@@ -93,8 +93,10 @@ def main(argv: list[str] | None = None) -> int:
     from fixer4d.bench.opensplat import opensplat_info, run_opensplat, write_nerfstudio_project
     from fixer4d.bench.raster import machine_info
     from fixer4d.errors import InputError
+    from fixer4d.model.densify import make_adam
     from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians
     from fixer4d.scene import load_scene
+    from fixer4d.train.trainer import ADAM_EPS
 
     try:
         from fixer4d.train.losses import stg_loss as loss_fn
@@ -121,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
 
         def ours():
             model = SpacetimeGaussians.from_points(pts, cols, np.zeros(n), ModelConfig(), opacity=0.1)
-            opt = torch.optim.Adam(model.param_groups(LRS), eps=1e-15)
+            opt = make_adam(model.param_groups(LRS), eps=ADAM_EPS)
             return time_iterations(lambda i: _train_step(model, opt, cams[i], targets[i], args.backend, loss_fn),
                                    args.iters, len(cams))
 

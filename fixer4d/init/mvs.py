@@ -300,9 +300,14 @@ class PlaneSweepMVS:
 
     name = "planesweep"
 
-    def __init__(self, config: PlaneSweepConfig | None = None) -> None:
+    def __init__(self, config: PlaneSweepConfig | None = None, kernel: bool | None = None) -> None:
+        """kernel: use the numba matching cost (None = whenever numba is importable); False
+        keeps every sweep on the torch reference."""
+        from fixer4d.init.mvs_kernel import unavailable_reason
+
         self.config = config or PlaneSweepConfig()
         self.config.check()
+        self._kernel = unavailable_reason() is None if kernel is None else bool(kernel)
 
     # -- public --------------------------------------------------------------------------
     def estimate(self, images: Sequence[np.ndarray], cameras: Sequence[Camera],
@@ -347,6 +352,8 @@ class PlaneSweepMVS:
                 tasks.extend((r, (x0, y0, x1, y1), torch.from_numpy(roi[y0:y1, x0:x1].copy()))
                              for x0, y0, x1, y1 in roi_boxes(roi, margin))
         workers = cfg.num_threads if cfg.num_threads > 0 else (os.cpu_count() or 1)
+        if self._kernel:  # the kernel is parallel over planes and tiles itself
+            workers = 1
         # Parallel over sweeps, one torch thread each: the ops release the GIL, and unlike
         # torch's intra-op OpenMP threads they do not spin-wait when cores are shared.
         with torch_threads(1), torch.no_grad(), ThreadPoolExecutor(max(1, min(workers, max(len(tasks), 1)))) as pool:
@@ -521,7 +528,16 @@ class PlaneSweepMVS:
     def _scores(self, ref: "_RefView", sources: list[_Source], geo, ws: torch.Tensor) -> torch.Tensor:
         """Aggregated top-k ZNCC of B reference tiles (``ref``, (B, 1, h, w)) on planes of inverse
         depth ``ws`` (n, B) (or (n, 1): the same planes for every tile) -> (n, B, h, w).
-        geo: per source (A (3, B h w), b (3, 1)) from ``_homography_terms``."""
+        geo: per source (A (3, B h w), b (3, 1)) from ``_homography_terms``.
+
+        The numba kernel (fixer4d.init.mvs_kernel) computes it when it can run, else
+        ``_scores_torch``, the reference it is tested against."""
+        if self._kernel:
+            return _scores_kernel(ref, sources, geo, ws, self.config)
+        return self._scores_torch(ref, sources, geo, ws)
+
+    def _scores_torch(self, ref: "_RefView", sources: list[_Source], geo, ws: torch.Tensor) -> torch.Tensor:
+        """``_scores`` in torch ops."""
         cfg = self.config
         B, h, w = ref.gray.shape[0], ref.height, ref.width
         n = ws.shape[0]
@@ -570,6 +586,34 @@ class PlaneSweepMVS:
         else:
             score = total.sub_(worst).div_(k)
         return _box(score.reshape(n * B, 1, h, w), cfg.aggregation).reshape(n, B, h, w)
+
+
+def _scores_kernel(ref: "_RefView", sources: list[_Source], geo, ws: torch.Tensor,
+                   cfg: PlaneSweepConfig) -> torch.Tensor:
+    """``PlaneSweepMVS._scores`` through fixer4d.init.mvs_kernel.zncc_scores."""
+    from fixer4d.init.mvs_kernel import zncc_scores
+    from fixer4d.jit import torch_threads_kept
+
+    B, h, w = ref.gray.shape[0], ref.height, ref.width
+    S = len(sources)
+    Hmax = max(s.cam.height for s in sources)
+    Wmax = max(s.cam.width for s in sources)
+    srcs = np.zeros((S, Hmax, Wmax), np.float32)
+    size = np.zeros((S, 2), np.int64)
+    for i, src in enumerate(sources):
+        g = src.gray[0, 0].numpy()
+        srcs[i, :g.shape[0], :g.shape[1]] = g
+        size[i] = g.shape
+    A = np.ascontiguousarray(np.stack([a.numpy() for a, _ in geo]), np.float32)
+    bvec = np.ascontiguousarray(np.stack([b[:, 0].numpy() for _, b in geo]), np.float32)
+    out = np.empty((ws.shape[0], B, h, w), np.float32)
+    f32 = np.float32
+    with torch_threads_kept():
+        zncc_scores(np.ascontiguousarray(ref.gray[:, 0].numpy()), np.ascontiguousarray(ref.mu.numpy()),
+                    np.ascontiguousarray(ref.var.numpy()), srcs, size, A, bvec,
+                    np.ascontiguousarray(ws.numpy(), np.float32), ref.window, cfg.aggregation,
+                    min(cfg.topk, S), f32(C.MVS_ZNCC_EPS), f32(C.MVS_MIN_INSIDE), out)
+    return torch.from_numpy(out)
 
 
 class _RefView:

@@ -34,27 +34,16 @@ to means/quats/scales is torch autograd through fixer4d/render/project.py.
 """
 from __future__ import annotations
 
-import contextlib
 import math
 
 import numpy as np
 import torch
 
+from fixer4d.jit import NUMBA_ERROR, njit, numba, prange, torch_threads_kept
 from fixer4d.render import constants as C
 from fixer4d.render.project import Projection
-
-from fixer4d.render.simd import prefer_512_bit_vectors
-
-prefer_512_bit_vectors()  # before numba builds its CPU target: 16-lane float32 loops (see simd.py)
-
-try:  # numba is a core dependency, but "auto" must still work (via the oracle) without it
-    import numba
-    from numba import njit, prange
-except ImportError as _exc:  # pragma: no cover - exercised only on broken installs
-    numba = None
-    _IMPORT_ERROR = f"numba is not importable ({_exc}); install numba or use backend='reference'"
-else:
-    _IMPORT_ERROR = None
+# numba is a core dependency, but "auto" must still work (via the oracle) without it
+_IMPORT_ERROR = None if NUMBA_ERROR is None else f"{NUMBA_ERROR}; install numba or use backend='reference'"
 
 # float32 copies of the thresholds: numba would promote a float32 compared with a Python float
 # to float64, while torch compares float32 tensors with scalars in float32. Using float32
@@ -117,6 +106,9 @@ _ROW_ABS_MARGIN = 1e-2
 _ROW_REL_MARGIN = 1e-5
 _ROW_REL2 = (1.0 + _BOX_REL_MARGIN) ** 2  # the relative margin of the half-width, squared
 _ROW_HALF_SPAN = 0.5 * C.TILE - 0.5  # from a tile row's middle to its outer pixel centres
+# binning: chunks of the depth order per thread (see _bin_tiles); 4 evens out the near/far
+# imbalance while the per-chunk tile counters stay small (chunks x tiles int64)
+_BIN_CHUNKS_PER_THREAD = 4
 
 
 def unavailable_reason() -> str | None:
@@ -156,7 +148,47 @@ if numba is not None:
         return p * s
 
     @njit(cache=True)
-    def _bin_tiles(rec, radii, order, width, height, tile):
+    def _bin_box(rec, radii, g, width, height, tile, out):
+        """Tile range of splat g -> out[0:4] = (tx0, tx1, ty0, ty1) (empty: tx0 > tx1); fills
+        its record's _R_LEV, _R_ROW0 and _R_ROW1 (see _bin_tiles)."""
+        r = float(radii[g])
+        x = float(rec[g, _R_MX])
+        y = float(rec[g, _R_MY])
+        rx = r
+        ry = r
+        a, rr, q = float(rec[g, _R_A]), float(rec[g, _R_R]), float(rec[g, _R_Q])
+        level = min(_POWER_MAX64, np.log(float(rec[g, _R_O]) / _ALPHA_MIN64))
+        level = level * (1.0 + _BOX_REL_MARGIN) + _BOX_REL_MARGIN
+        rec[g, _R_LEV] = np.float32(level * (1.0 + _BOX_REL_MARGIN))  # rounding up, generously
+        if a > 0.0 and q > 0.0:
+            # half-extents of {d : 0.5 d^T conic d <= level} are sqrt(2 level Sigma_xx), ...;
+            # from the LDL form Sigma_xx = r^2 / q + 1 / a, Sigma_yy = 1 / q (no cancellation)
+            ex = np.sqrt(2.0 * level * (rr * rr / q + 1.0 / a)) * (1.0 + _BOX_REL_MARGIN) + _BOX_ABS_MARGIN
+            ey = np.sqrt(2.0 * level / q) * (1.0 + _BOX_REL_MARGIN) + _BOX_ABS_MARGIN
+            if np.isfinite(ex) and ex < rx:
+                rx = ex
+            if np.isfinite(ey) and ey < ry:
+                ry = ey
+        # pixel u is covered when u + 0.5 is in [x - r, x + r]
+        u0 = max(np.floor(x - rx - 0.5), 0.0)
+        u1 = min(np.ceil(x + rx - 0.5), width - 1.0)
+        v0 = max(np.floor(y - ry - 0.5), 0.0)
+        v1 = min(np.ceil(y + ry - 0.5), height - 1.0)
+        if u0 > u1 or v0 > v1:
+            out[0] = 1
+            out[1] = 0
+            out[2] = 1
+            out[3] = 0
+            return
+        rec[g, _R_ROW0] = np.float32(v0)  # exact: image rows are far below 2^24
+        rec[g, _R_ROW1] = np.float32(v1)
+        out[0] = int(u0) // tile
+        out[1] = int(u1) // tile
+        out[2] = int(v0) // tile
+        out[3] = int(v1) // tile
+
+    @njit(cache=True, parallel=True)
+    def _bin_tiles(rec, radii, order, width, height, tile, n_threads):
         """Flat per-tile lists of splat ids, each in the depth order of ``order``.
 
         rec: (N, _R_N) float32 splat records (see _records); this fills their _R_LEV, _R_ROW0
@@ -168,63 +200,55 @@ if numba is not None:
         the splat are left out, so results are the same as with the radius box alone; the
         per-pixel tests decide exactly. _R_LEV keeps the widened level (the kernels' per-row
         test), _R_ROW0/_R_ROW1 the first and last pixel row of the box.
+
+        Parallel over contiguous chunks of ``order``: each chunk counts its tile pairs, chunk c
+        writes after chunks 0..c-1 in every tile, so each list keeps the order of ``order`` and
+        the result does not depend on the thread count. _BIN_CHUNKS_PER_THREAD chunks per
+        thread, dealt round-robin (prange's static schedule gives thread i the i-th contiguous
+        block of ``dealt``): near splats (early in the order) cover more tiles, so one chunk per
+        thread would leave the first thread most of the work.
         """
         n_tx = (width + tile - 1) // tile
         n_ty = (height + tile - 1) // tile
-        counts = np.zeros(n_tx * n_ty + 1, np.int64)
-        ranges = np.empty((order.shape[0], 4), np.int64)
-        for k in range(order.shape[0]):
-            g = order[k]
-            r = float(radii[g])
-            x = float(rec[g, _R_MX])
-            y = float(rec[g, _R_MY])
-            rx = r
-            ry = r
-            a, rr, q = float(rec[g, _R_A]), float(rec[g, _R_R]), float(rec[g, _R_Q])
-            level = min(_POWER_MAX64, np.log(float(rec[g, _R_O]) / _ALPHA_MIN64))
-            level = level * (1.0 + _BOX_REL_MARGIN) + _BOX_REL_MARGIN
-            rec[g, _R_LEV] = np.float32(level * (1.0 + _BOX_REL_MARGIN))  # rounding up, generously
-            if a > 0.0 and q > 0.0:
-                # half-extents of {d : 0.5 d^T conic d <= level} are sqrt(2 level Sigma_xx), ...;
-                # from the LDL form Sigma_xx = r^2 / q + 1 / a, Sigma_yy = 1 / q (no cancellation)
-                ex = np.sqrt(2.0 * level * (rr * rr / q + 1.0 / a)) * (1.0 + _BOX_REL_MARGIN) + _BOX_ABS_MARGIN
-                ey = np.sqrt(2.0 * level / q) * (1.0 + _BOX_REL_MARGIN) + _BOX_ABS_MARGIN
-                if np.isfinite(ex) and ex < rx:
-                    rx = ex
-                if np.isfinite(ey) and ey < ry:
-                    ry = ey
-            # pixel u is covered when u + 0.5 is in [x - r, x + r]
-            u0 = max(np.floor(x - rx - 0.5), 0.0)
-            u1 = min(np.ceil(x + rx - 0.5), width - 1.0)
-            v0 = max(np.floor(y - ry - 0.5), 0.0)
-            v1 = min(np.ceil(y + ry - 0.5), height - 1.0)
-            if u0 > u1 or v0 > v1:
-                ranges[k, 0] = 1
-                ranges[k, 1] = 0
-                ranges[k, 2] = 1
-                ranges[k, 3] = 0
-                continue
-            rec[g, _R_ROW0] = np.float32(v0)  # exact: image rows are far below 2^24
-            rec[g, _R_ROW1] = np.float32(v1)
-            tx0, tx1 = int(u0) // tile, int(u1) // tile
-            ty0, ty1 = int(v0) // tile, int(v1) // tile
-            ranges[k, 0] = tx0
-            ranges[k, 1] = tx1
-            ranges[k, 2] = ty0
-            ranges[k, 3] = ty1
-            for ty in range(ty0, ty1 + 1):
-                for tx in range(tx0, tx1 + 1):
-                    counts[ty * n_tx + tx + 1] += 1
-        offsets = np.cumsum(counts)
-        ids = np.empty(offsets[-1], np.int32)
-        cursor = offsets[:-1].copy()
-        for k in range(order.shape[0]):
-            g = order[k]
-            for ty in range(ranges[k, 2], ranges[k, 3] + 1):
-                for tx in range(ranges[k, 0], ranges[k, 1] + 1):
-                    t = ty * n_tx + tx
-                    ids[cursor[t]] = g
-                    cursor[t] += 1
+        n_tiles = n_tx * n_ty
+        n = order.shape[0]
+        n_threads = max(1, n_threads)
+        n_chunks = max(1, min(n_threads * _BIN_CHUNKS_PER_THREAD, n))
+        bounds = np.linspace(0, n, n_chunks + 1).astype(np.int64)
+        dealt = np.empty(n_chunks, np.int64)
+        i = 0
+        for th in range(n_threads):
+            for c in range(th, n_chunks, n_threads):
+                dealt[i] = c
+                i += 1
+        counts = np.zeros((n_chunks, n_tiles), np.int64)
+        ranges = np.empty((n, 4), np.int64)
+        for i in prange(n_chunks):
+            c = dealt[i]
+            for k in range(bounds[c], bounds[c + 1]):
+                _bin_box(rec, radii, order[k], width, height, tile, ranges[k])
+                for ty in range(ranges[k, 2], ranges[k, 3] + 1):
+                    for tx in range(ranges[k, 0], ranges[k, 1] + 1):
+                        counts[c, ty * n_tx + tx] += 1
+        offsets = np.zeros(n_tiles + 1, np.int64)
+        cursor = np.empty((n_chunks, n_tiles), np.int64)
+        total = 0
+        for t in range(n_tiles):
+            offsets[t] = total
+            for c in range(n_chunks):
+                cursor[c, t] = total
+                total += counts[c, t]
+        offsets[n_tiles] = total
+        ids = np.empty(total, np.int32)
+        for i in prange(n_chunks):
+            c = dealt[i]
+            for k in range(bounds[c], bounds[c + 1]):
+                g = order[k]
+                for ty in range(ranges[k, 2], ranges[k, 3] + 1):
+                    for tx in range(ranges[k, 0], ranges[k, 1] + 1):
+                        t = ty * n_tx + tx
+                        ids[cursor[c, t]] = g
+                        cursor[c, t] += 1
         return offsets, ids
 
     @njit(inline="always")
@@ -518,25 +542,6 @@ def _tile_orders(offsets: np.ndarray, n_threads: int) -> tuple[np.ndarray, np.nd
     return by_work, dealt
 
 
-@contextlib.contextmanager
-def _torch_threads_kept():
-    """Run numba's parallel machinery without letting it change torch's intra-op thread count.
-
-    numba's "omp" threading layer and torch share one libgomp (same soname), and numba's first
-    use of its thread pool (a parallel kernel, or even numba.get_num_threads()) sets the OpenMP
-    thread count to every core, silently raising ``torch.get_num_threads()`` from what the
-    caller chose (e.g. 1) to 2. Under load every small torch op then pays a two-thread OpenMP
-    barrier: a training iteration measured 1.9 s instead of 0.3 s (30k Gaussians, 320x180), and
-    a 50k fwd+bwd render 4.3 s instead of 0.45 s. The count is restored on exit.
-    """
-    n = torch.get_num_threads()
-    try:
-        yield
-    finally:
-        if torch.get_num_threads() != n:
-            torch.set_num_threads(n)
-
-
 def _as_np(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().to(torch.float32).cpu().numpy())
 
@@ -561,13 +566,14 @@ class _RasterizeCPU(torch.autograd.Function):
         # alpha <= opacity, so a splat below ALPHA_MIN opacity never blends: not binned
         visible = np.nonzero((radii_np > 0) & (op >= _ALPHA_MIN))[0]
         order = visible[np.argsort(z[visible], kind="stable")].astype(np.int64)
-        offsets, ids = _bin_tiles(rec, radii_np, order, width, height, _TILE)
         color = np.empty((height, width, 3), np.float32)
         trans = np.empty((height, width), np.float32)
         depth = np.empty((height, width), np.float32)
         count = np.empty((height, width), np.int32)
-        with _torch_threads_kept():
-            by_work, dealt = _tile_orders(offsets, numba.get_num_threads())
+        with torch_threads_kept():
+            n_threads = numba.get_num_threads()
+            offsets, ids = _bin_tiles(rec, radii_np, order, width, height, _TILE, n_threads)
+            by_work, dealt = _tile_orders(offsets, n_threads)
             frags = _forward(rec, offsets, ids, dealt, width, height, color, trans, depth, count)
         ctx.arrays = (rec, offsets, ids, by_work, trans, count)
         ctx.size = (width, height)
@@ -585,7 +591,7 @@ class _RasterizeCPU(torch.autograd.Function):
         def grad_np(g, shape):
             return np.zeros(shape, np.float32) if g is None else _as_np(g)
 
-        with _torch_threads_kept():
+        with torch_threads_kept():
             sums = _backward(rec, offsets, ids, by_work, width, height, trans, count,
                              grad_np(g_color, (height, width, 3)), grad_np(g_trans, (height, width)),
                              grad_np(g_depth, (height, width)), numba.get_num_threads()).sum(0)

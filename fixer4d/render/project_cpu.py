@@ -19,21 +19,10 @@ import numpy as np
 import torch
 
 from fixer4d.geometry.camera import Camera
+from fixer4d.jit import NUMBA_ERROR, njit, prange, torch_threads_kept
 from fixer4d.model.snapshot import Snapshot
 from fixer4d.render.constants import DET_MIN, LOWPASS_2D, NEAR_PLANE, SIGMA_EXTENT, TAN_FOV_MARGIN
 from fixer4d.render.project import RADIUS_MAX, Projection
-
-from fixer4d.render.simd import prefer_512_bit_vectors
-
-prefer_512_bit_vectors()  # before numba builds its CPU target: 16-lane float32 loops (see simd.py)
-
-try:
-    from numba import njit, prange
-except ImportError as _exc:  # pragma: no cover - exercised only on broken installs
-    njit = None
-    _IMPORT_ERROR = f"numba is not importable ({_exc})"
-else:
-    _IMPORT_ERROR = None
 
 # quaternions with a norm at or below this (or non-finite) map to the identity with zero
 # gradient: the same rule as fixer4d.geometry.quaternion.to_matrix_torch
@@ -282,7 +271,7 @@ if njit is not None:
 
 def unavailable_reason() -> str | None:
     """None when the numba projection can run, else why not."""
-    return _IMPORT_ERROR
+    return NUMBA_ERROR
 
 
 def _np(t: torch.Tensor) -> np.ndarray:
@@ -292,14 +281,12 @@ def _np(t: torch.Tensor) -> np.ndarray:
 class _ProjectCPU(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, quats, scales, cam):
-        from fixer4d.render.cpu import _torch_threads_kept
-
         m, q, s = _np(means), _np(quats), _np(scales)
         n, dt = m.shape[0], m.dtype
         means2d, conic = np.empty((n, 2), dt), np.empty((n, 3), dt)
         depths, radii = np.empty(n, dt), np.empty(n, np.int32)
         if n:
-            with _torch_threads_kept():
+            with torch_threads_kept():
                 _project_fwd(m, q, s, cam, means2d, conic, depths, radii)
         ctx.arrays = (m, q, s, cam)
         radii_t = torch.from_numpy(radii)
@@ -308,8 +295,6 @@ class _ProjectCPU(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, g_m2d, g_conic, g_depth, _g_radii):
-        from fixer4d.render.cpu import _torch_threads_kept
-
         m, q, s, cam = ctx.arrays
         n, dt = m.shape[0], m.dtype
 
@@ -318,7 +303,7 @@ class _ProjectCPU(torch.autograd.Function):
 
         gm, gq, gs = np.zeros((n, 3), dt), np.zeros((n, 4), dt), np.zeros((n, 3), dt)
         if n:
-            with _torch_threads_kept():
+            with torch_threads_kept():
                 _project_bwd(m, q, s, cam, arr(g_m2d, (n, 2)), arr(g_conic, (n, 3)), arr(g_depth, (n,)),
                              gm, gq, gs)
         return torch.from_numpy(gm), torch.from_numpy(gq), torch.from_numpy(gs), None
@@ -328,10 +313,10 @@ def project_gaussians_cpu(snapshot: Snapshot, camera: Camera) -> Projection:
     """``project.project_gaussians`` computed by the numba loops above (CPU tensors, float32
     or float64, the snapshot's dtype); differentiable w.r.t. means, quats and scales through the
     hand-written backward. Opacities and colours pass through."""
-    if _IMPORT_ERROR is not None:
+    if NUMBA_ERROR is not None:
         from fixer4d.errors import BackendUnavailable
 
-        raise BackendUnavailable(_IMPORT_ERROR)
+        raise BackendUnavailable(NUMBA_ERROR)
     dt = snapshot.means.dtype
     cam = _camera_row(camera, np.float32 if dt == torch.float32 else np.float64)
     means2d, conic, depths, radii = _ProjectCPU.apply(snapshot.means, snapshot.quats.to(dt),

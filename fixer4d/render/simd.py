@@ -10,8 +10,8 @@ two alternating pairs of processes) forward 8.5/7.8 -> 6.5/5.9 ns and backward 1
 
 numba reads the features once, when its CPU target is first set up (the first compilation or
 cache load in the process), so this must run before any numba kernel is used. It is called at
-import of the render modules that define kernels; if some other numba code has already run in
-the process, it has no effect (and says so through its return value). Set
+import of fixer4d.jit, through which every kernel module imports numba; if some other numba
+code has already run in the process, it has no effect (and says so through its return value). Set
 FIXER4D_NUMBA_AVX512=0 to keep LLVM's default, or NUMBA_CPU_FEATURES to choose yourself (then
 this does nothing).
 """

@@ -10,19 +10,16 @@ to two conv calls per SSIM.
 from __future__ import annotations
 
 import math
+import os
 
 import torch
 import torch.nn.functional as F
 
 from fixer4d.errors import InputError
+from fixer4d.train.ssim_window import LAMBDA_DSSIM, SSIM_C1, SSIM_C2, SSIM_WINDOW, gaussian_taps
 
-SSIM_WINDOW = 11  # 3DGS/STGS training SSIM window (pixels)
-SSIM_SIGMA = 1.5  # Gaussian sigma of that window (pixels), Wang et al. 2004
-# Stabilizers of Wang et al. 2004 for data range L = 1: C1 = (0.01 L)^2, C2 = (0.03 L)^2.
-SSIM_C1 = 0.01 ** 2
-SSIM_C2 = 0.03 ** 2
-# L_STG = (1 - LAMBDA_DSSIM) * L1 + LAMBDA_DSSIM * (1 - SSIM): the 3DGS/STGS weighting.
-LAMBDA_DSSIM = 0.2
+# Environment switch: "0" keeps every stg_loss call on the torch reference (A/B timing, debugging).
+FUSED_SWITCH = "FIXER4D_FUSED_LOSS"
 
 _window_cache: dict[tuple[torch.device, torch.dtype], torch.Tensor] = {}
 
@@ -32,9 +29,7 @@ def _gaussian_1d(device: torch.device, dtype: torch.dtype) -> torch.Tensor:
     key = (device, dtype)
     w = _window_cache.get(key)
     if w is None:
-        x = torch.arange(SSIM_WINDOW, dtype=torch.float64) - (SSIM_WINDOW - 1) / 2.0
-        g = torch.exp(-(x ** 2) / (2.0 * SSIM_SIGMA ** 2))
-        w = (g / g.sum()).to(device=device, dtype=dtype)
+        w = torch.from_numpy(gaussian_taps()).to(device=device, dtype=dtype)
         _window_cache[key] = w
     return w
 
@@ -121,7 +116,21 @@ def stg_loss(render: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | 
 
     weight: None, or a non-negative per-pixel weight (H, W) applied to both terms' per-pixel
     maps (normalized by the pixel count; all ones = the plain L_STG), e.g. more weight on the
-    moving pixels (Stage1Config.moving_loss_weight)."""
+    moving pixels (Stage1Config.moving_loss_weight).
+
+    A float32 CPU render goes through the fused numba kernel (fixer4d.train.loss_cpu: loss and
+    gradient in one row-parallel pass); everything else, and FIXER4D_FUSED_LOSS=0, through
+    ``stg_loss_torch``, the reference it is tested against."""
+    if os.environ.get(FUSED_SWITCH, "1") != "0":
+        from fixer4d.train.loss_cpu import fused_applies, stg_loss_fused
+
+        if fused_applies(render, target, weight):
+            return stg_loss_fused(render, target, weight)
+    return stg_loss_torch(render, target, weight)
+
+
+def stg_loss_torch(render: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """``stg_loss`` in torch ops (any device, dtype or batch shape; differentiable w.r.t. both)."""
     if weight is None:
         return (1.0 - LAMBDA_DSSIM) * l1(render, target) + LAMBDA_DSSIM * dssim(render, target)
     return (1.0 - LAMBDA_DSSIM) * masked_l1(render, target, weight) + LAMBDA_DSSIM * dssim(render, target, weight)

@@ -31,7 +31,7 @@ import torch
 from fixer4d.atomic import atomic_path
 from fixer4d.errors import InputError, NumericalError
 from fixer4d.geometry.camera import Camera, rig_extent
-from fixer4d.model.densify import DensifyStats, densify_and_prune, reset_parameter
+from fixer4d.model.densify import DensifyStats, densify_and_prune, make_adam, reset_parameter
 from fixer4d.model.effects import EffectsConfig, EffectsDecision, TemporalStats, revise_effects
 from fixer4d.model.snapshot import Snapshot
 from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians, knn_scales
@@ -274,8 +274,7 @@ class Trainer:
                 "t_center": c.lr_t_center, "t_log_scale": c.lr_t_log_scale, "omega": c.lr_omega}
 
     def _make_optimizer(self) -> torch.optim.Adam:
-        return torch.optim.Adam(self.model.param_groups(self.learning_rates(self.step_count)), lr=0.0,
-                                eps=ADAM_EPS)
+        return make_adam(self.model.param_groups(self.learning_rates(self.step_count)), eps=ADAM_EPS)
 
     def _set_learning_rates(self) -> None:
         lrs = self.learning_rates(self.step_count)

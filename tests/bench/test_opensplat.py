@@ -201,11 +201,11 @@ def test_not_run_table_cites_the_last_side_by_side_and_divides_by_none():
     assert "not run" in first_row and not any(c.endswith("x") for c in first_row.split()[-5:])  # no speed-up
     assert "cited, not measured here" in table and "2026-11-24" in table and "OpenSplat 1.2.0" in table
     # 30k at 640x360: OpenSplat then / fixer4d then, wall and CPU
-    assert "1.192 / 0.251 wall, 2.273 / 0.399 CPU" in table
+    assert "1.185 / 0.186 wall, 2.268 / 0.345 CPU" in table
     assert not hasattr(train_step, "OPENSPLAT_S")  # the old hard-coded divisors are gone
     cited = train_step.cited_json()
-    assert cited["opensplat_s_per_iter"]["100000 640x360"] == 1.502
-    assert cited["fixer4d_cpu_s_per_iter_then"]["100000 640x360"] == 0.525
+    assert cited["opensplat_s_per_iter"]["100000 640x360"] == 1.513
+    assert cited["fixer4d_cpu_s_per_iter_then"]["100000 640x360"] == 0.485
     json.dumps(cited)
 
 

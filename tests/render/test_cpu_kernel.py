@@ -86,7 +86,7 @@ def test_row_test_never_skips_a_blending_pixel():
                        torch.tensor(rng.uniform(1, 5, n), dtype=torch.float32))
     radii = np.full(n, 10 ** 6, np.int64)
     order = np.arange(n, dtype=np.int64)
-    offsets, ids = cpu._bin_tiles(rec, radii, order, width, height, cpu._TILE)
+    offsets, ids = cpu._bin_tiles(rec, radii, order, width, height, cpu._TILE, 2)
     n_tx = (width + cpu._TILE - 1) // cpu._TILE
     gate = np.full(cpu._TILE, cpu._GATE_OPEN, np.float32)
     act = np.zeros(cpu._TILE, np.bool_)
@@ -109,3 +109,30 @@ def test_row_test_never_skips_a_blending_pixel():
                 skipped += not act[row]
                 assert act[row] or not blends.any(), (t, g, row)
     assert checked > 3_000 and skipped > checked // 10  # the test has teeth: many rows are skipped
+
+
+def test_parallel_binning_keeps_the_depth_order_for_any_thread_count():
+    """_bin_tiles splits the depth order into chunks over threads: every tile's list must still be
+    the depth order restricted to the splats whose box touches the tile, whatever the count."""
+    rng = np.random.default_rng(11)
+    n, width, height = 700, 96, 72
+    means = torch.tensor(rng.uniform([-10, -10], [width + 10, height + 10], (n, 2)), dtype=torch.float32)
+    sd = rng.uniform(0.5, 12.0, n)
+    conic = torch.tensor(np.stack([1.0 / sd ** 2, np.zeros(n), 1.0 / sd ** 2], 1), dtype=torch.float32)
+    op = torch.tensor(rng.uniform(0.004, 1.0, n), dtype=torch.float32)
+    depth = torch.tensor(rng.uniform(1, 5, n), dtype=torch.float32)
+    radii = np.ceil(3 * sd).astype(np.int64)
+    order = np.argsort(depth.numpy(), kind="stable").astype(np.int64)
+    results = []
+    for threads in (1, 2, 3, 8):
+        rec = cpu._records(means, conic, op, torch.rand(n, 3), depth)
+        results.append(cpu._bin_tiles(rec, radii, order, width, height, cpu._TILE, threads))
+    offsets, ids = results[0]
+    for o, i in results[1:]:
+        np.testing.assert_array_equal(o, offsets)
+        np.testing.assert_array_equal(i, ids)
+    rank = np.empty(n, np.int64)
+    rank[order] = np.arange(n)
+    assert len(ids) > n  # splats span several tiles
+    for t in range(len(offsets) - 1):
+        assert (np.diff(rank[ids[offsets[t]:offsets[t + 1]]]) > 0).all()
