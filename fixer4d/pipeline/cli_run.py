@@ -30,6 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ray-address", default=None,
                         help="join an existing Ray cluster (e.g. auto or ray://HEAD:10001); default: a local Ray")
     add_config_arguments(parser)
+    parser.add_argument("--seed", type=int, default=None,
+                        help="seed of the whole run: the run's torch seed and stage 1's and stage 2's "
+                             "(`--set seed=S` alone seeds torch only; the stages keep their own seeds)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -44,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
              "effects.mode": args.effects,
              "baseline_sparse": False if args.no_baseline else None,
              "segments.frames": args.segment_frames, "executor.kind": args.executor,
-             "executor.ray_address": args.ray_address}
+             "executor.ray_address": args.ray_address,
+             "seed": args.seed, "stage1.seed": args.seed, "stage2.seed": args.seed}
     config = resolve_from_args(args, flags, source=args.scene)
     if maybe_print_config(args, config):
         return 0

@@ -102,6 +102,17 @@ def test_print_config_shows_the_resolved_tree(capsys, tmp_path):
     assert json.loads(capsys.readouterr().out) == printed
 
 
+def test_run_seed_flag_seeds_every_stage(capsys):
+    """`fixer4d run --seed S` changes what trains (stage 1 and 2 draw from their own seeds);
+    `--set seed=S` alone would only reseed torch and leave the rows as they were."""
+    assert main(["run", "tiny", "--print-config", "--seed", "3"]) == 0
+    cfg = json.loads(capsys.readouterr().out)["config"]
+    assert cfg["seed"] == cfg["stage1"]["seed"] == cfg["stage2"]["seed"] == 3
+    assert main(["run", "tiny", "--print-config"]) == 0
+    cfg = json.loads(capsys.readouterr().out)["config"]
+    assert cfg["seed"] == cfg["stage1"]["seed"] == cfg["stage2"]["seed"] == 0
+
+
 def test_a_scene_path_is_stored_absolute(tmp_path, monkeypatch):
     spec = tmp_path / "my_scene.json"
     spec.write_text("{}")

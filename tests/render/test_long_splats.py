@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from fixer4d.model.snapshot import Snapshot
@@ -86,6 +86,7 @@ def test_needle_thousands_of_pixels_long_is_drawn(long_scale, angle):
 @given(long_scale=st.floats(20.0, 2000.0), angle=st.floats(0.0, np.pi), tilt=st.floats(-0.6, 0.6),
        thin=st.floats(1e-5, 2e-2), ox=st.floats(-0.6, 0.6), oy=st.floats(-0.4, 0.4),
        opacity=st.floats(0.05, 1.0))
+@example(long_scale=177.0, angle=0.0, tilt=0.015625, thin=0.0078125, ox=0.0, oy=0.326171875, opacity=1.0)
 def test_long_thin_splats_match_float64_oracle(long_scale, angle, tilt, thin, ox, oy, opacity):
     """Values within the parity tolerance of the float64 oracle; gradients within 1 % (plus
     float32's own round-off on that gradient); and parity with the float32 oracle, which uses
@@ -114,4 +115,12 @@ def test_long_thin_splats_match_float64_oracle(long_scale, angle, tilt, thin, ox
         assert torch.isfinite(g32).all(), f
         bound = GRAD_RTOL_VS_F64 * float(g64.norm()) + ROUNDOFF_FACTOR * roundoff[f] + 1e-6
         assert float((g32 - g64).norm()) <= bound, f
-    assert_parity(snap.to(dtype=torch.float32), cam, {f: ROUNDOFF_FACTOR * r for f, r in roundoff.items()})
+    # against the float32 oracle: the same budget each of the two gets against float64 (1 % of
+    # the gradient plus float32's round-off x3). Where a gradient is mostly round-off, the two
+    # float32 implementations err in different directions (e.g. long_scale 177, tilt 1/64,
+    # thin 1/128, oy 0.326: quats off by 0.0037 of 0.72 from each other, each within bound of
+    # float64), so the round-off term alone is not enough.
+    g64_norm = {f: float(getattr(s64, f).grad.norm()) for f in FIELDS}
+    g64_norm["means2d"] = float(ref.means2d.grad.norm())
+    assert_parity(snap.to(dtype=torch.float32), cam,
+                  {f: ROUNDOFF_FACTOR * r + GRAD_RTOL_VS_F64 * g64_norm[f] for f, r in roundoff.items()})
