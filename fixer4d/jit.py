@@ -5,7 +5,7 @@ dependency, but each kernel module keeps a torch path that works without it), an
 keeps numba's thread pool from changing torch's thread count.
 
 Kernel modules import ``njit``/``prange``/``numba`` from here and define their kernels under
-``if NUMBA_ERROR is None``.
+``if njit is not None`` (``NUMBA_ERROR`` says why not).
 """
 from __future__ import annotations
 

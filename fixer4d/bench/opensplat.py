@@ -39,11 +39,12 @@ import numpy as np
 from fixer4d.errors import InputError
 
 # The last side-by-side measurement (docs/render.md, "OpenSplat side by side, measured"):
-# 2026-11-24 (stop 21: fused loss, parallel binning, fused Adam), `fixer4d bench train-step --opensplat ... --repeats 3` (10 timed iterations of
-# fixer4d, 60 of OpenSplat) on the idle 2-core machine (nothing else running; the 1-minute load
-# 0.6-1.9 is the benchmark's own two busy cores), the two programs taking turns, medians of 3
-# runs each; same 5 Panoptic cameras, random points, sizes and loss, one image per iteration;
-# OpenSplat 1.2.0 (github.com/WebODM/OpenSplat bd0400d, the newest line) built from source with
+# 2026-11-24 (stop 21: fused loss, parallel binning, fused Adam), `fixer4d bench train-step
+# --opensplat ... --repeats 3` (10 timed iterations of fixer4d, 60 of OpenSplat) on the idle
+# 2-core machine (nothing else running; the 1-minute load 0.6-1.9 is the benchmark's own two
+# busy cores), the two programs taking turns, medians of 3 runs each; same 5 Panoptic cameras,
+# random points, sizes and loss, one image per iteration; OpenSplat 1.2.0
+# (github.com/WebODM/OpenSplat bd0400d, the newest line) built from source with
 # -DGPU_RUNTIME=CPU -DCMAKE_BUILD_TYPE=Release. Wall and CPU seconds (all threads) per
 # iteration, keyed by (Gaussians, width, height). Cited in tables when no binary is given, never
 # used as a divisor. (Earlier side-by-side figures are kept in docs/render.md.)

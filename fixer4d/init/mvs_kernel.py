@@ -100,7 +100,8 @@ if njit is not None:
                         if z > 0 and u >= 0 and u <= fW and v >= 0 and v <= fH:
                             ins = one
                             n_inside += 1
-                            # grid_sample(align_corners=False): pixel i's centre at u = i + 0.5
+                            # grid_sample(align_corners=False): pixel i's centre at u = i + 0.5;
+                            # normalized to [-1, 1] and back as the reference does (same rounding)
                             ix = ((u * nx - one + one) * fW - one) * half
                             iy = ((v * ny - one + one) * fH - one) * half
                             fx0 = np.floor(ix)
