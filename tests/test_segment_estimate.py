@@ -39,5 +39,10 @@ def test_wall_time_table(tmp_path, estimate, capsys):
     assert len(doc["segments"]) == 7
     one = sum(doc["segment_seconds"].values())
     assert one == pytest.approx(600 + 900 + (100 + 10) * 50 / 30)
-    assert [r["waves"] for r in doc["rows"]] == [7, 1]
+    # the first segment runs alone (its static Gaussians are shared), then the other six
+    assert [r["waves"] for r in doc["rows"]] == [7, 2]
     assert doc["rows"][0]["hours"] == pytest.approx(7 * one / 3600)
+    assert doc["rows"][1]["hours"] == pytest.approx(2 * one / 3600)
+    assert estimate.main([str(_run(tmp_path)), "--segment-frames", "50", "--machines", "7", "--independent",
+                          "--out", str(out)]) == 0
+    assert [r["waves"] for r in json.loads(out.read_text())["rows"]] == [1]

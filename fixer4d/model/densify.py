@@ -143,6 +143,14 @@ def _rows(model: torch.nn.Module, index: torch.Tensor) -> dict[str, torch.Tensor
     return rows
 
 
+def _frozen(model: torch.nn.Module) -> torch.Tensor:
+    """(N,) bool rows density control must leave alone (all False for a model without the buffer)."""
+    frozen = getattr(model, "frozen", None)
+    if isinstance(frozen, torch.Tensor):
+        return frozen
+    return torch.zeros(model.num_gaussians, dtype=torch.bool, device=model.means.device)
+
+
 def _budgeted(candidates: torch.Tensor, cost: torch.Tensor, priority: torch.Tensor, budget: int) -> torch.Tensor:
     """Restrict a (N,) bool candidate mask to the highest-priority ones whose summed cost fits
     ``budget`` (the Gaussian cap)."""
@@ -171,14 +179,16 @@ def densify_and_prune(model: torch.nn.Module, optimizer: torch.optim.Optimizer |
     with base opacity below ``prune_opacity``, (when set) a world max scale above
     ``prune_world_scale`` x extent, or (when set) a screen radius above ``prune_screen_fraction``
     of the image are removed; 3DGS applies the two size tests only after the first opacity reset,
-    when the init's large Gaussians have had time to shrink. Returns counts: cloned, split, pruned, total. ``stats`` must be reset by
+    when the init's large Gaussians have had time to shrink. Frozen rows (``model.frozen``) are
+    never cloned, split or pruned. Returns counts: cloned, split, pruned, total. ``stats`` must be reset by
     the caller (its length no longer matches).
     """
     n = model.num_gaussians
     grads = stats.mean_grad()
     scales = torch.exp(model.log_scales.detach())
     max_scale = scales.max(dim=1).values
-    hot = grads >= grad_threshold
+    movable = ~_frozen(model)
+    hot = (grads >= grad_threshold) & movable
     small = max_scale <= percent_dense * extent
     clone = hot & small
     split = hot & ~small
@@ -215,6 +225,7 @@ def densify_and_prune(model: torch.nn.Module, optimizer: torch.optim.Optimizer |
         drop |= torch.exp(model.log_scales.detach()).max(dim=1).values > prune_world_scale * extent
     if prune_screen_fraction is not None:
         drop |= pad(stats.max_radii) > prune_screen_fraction
+    drop &= ~_frozen(model)
     if bool(drop.all()):
         # Never prune to an empty model: keep the most opaque Gaussian so training can go on.
         drop[torch.argmax(opacity)] = False

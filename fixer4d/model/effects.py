@@ -341,6 +341,8 @@ def effects_report(model: SpacetimeGaussians, decision: EffectsDecision | None,
         "config": cfg.to_dict(),
         "parameters_per_gaussian": int(sum(int(np.prod(s)) if s else 1 for s in cfg.param_shapes().values())),
     }
+    if model.num_frozen:  # another segment's static Gaussians, trained there
+        out["frozen"] = model.num_frozen
     if decision is None:
         out.update(mode=None, reasons={"all": "per-frame clouds without decomposition: every Gaussian dynamic, "
                                               "the default effects"})
@@ -452,7 +454,7 @@ def revise_effects(model: SpacetimeGaussians, optimizer, stats: TemporalStats, *
     cfg = model.config
     if not cfg.has_time_terms:
         return counts
-    demote = demote_candidates(model)
+    demote = demote_candidates(model) & ~model.frozen
     if bool(demote.any()):
         model.set_dynamic(model.dynamic & ~demote)
         counts["demoted"] = int(demote.sum())

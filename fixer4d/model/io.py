@@ -2,14 +2,15 @@
 
 PLY: binary little-endian, one ``vertex`` element with the STGS lite field names
 x, y, z, trbf_center, trbf_scale, motion_0..8, omega_0..3, f_dc_0..2, [f_rest_*], opacity,
-scale_0..2, rot_0..3 and a uint8 ``dynamic`` field. Every STGS field is always written, so other
+scale_0..2, rot_0..3, a uint8 ``dynamic`` field and, when the model has frozen rows (another
+segment's shared static Gaussians), a uint8 ``frozen`` field. Every STGS field is always written, so other
 STGS tools load any fixer4d model: effects the model does not have are written as their neutral
 values (zero motion/omega, t_center 0 and a temporal log-scale of ``NEUTRAL_TRBF_SCALE``). The
 model config travels in a ``comment fixer4d {...}`` header line; a PLY without it (another
 tool's) gets the effects its fields imply. f_rest is channel-major (f_rest_{c*K + k}) as 3DGS
 writes it.
 
-npz: one array per Parameter (native dtype), ``dynamic``, and the config as JSON.
+npz: one array per Parameter (native dtype), ``dynamic``, ``frozen``, and the config as JSON.
 Loading validates: non-finite values raise NumericalError naming the file and the field.
 """
 from __future__ import annotations
@@ -81,10 +82,14 @@ def save_ply(model: SpacetimeGaussians, path: str | Path) -> Path:
     for i in range(4):
         cols[f"rot_{i}"] = q[:, i]
     names = _ply_fields(k)
-    data = np.empty(n, dtype=[(f, "<f4") for f in names] + [("dynamic", "u1")])
+    frozen = _np(model.frozen).astype(np.uint8)
+    flags = [("dynamic", "u1")] + ([("frozen", "u1")] if frozen.any() else [])
+    data = np.empty(n, dtype=[(f, "<f4") for f in names] + flags)
     for f in names:
         data[f] = cols[f]
     data["dynamic"] = _np(model.dynamic).astype(np.uint8)
+    if frozen.any():
+        data["frozen"] = frozen
     header = json.dumps({"format": FORMAT, "version": VERSION, "config": cfg.to_dict()}, separators=(",", ":"))
     ply = PlyData([PlyElement.describe(data, "vertex")], text=False, byte_order="<",
                   comments=[_COMMENT_TAG + header])
@@ -160,8 +165,9 @@ def load_ply(path: str | Path) -> SpacetimeGaussians:
         t["motion"] = stack(_MOTION_FIELDS[: 3 * cfg.motion_degree])
     if cfg.rotation_velocity:
         t["omega"] = stack(_OMEGA_FIELDS)
-    if "dynamic" in names:
-        t["dynamic"] = np.asarray(v["dynamic"]) != 0
+    for flag in ("dynamic", "frozen"):
+        if flag in names:
+            t[flag] = np.asarray(v[flag]) != 0
     return SpacetimeGaussians.from_tensors(cfg, t, source=str(path))
 
 

@@ -184,7 +184,8 @@ class SpacetimeGaussians(nn.Module):
     quats (N,4) wxyz, opacity_logits (N,), colors (N,3) SH DC (RGB = 0.5 + C0*colors),
     sh_rest (N,(d+1)^2-1,3), t_center (N,) in clip time, t_log_scale (N,) log temporal std,
     motion (N, 3*motion_degree) = m1, m2, m3 as consecutive xyz triples (N,9 at degree 3),
-    omega (N,4). Buffer: dynamic (N,) bool.
+    omega (N,4). Buffers: dynamic (N,) bool; frozen (N,) bool, rows the trainer never changes
+    (another segment's static Gaussians, ``fixer4d.pipeline.shared_static``).
     """
 
     def __init__(self, config: ModelConfig | None = None, num_gaussians: int = 0,
@@ -198,6 +199,7 @@ class SpacetimeGaussians(nn.Module):
                 init[:, 0] = 1.0
             self.register_parameter(name, nn.Parameter(init))
         self.register_buffer("dynamic", torch.ones(n, dtype=torch.bool, device=device))
+        self.register_buffer("frozen", torch.zeros(n, dtype=torch.bool, device=device))
         self._dyn_cache: tuple[Any, torch.Tensor] | None = None
 
     # ---- construction -----------------------------------------------------------------
@@ -253,7 +255,8 @@ class SpacetimeGaussians(nn.Module):
     @classmethod
     def from_tensors(cls, config: ModelConfig, tensors: dict[str, torch.Tensor | np.ndarray],
                      source: str = "tensors") -> "SpacetimeGaussians":
-        """Build a model from named arrays (every Parameter of ``config`` + optional ``dynamic``).
+        """Build a model from named arrays (every Parameter of ``config`` + optional ``dynamic``
+        and ``frozen``).
 
         Validates shapes and finiteness; ``source`` names the origin (a file) in error messages.
         """
@@ -281,6 +284,7 @@ class SpacetimeGaussians(nn.Module):
         if tuple(dyn_t.shape) != (n,):
             raise InputError(f"{source}: field 'dynamic' has shape {tuple(dyn_t.shape)}, expected {(n,)}")
         model.dynamic = dyn_t.to(model.means.device)
+        model.frozen = _row_mask(tensors.get("frozen"), n, f"{source}: field 'frozen'").to(model.means.device)
         return model
 
     @classmethod
@@ -300,14 +304,19 @@ class SpacetimeGaussians(nn.Module):
     def num_dynamic(self) -> int:
         return int(self._dynamic_index().numel())
 
+    @property
+    def num_frozen(self) -> int:
+        return int(self.frozen.sum())
+
     def param_names(self) -> list[str]:
         """Names of the Parameters this model has, in canonical order."""
         return list(self.config.param_shapes())
 
     def tensors(self) -> dict[str, torch.Tensor]:
-        """Every Parameter (detached) plus the ``dynamic`` buffer, by name."""
+        """Every Parameter (detached) plus the ``dynamic`` and ``frozen`` buffers, by name."""
         out = {name: getattr(self, name).detach() for name in self.param_names()}
         out["dynamic"] = self.dynamic
+        out["frozen"] = self.frozen
         return out
 
     def param_groups(self, lr: dict[str, float]) -> list[dict[str, Any]]:
@@ -337,10 +346,16 @@ class SpacetimeGaussians(nn.Module):
         for name in self.param_names():
             setattr(self, name, nn.Parameter(getattr(self, name).detach()[keep].clone()))
         self.dynamic = self.dynamic[keep].clone()
+        self.frozen = self.frozen[keep].clone()
+
+    def set_frozen(self, mask: torch.Tensor) -> None:
+        """Replace the per-Gaussian frozen mask (N,) bool (rows the trainer leaves untouched)."""
+        self.frozen = _row_mask(mask, self.num_gaussians, "frozen mask").to(self.means.device)
 
     def append(self, params: dict[str, torch.Tensor]) -> None:
         """Append M Gaussians given as {name: (M, ...)} for every Parameter (+ optional
-        ``dynamic`` (M,) bool, default True); Parameters are replaced."""
+        ``dynamic`` (M,) bool, default True, and ``frozen`` (M,) bool, default False); Parameters
+        are replaced."""
         missing = [k for k in self.param_names() if k not in params]
         if missing:
             raise InputError(f"append: missing fields {missing}")
@@ -360,6 +375,8 @@ class SpacetimeGaussians(nn.Module):
         for name, t in new.items():
             setattr(self, name, nn.Parameter(t))
         self.dynamic = torch.cat([self.dynamic, dyn_t.to(self.dynamic.device)])
+        frozen = _row_mask(params.get("frozen"), m, "append: 'frozen'")
+        self.frozen = torch.cat([self.frozen, frozen.to(self.frozen.device)])
 
     def check(self, source: str = "model") -> "SpacetimeGaussians":
         """Raise NumericalError naming ``source`` and the field if any Parameter is non-finite."""
@@ -451,3 +468,14 @@ class SpacetimeGaussians(nn.Module):
 
     def extra_repr(self) -> str:
         return f"n={self.num_gaussians}, dynamic={self.num_dynamic}, config={json.dumps(self.config.to_dict())}"
+
+
+def _row_mask(mask: Any, n: int, what: str) -> torch.Tensor:
+    """(n,) bool tensor from a mask (tensor, array, or None -> all False)."""
+    if mask is None:
+        return torch.zeros(n, dtype=torch.bool)
+    t = mask if torch.is_tensor(mask) else torch.as_tensor(np.array(mask, copy=True, order="C"))
+    t = t.to(torch.bool)
+    if tuple(t.shape) != (n,):
+        raise InputError(f"{what} has shape {tuple(t.shape)}, expected ({n},)")
+    return t.clone()

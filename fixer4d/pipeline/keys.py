@@ -10,7 +10,7 @@ from typing import Any
 from fixer4d.pipeline.config import RunConfig
 from fixer4d.pipeline.run_folder import stage_key
 
-__all__ = ["init_key", "stage1_key", "restorer_key", "stage2_key", "matched_key", "training_settings"]
+__all__ = ["init_key", "stage1_key", "restorer_key", "stage2_key", "matched_key", "training_settings", "shared_static_key"]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -26,7 +26,18 @@ def init_key(config: RunConfig, method: str) -> str:
 
 def stage1_key(config: RunConfig, method: str) -> str:
     d = config.to_dict()
-    return stage_key("stage1", init_key(config, method), training_settings(d["stage1"]), config.seed, d["effects"])
+    return stage_key("stage1", init_key(config, method), training_settings(d["stage1"]), config.seed, d["effects"],
+                     *shared_static_key(config))
+
+
+def shared_static_key(config: RunConfig) -> tuple[str, ...]:
+    """() for a run of its own; for a later segment, the content of the shared static rows it
+    trains on top of (a changed first segment retrains it)."""
+    if config.segments.static_from is None:
+        return ()
+    from fixer4d.pipeline.shared_static import digest
+
+    return ("shared_static", digest(config.segments.static_from))
 
 
 def stage2_key(config: RunConfig) -> str:
@@ -42,7 +53,7 @@ def restorer_key(config: RunConfig) -> str:
     if rc.kind != "learned":
         return stage_key("restorer", rc.settings_key())
     return stage_key("restorer", rc.settings_key(), init_key(config, config.init_method),
-                     training_settings(config.to_dict()["stage1"]), config.seed)
+                     training_settings(config.to_dict()["stage1"]), config.seed, *shared_static_key(config))
 
 
 def matched_key(config: RunConfig) -> str:

@@ -22,6 +22,7 @@ from fixer4d.pipeline import stages as S
 from fixer4d.pipeline.config import RunConfig
 from fixer4d.pipeline.restoration import build_restorer, model_render_fn, restoration_render_fn
 from fixer4d.pipeline.run_folder import RunFolder, load_scene_for, stage_key
+from fixer4d.pipeline.shared_static import SHARED_DIR, export_shared_static
 from fixer4d.pipeline.stage_cache import StageCache
 
 log = logging.getLogger("fixer4d.pipeline")
@@ -156,15 +157,22 @@ _MODEL_ROWS = ((R.ROW_COLMAP, "baseline_sparse/model_stage1.ply"), (R.ROW_MVS, "
                (R.ROW_MATCHED, "matched/model.ply"), (R.ROW_FULL, "model_final.ply"))
 
 
-def segment_config(config: RunConfig, start: int, stop: int) -> RunConfig:
+def segment_config(config: RunConfig, start: int, stop: int, shared: tuple[Path, int] | None = None) -> RunConfig:
     """The config of the segment [start, stop) of ``config``'s clip: the same run on that frame
-    range (absolute frames of the source), not segmented again."""
+    range (absolute frames of the source), not segmented again. shared: (folder of the first
+    segment's static rows, their SH degree) for a later segment of a run that shares them."""
     import dataclasses
 
     offset = 0 if config.scene.frame_range is None else config.scene.frame_range[0]
+    effects = config.effects
+    segments = dataclasses.replace(config.segments, frames=None, static_from=None)
+    if shared is not None:
+        # the shared rows carry the first segment's view dependence: every segment keeps its SH degree
+        segments = dataclasses.replace(segments, static_from=str(shared[0]))
+        effects = dataclasses.replace(effects, sh_degree=shared[1])
     # the segments already run in parallel on the executor: inside one, restore jobs run locally
     return dataclasses.replace(config, scene=dataclasses.replace(config.scene, frame_range=(offset + start, offset + stop)),
-                               segments=dataclasses.replace(config.segments, frames=None),
+                               segments=segments, effects=effects,
                                executor=dataclasses.replace(config.executor, kind="local"))
 
 
@@ -189,22 +197,32 @@ def run_segmented(config: RunConfig, out: str | Path, *, progress: bool = True,
     ctx = open_context(config, out, progress=progress, stage_cache=stage_cache)
     scene = ctx.scene
     ranges = split_segments(scene.num_frames, config.segments.frames, config.segments.overlap)
-    jobs = [(segment_config(config, s, e).to_dict(), str(segment_dir(ctx.path, k, (s, e))))
-            for k, (s, e) in enumerate(ranges)]
+    dirs = [str(segment_dir(ctx.path, k, r)) for k, r in enumerate(ranges)]
+    jobs = [(segment_config(config, s, e).to_dict(), d) for (s, e), d in zip(ranges, dirs)]
+    sharing = config.segments.share_static and len(ranges) > 1
     if progress:
-        print(f"[fixer4d] {len(ranges)} segments {ranges} on the {config.executor.kind} executor", flush=True)
+        how = "; the first one first, its static Gaussians shared with the others" if sharing else ""
+        print(f"[fixer4d] {len(ranges)} segments {ranges} on the {config.executor.kind} executor{how}", flush=True)
     rec = ctx.run.records
     key = stage_key("segments", [j[0] for j in jobs])
     t0 = time.perf_counter()
+    shared_summary = None
     if not rec.done("segments", key):
         rec.begin("segments", key)
         executor = executor_for(config.executor)
-        seg_reports = executor.map(_run_segment, jobs)
+        if sharing:
+            seg_reports = executor.map(_run_segment, jobs[:1])
+            shared_summary = _share_static(config, ctx.path, ranges, dirs, jobs)
+            seg_reports += executor.map(_run_segment, jobs[1:])
+        else:
+            seg_reports = executor.map(_run_segment, jobs)
         rec.finish("segments", key, time.perf_counter() - t0)
     else:
         import json
 
-        seg_reports = [json.loads((Path(j[1]) / "report.json").read_text()) for j in jobs]
+        seg_reports = [json.loads((Path(d) / "report.json").read_text()) for d in dirs]
+        summary_file = ctx.path / "segments" / SHARED_DIR / "summary.json"
+        shared_summary = json.loads(summary_file.read_text()) if summary_file.is_file() else None
 
     own = owners(scene.num_frames, ranges)
     share = np.bincount(own, minlength=len(ranges)) / float(scene.num_frames)
@@ -231,12 +249,30 @@ def run_segmented(config: RunConfig, out: str | Path, *, progress: bool = True,
                              stage_key(key, name), {"train": seconds})
         rows.append(R.metrics_row(name, m, seconds))
         del stitched
-    extra = {"segments": [{"frames": list(r), "peak_rss_mb": rep.get("peak_rss_mb")} for r, rep in zip(ranges, seg_reports)],
+    extra = {"segments": [{"frames": list(r), "peak_rss_mb": rep.get("peak_rss_mb"),
+                           "gaussians": (rep.get("model") or {}).get("gaussians"),
+                           "frozen": (rep.get("model") or {}).get("frozen", 0)} for r, rep in zip(ranges, seg_reports)],
+             "shared_static": shared_summary,
              "executor": config.executor.kind, "segments_wall_seconds": rec.seconds("segments"),
              "peak_rss_mb": max([peak_rss_mb()] + [rep.get("peak_rss_mb") or 0.0 for rep in seg_reports])}
     stage_seconds = {f"seg{k:02d}:{n}": v for k, rep in enumerate(seg_reports) for n, v in rep["stage_seconds"].items()}
     stage_seconds.update(rec.as_seconds())
     return R.write_report(ctx.path, scene.describe(), rows, stage_seconds, extra)
+
+
+def _share_static(config: RunConfig, run_dir: Path, ranges, dirs: list[str], jobs: list) -> dict[str, Any] | None:
+    """After the first segment: export its static rows and point the later jobs (in place) at
+    them. Returns the summary for the report (None: nothing static to share)."""
+    shared_dir = Path(run_dir) / "segments" / SHARED_DIR
+    summary = export_shared_static(Path(dirs[0]), shared_dir)
+    if summary is None:
+        log.warning("the first segment has no static Gaussians (effects %s): nothing to share", config.effects.mode)
+        return None
+    atomic.write_json(shared_dir / "summary.json", summary)
+    for k in range(1, len(jobs)):
+        s, e = ranges[k]
+        jobs[k] = (segment_config(config, s, e, (shared_dir, summary["sh_degree"])).to_dict(), dirs[k])
+    return summary
 
 
 def _ordered(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -2,8 +2,10 @@
 
 A T-frame clip is cut into segments of ``frames`` frames that share ``overlap`` frames with their
 neighbours; each segment is a complete run of the pipeline on its frame range (its own init,
-stage 1, restoration and refinement) in ``RUN/segments/seg<k>_<a>-<b>/``, and the segments are
-independent, so an executor (``executors``) may run them anywhere. A ``SegmentedModel`` stitches
+stage 1, restoration and refinement) in ``RUN/segments/seg<k>_<a>-<b>/``. With
+``share_static`` the first segment runs first and the others train on top of its static
+Gaussians (``shared_static``); the others are independent, so an executor (``executors``) may
+run them anywhere. A ``SegmentedModel`` stitches
 the segments' models back onto the clip's timeline for evaluation and the viewer.
 
 Time: frame f of the T-frame clip has t = f / T; inside segment [s, e) the same frame has
@@ -27,6 +29,10 @@ class SegmentConfig:
 
     frames: int | None = None   # frames per segment; None: the whole clip is one run
     overlap: int = 2            # frames shared by neighbouring segments (stitching margin)
+    # the first segment's static Gaussians, frozen, in every later segment (shared_static.py)
+    share_static: bool = True
+    # set by the segmented run on the later segments' configs: the folder of the shared rows
+    static_from: str | None = None
 
     def __post_init__(self) -> None:
         if self.frames is not None and self.frames < 2:

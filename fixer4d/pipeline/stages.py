@@ -152,6 +152,16 @@ def stage1_trainer(ctx: StageContext, init, run_dir: Path | None):
 
     cfg = ctx.stage1_config()
     model, decision = model_from_init(init, ctx.scene, cfg, ctx.config.effects)
+    if ctx.config.segments.static_from is not None:
+        from fixer4d.pipeline.shared_static import add_shared_static, load_shared
+
+        shared = load_shared(ctx.config.segments.static_from, "stage1")
+        counts = add_shared_static(model, shared, ctx.scene.train_cameras, backend=ctx.backend)
+        if decision is not None:
+            decision.reasons["shared_static"] = (
+                f"{counts['shared_static']} frozen static Gaussians of the first segment; own static points kept "
+                f"where they are not explained by them: {counts['own_static_kept']} kept, "
+                f"{counts['own_static_dropped']} dropped")
     trainer = Trainer(model, ctx.scene, cfg, run_dir=run_dir,
                       effects=ctx.config.effects if decision is not None else None)
     return trainer, decision
@@ -217,6 +227,10 @@ def stage2(ctx: StageContext, model, refresh: Callable[[Any, int], None] | None 
         _clear(ctx.path / "cache")
         _drop_checkpoints(ctx.path, 2)
     t0 = time.perf_counter()
+    if ctx.config.segments.static_from is not None:  # beside the first segment's refined static rows
+        from fixer4d.pipeline.shared_static import load_shared, swap_shared_static
+
+        model = swap_shared_static(model, load_shared(ctx.config.segments.static_from, "final"))
     if refresh is None:
         from fixer4d.pipeline.executors import executor_for
 

@@ -348,6 +348,7 @@ class Trainer:
                                  "lower the learning rates or resume from the last checkpoint")
         tic = time.perf_counter()
         (loss * n_views).backward()
+        self._hold_frozen_rows()
         timing["t_backward"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
@@ -378,6 +379,16 @@ class Trainer:
                **{f"densify_{k}": float(v) for k, v in counts.items()}}
         self.history.append({k: rec[k] for k in ("step", "loss", "psnr", "num_gaussians")})
         return rec
+
+    def _hold_frozen_rows(self) -> None:
+        """Zero the gradients of the frozen rows: Adam's moments of a row whose gradient is always
+        zero stay zero, so its update is exactly zero and the row keeps its value bit for bit."""
+        frozen = self.model.frozen
+        if not bool(frozen.any()):
+            return
+        for p in self.model.parameters():
+            if p.grad is not None:
+                p.grad[frozen] = 0.0
 
     def _pixel_weight(self, view: int, frame: int) -> torch.Tensor | None:
         """(H, W) weight of the observed loss at train view ``view`` (index into train_ids) and
@@ -434,8 +445,9 @@ class Trainer:
                 self.temporal_stats = TemporalStats.zeros(self.model.num_gaussians, device=self.model.means.device)
         if self.stage2 is None and s < d_until and s % cfg.opacity_reset_every == 0:
             cap = math.log(cfg.opacity_reset_value / (1.0 - cfg.opacity_reset_value))
+            logits = self.model.opacity_logits
             reset_parameter(self.model, self.optimizer, "opacity_logits",
-                            self.model.opacity_logits.clamp(max=cap))
+                            torch.where(self.model.frozen, logits, logits.clamp(max=cap)))
             counts["opacity_reset"] = 1
         return counts
 

@@ -183,3 +183,16 @@ def test_npz_with_pickled_objects_is_refused_without_unpickling(tmp_path):
     with pytest.raises(InputError, match="evil.npz"):
         load_npz(tmp_path / "evil.npz")
     assert not (tmp_path / "pwned").exists()
+
+
+@pytest.mark.parametrize("ext", [".ply", ".npz"])
+def test_frozen_flags_round_trip_and_plain_models_write_no_field(tmp_path, ext):
+    model = SpacetimeGaussians.from_points(np.random.default_rng(0).normal(size=(5, 3)), np.full((5, 3), 0.5),
+                                           np.zeros(5))
+    save_model(model, tmp_path / f"plain{ext}")
+    if ext == ".ply":
+        assert "frozen" not in PlyData.read(str(tmp_path / "plain.ply"))["vertex"].data.dtype.names
+    assert load_model(tmp_path / f"plain{ext}").num_frozen == 0
+    model.set_frozen(torch.tensor([True, False, True, False, False]))
+    save_model(model, tmp_path / f"frozen{ext}")
+    assert load_model(tmp_path / f"frozen{ext}").frozen.tolist() == [True, False, True, False, False]

@@ -76,3 +76,50 @@ def test_segmented_run_stitches_segment_models(tmp_path, stage_cache):
     assert metrics["protocol"]["frames"] == [0, 1, 2, 3]  # the whole clip, not a segment
     for d in ("seg00_00000-00003", "seg01_00001-00004"):
         assert (tmp_path / "seg" / "segments" / d / "model_stage1.ply").is_file()
+
+
+def test_later_segments_train_on_the_first_segments_static_gaussians(tmp_path, benchmark_script):
+    """share_static (the default): the second segment's stage-1 and final models hold the first
+    segment's static rows, frozen and bit for bit (stage-1 rows, then its refined ones in stage
+    2), so the static world is the same on both sides of the boundary; without it, none."""
+    import json
+
+    import torch
+
+    from fixer4d.model.io import load_ply
+    from fixer4d.pipeline.run import run_pipeline
+    from pipeline_tiny import tiny_config
+
+    base = {"segments.frames": 3, "segments.overlap": 2, "baseline_sparse": False, "eval.restoration_rows": False,
+            "eval.matched_row": False, "init_frame_stride": 1, "eval.stride": 1, "restorer.kind": "warp",
+            "stage1.iterations": 30, "stage2.refresh_every": 10}
+    report = run_pipeline(tiny_config(**base), tmp_path / "shared", progress=False)
+    seg = tmp_path / "shared" / "segments"
+    first, second = seg / "seg00_00000-00003", seg / "seg01_00001-00004"
+    for model_file, shared in (("model_stage1.ply", "stage1.ply"), ("model_final.ply", "final.ply")):
+        src = load_ply(first / model_file)
+        rows = load_ply(seg / "shared_static" / shared)
+        assert src.num_frozen == 0 and rows.num_gaussians == int((~src.dynamic).sum()) > 0
+        assert torch.equal(rows.means, src.means[~src.dynamic]) and torch.equal(rows.colors, src.colors[~src.dynamic])
+        later = load_ply(second / model_file)
+        assert later.num_frozen == rows.num_gaussians
+        assert torch.equal(later.means[later.frozen], rows.means)
+        assert torch.equal(later.opacity_logits[later.frozen], rows.opacity_logits)
+        assert not bool(later.dynamic[later.frozen].any())
+    assert report["shared_static"]["stage1"] == load_ply(seg / "shared_static" / "stage1.ply").num_gaussians
+    assert [s["frozen"] for s in report["segments"]] == [0, report["shared_static"]["stage1"]]
+    reasons = json.loads((second / "report.json").read_text())["model"]["reasons"]
+    assert "frozen static Gaussians of the first segment" in reasons["shared_static"]
+
+    alone = run_pipeline(tiny_config(**base, **{"segments.share_static": False, "stage2.rounds": 0}),
+                         tmp_path / "alone", progress=False)
+    assert alone["shared_static"] is None and [s["frozen"] for s in alone["segments"]] == [0, 0]
+    assert not (tmp_path / "alone" / "segments" / "shared_static").exists()
+
+    # benchmarks/segment_seams.py: both segments render every shared frame (1, 2) of each held-out camera
+    seams = benchmark_script("segment_seams").seams(tmp_path / "shared")
+    from fixer4d.scene import load_scene
+
+    n_test = len(load_scene("tiny").test_ids)
+    assert sorted({r["frame"] for r in seams["frames"]}) == [1, 2] and len(seams["frames"]) == 2 * n_test
+    assert seams["share_static"] and all(5 < r["psnr_before"] < 60 and 5 < r["psnr_after"] < 60 for r in seams["frames"])

@@ -138,3 +138,22 @@ def test_quat_to_matrix_is_a_rotation_and_zero_is_identity():
     assert torch.allclose(R[0], torch.eye(3))
     assert torch.allclose(R[1] @ R[1].T, torch.eye(3), atol=1e-6)
     assert float(torch.det(R[1])) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_frozen_rows_are_never_cloned_split_or_pruned():
+    """Rows 0 (hot, small), 1 (hot, large), 3 (transparent) and 4 (huge) frozen: none of the
+    clone/split/prune that _setup's counts show happens to them, and they stay in place."""
+    model, opt, stats = _setup()
+    frozen = torch.tensor([True, True, False, True, True, False])
+    model.set_frozen(frozen)
+    old = model.means.detach().clone()
+    counts = _run(model, opt, stats)
+    assert counts == {"cloned": 0, "split": 0, "pruned": 0, "total": 6}
+    assert torch.equal(model.means, old) and torch.equal(model.frozen, frozen)
+
+
+def test_appended_and_pruned_rows_keep_the_frozen_flags():
+    model, opt, stats = _setup()
+    model.set_frozen(torch.tensor([False, False, True, False, False, True]))
+    _run(model, opt, stats)  # clone of 0 and split of 1 are appended unfrozen; 3 and 4 pruned
+    assert model.frozen.tolist() == [False, True, True, False, False, False]
