@@ -14,12 +14,11 @@ RUN is a finished run folder (its `stages.json` holds the measured seconds of ev
   sweep runs once per segment).
 * Every stage scales linearly with the pixel count (rasterization, plane sweep and the restorer
   are per-pixel work at a fixed Gaussian budget).
-* The first segment runs alone (the others train on top of its static Gaussians,
-  ``segments.share_static``, the default); the others are independent (the Ray executor runs
-  one per machine at a time, each machine like the one RUN was measured on) and cost the same.
-  The wall time is 1 + ceil((segments - 1) / N) segment times (``--independent``, for
-  ``segments.share_static=false``: ceil(segments / N)), plus the whole-clip evaluation on the
-  head, which is ignored (seconds against hours).
+* Segments are independent (the Ray executor runs one per machine at a time, each machine like
+  the one RUN was measured on) and cost the same: the wall time is ceil(segments / N) segment
+  times. With ``--shared`` (``segments.share_static=true``) the first segment runs alone and the
+  others train on top of its static Gaussians: 1 + ceil((segments - 1) / N). The whole-clip
+  evaluation on the head is ignored (seconds against hours).
 
 `--main-only` drops the baseline rows (sparse init and its stage 1, the matched control, the
 restoration rows), which a production run of a long capture would switch off.
@@ -75,8 +74,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--height", type=int, help="capture height (default: the run's)")
     ap.add_argument("--machines", type=int, nargs="+", default=[1, 2, 4, 8])
     ap.add_argument("--main-only", action="store_true", help="without the baseline and control rows")
-    ap.add_argument("--independent", action="store_true",
-                    help="segments that do not share static Gaussians (segments.share_static=false): no first wave")
+    ap.add_argument("--shared", action="store_true",
+                    help="segments that share the first one's static Gaussians (segments.share_static=true): "
+                         "the first segment is a wave of its own")
     ap.add_argument("--out", type=Path, help="write the estimate as JSON here")
     args = ap.parse_args(argv)
 
@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     per_segment = sum(per_stage.values())
     rows = []
     for n in args.machines:
-        waves = math.ceil(len(segments) / n) if args.independent else 1 + math.ceil((len(segments) - 1) / n)
+        waves = 1 + math.ceil((len(segments) - 1) / n) if args.shared else math.ceil(len(segments) / n)
         rows.append({"machines": n, "waves": waves, "hours": waves * per_segment / 3600.0})
 
     print(f"measured: {args.run} ({frames} frames at {width}x{height}, {sum(seconds.values()) / 60:.1f} min of stages)")

@@ -39,10 +39,11 @@ def test_wall_time_table(tmp_path, estimate, capsys):
     assert len(doc["segments"]) == 7
     one = sum(doc["segment_seconds"].values())
     assert one == pytest.approx(600 + 900 + (100 + 10) * 50 / 30)
-    # the first segment runs alone (its static Gaussians are shared), then the other six
-    assert [r["waves"] for r in doc["rows"]] == [7, 2]
+    # independent segments: all seven at once on seven machines
+    assert [r["waves"] for r in doc["rows"]] == [7, 1]
     assert doc["rows"][0]["hours"] == pytest.approx(7 * one / 3600)
-    assert doc["rows"][1]["hours"] == pytest.approx(2 * one / 3600)
-    assert estimate.main([str(_run(tmp_path)), "--segment-frames", "50", "--machines", "7", "--independent",
+    assert doc["rows"][1]["hours"] == pytest.approx(one / 3600)
+    # shared static: the first segment runs alone, then the other six
+    assert estimate.main([str(_run(tmp_path)), "--segment-frames", "50", "--machines", "1", "7", "--shared",
                           "--out", str(out)]) == 0
-    assert [r["waves"] for r in json.loads(out.read_text())["rows"]] == [1]
+    assert [r["waves"] for r in json.loads(out.read_text())["rows"]] == [7, 2]

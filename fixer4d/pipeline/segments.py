@@ -29,8 +29,10 @@ class SegmentConfig:
 
     frames: int | None = None   # frames per segment; None: the whole clip is one run
     overlap: int = 2            # frames shared by neighbouring segments (stitching margin)
-    # the first segment's static Gaussians, frozen, in every later segment (shared_static.py)
-    share_static: bool = True
+    # the first segment's static Gaussians, frozen, in every later segment (shared_static.py).
+    # Off by default: it carries the first segment's stage-1 outcome into every segment, which
+    # helped one real split (+0.9 dB) and hurt the other (-0.25 dB); README "Long captures".
+    share_static: bool = False
     # set by the segmented run on the later segments' configs: the folder of the shared rows
     static_from: str | None = None
 

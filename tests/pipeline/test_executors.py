@@ -53,14 +53,15 @@ def test_ray_tasks_fit_a_node_smaller_than_the_driver_threads():
 
 
 def test_ray_runs_give_the_local_results(tmp_path, stage_cache):
-    """On a local Ray instance (2 CPUs): segments as Ray tasks, and stage 2's restore jobs as Ray
-    tasks, give exactly the rows of the local executor (the pipeline is deterministic)."""
+    """On a local Ray instance (2 CPUs): segments as Ray tasks (the shared-static schedule: the first
+    segment, then the other on top of its static rows), and stage 2's restore jobs as Ray tasks,
+    give exactly the rows of the local executor (the pipeline is deterministic)."""
     ray = pytest.importorskip("ray", reason="Ray not installed (pip install 'fixer4d[ray]')")
     from fixer4d.pipeline.run import run_pipeline
     from pipeline_tiny import tiny_config
 
-    segmented = {"segments.frames": 3, "segments.overlap": 2, "stage2.rounds": 0, "baseline_sparse": False,
-                 "eval.restoration_rows": False, "init_frame_stride": 1, "eval.stride": 1}
+    segmented = {"segments.frames": 3, "segments.overlap": 2, "segments.share_static": True, "stage2.rounds": 0,
+                 "baseline_sparse": False, "eval.restoration_rows": False, "init_frame_stride": 1, "eval.stride": 1}
     restoring = {"baseline_sparse": False, "eval.restoration_rows": False, "eval.matched_row": False}
     local_seg = run_pipeline(tiny_config(**segmented), tmp_path / "local_seg", progress=False)
     local_s2 = run_pipeline(tiny_config(**restoring), tmp_path / "local_s2", progress=False, stage_cache=stage_cache)

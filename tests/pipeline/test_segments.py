@@ -79,7 +79,7 @@ def test_segmented_run_stitches_segment_models(tmp_path, stage_cache):
 
 
 def test_later_segments_train_on_the_first_segments_static_gaussians(tmp_path, benchmark_script):
-    """share_static (the default): the second segment's stage-1 and final models hold the first
+    """share_static (opt-in): the second segment's stage-1 and final models hold the first
     segment's static rows, frozen and bit for bit (stage-1 rows, then its refined ones in stage
     2), so the static world is the same on both sides of the boundary; without it, none."""
     import json
@@ -93,7 +93,7 @@ def test_later_segments_train_on_the_first_segments_static_gaussians(tmp_path, b
     base = {"segments.frames": 3, "segments.overlap": 2, "baseline_sparse": False, "eval.restoration_rows": False,
             "eval.matched_row": False, "init_frame_stride": 1, "eval.stride": 1, "restorer.kind": "warp",
             "stage1.iterations": 30, "stage2.refresh_every": 10}
-    report = run_pipeline(tiny_config(**base), tmp_path / "shared", progress=False)
+    report = run_pipeline(tiny_config(**base, **{"segments.share_static": True}), tmp_path / "shared", progress=False)
     seg = tmp_path / "shared" / "segments"
     first, second = seg / "seg00_00000-00003", seg / "seg01_00001-00004"
     for model_file, shared in (("model_stage1.ply", "stage1.ply"), ("model_final.ply", "final.ply")):
@@ -111,7 +111,7 @@ def test_later_segments_train_on_the_first_segments_static_gaussians(tmp_path, b
     reasons = json.loads((second / "report.json").read_text())["model"]["reasons"]
     assert "frozen static Gaussians of the first segment" in reasons["shared_static"]
 
-    alone = run_pipeline(tiny_config(**base, **{"segments.share_static": False, "stage2.rounds": 0}),
+    alone = run_pipeline(tiny_config(**base, **{"stage2.rounds": 0}),  # the default: no sharing
                          tmp_path / "alone", progress=False)
     assert alone["shared_static"] is None and [s["frozen"] for s in alone["segments"]] == [0, 0]
     assert not (tmp_path / "alone" / "segments" / "shared_static").exists()
