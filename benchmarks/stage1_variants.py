@@ -35,15 +35,14 @@ def train_view_psnr(render_fn, scene, stride: int) -> float:
 
 
 def variant_config(run: Path, sets: list[str]):
-    """RUN's RunConfig with the ``--set`` overrides applied."""
+    """RUN's RunConfig with the ``--set`` overrides applied as `fixer4d run --config` applies them
+    (a new ``stage1.iterations`` rescales the schedule the run derived from its own count)."""
     from fixer4d.pipeline import config_tree
-    from fixer4d.pipeline.config import RunConfig
+    from fixer4d.pipeline.config import resolve
     from fixer4d.pipeline.run_folder import read_run_config
 
-    tree = read_run_config(run).to_dict()
-    for key, value in config_tree.parse_set_overrides(sets).items():
-        config_tree.set_dotted(tree, key, value)
-    return RunConfig.from_dict(tree)
+    return resolve(config_file=read_run_config(run).to_dict(), overrides=config_tree.parse_set_overrides(sets),
+                   defaults={})
 
 
 def main(argv: list[str] | None = None) -> int:

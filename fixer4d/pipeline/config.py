@@ -157,7 +157,19 @@ def resolve(source: str | None = None, *, config_file: str | Path | dict[str, An
         path = Path(str(source))
         config_tree.set_dotted(tree, "scene.source", str(path.resolve()) if path.exists() else str(source))
     relative = relative or set()
-    for key, value in (overrides or {}).items():
+    overrides = dict(overrides or {})
+    if "stage1.iterations" in overrides:
+        # first, so that a schedule key given beside it wins over the derived one
+        value = overrides.pop("stage1.iterations")
+        if "stage1.iterations" in relative:
+            value = _scaled(tree, "stage1.iterations", value)
+        stage1 = tree.get("stage1")
+        if isinstance(stage1, dict) and isinstance(value, int) and not isinstance(value, bool):
+            # a full config (a run's config.json, a study's base) writes its schedule out
+            tree["stage1"] = Stage1Config.rescheduled(stage1, value)
+        else:
+            config_tree.set_dotted(tree, "stage1.iterations", value)
+    for key, value in overrides.items():
         if key in relative:
             value = _scaled(tree, key, value)
         config_tree.set_dotted(tree, key, value)

@@ -27,6 +27,8 @@ _DENSIFY_ROUNDS = 30
 # lr_opacity 0.05 (logit -4.6 -> +2.2), and a reset must leave time for densification after it,
 # so resets are never closer than this (3DGS: every 3000 of 30k). Short runs get none.
 _MIN_RESET_INTERVAL = 500
+# the keys Stage1Config.for_iterations derives from the iteration count
+SCHEDULE_KEYS = ("densify_every", "densify_from", "densify_until", "opacity_reset_every", "checkpoint_every")
 
 
 @dataclass
@@ -150,6 +152,22 @@ class Stage1Config:
         )
         sched.update(overrides)
         return cls(**sched)
+
+    @classmethod
+    def rescheduled(cls, stage1: dict[str, Any], iterations: int) -> dict[str, Any]:
+        """``stage1`` (a config tree section whose schedule may be written out, as in a run's
+        config.json) with its iteration count set to ``iterations``: every schedule key that
+        still holds the value derived from the old count is derived again from the new one; a
+        key the user set to something else is kept."""
+        out = dict(stage1)
+        old = out.get("iterations", cls.iterations)
+        out["iterations"] = int(iterations)
+        derived_old = cls.for_iterations(old).to_dict()
+        derived_new = cls.for_iterations(iterations).to_dict()
+        for key in SCHEDULE_KEYS:
+            if key in out and out[key] == derived_old[key]:
+                out[key] = derived_new[key]
+        return out
 
     @classmethod
     def from_partial(cls, **given: Any) -> "Stage1Config":

@@ -48,7 +48,7 @@ from fixer4d.restore.config import META_FILE, VALIDATION_FILE, WEIGHTS_FILE, Res
 from fixer4d.restore.learned import LearnedRestorer, request_features, restore_features, train_network
 from fixer4d.restore.reference_warp import ReferenceWarpRestorer
 from fixer4d.scene.base import MultiViewVideo
-from fixer4d.train.config import Stage1Config
+from fixer4d.train.config import SCHEDULE_KEYS, Stage1Config
 from fixer4d.train.trainer import Trainer, model_from_clouds
 
 log = logging.getLogger("fixer4d.train")
@@ -56,8 +56,7 @@ log = logging.getLogger("fixer4d.train")
 PAIRS_FORMAT = 2
 # Stage-1 fields that ``Stage1Config.for_iterations`` derives from the iteration count (the
 # leave-one-out trainings get their own short schedule) or that do not change a result.
-_SCHEDULE_FIELDS = ("iterations", "densify_every", "densify_from", "densify_until", "opacity_reset_every",
-                    "checkpoint_every", "progress")
+_SCHEDULE_FIELDS = ("iterations", *SCHEDULE_KEYS, "progress")
 
 
 class _TrainViews:

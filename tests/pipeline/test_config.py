@@ -21,6 +21,32 @@ def test_defaults_and_schedule_scaling():
     assert resolve("demo", overrides={"stage1.iterations": 100, "stage1.densify_until": 70}).stage1.densify_until == 70
 
 
+def test_a_new_iteration_count_rescales_a_written_out_schedule():
+    """A run's config.json (or a study's base) writes the schedule derived from its iterations;
+    overriding the iterations derives it again, except keys the user set to other values or
+    gives beside the new count."""
+    from fixer4d.study import variant_config
+    from fixer4d.train.config import SCHEDULE_KEYS, Stage1Config
+
+    full = resolve("demo").to_dict()
+    longer = resolve(config_file=full, overrides={"stage1.iterations": 3000}, defaults={})
+    derived = Stage1Config.for_iterations(3000)
+    assert all(getattr(longer.stage1, k) == getattr(derived, k) for k in SCHEDULE_KEYS)
+    assert longer.stage1.densify_until == 1500 and longer.stage1.opacity_reset_every == 750
+
+    full["stage1"]["densify_until"] = 400  # set by the user: kept
+    kept = resolve(config_file=full, overrides={"stage1.iterations": 3000}, defaults={})
+    assert kept.stage1.densify_until == 400 and kept.stage1.opacity_reset_every == 750
+    given = resolve(config_file=full, overrides={"stage1.densify_every": 37, "stage1.iterations": 3000}, defaults={})
+    assert given.stage1.densify_every == 37
+
+    # the study's relative iteration axis: the schedule follows the variant's own count
+    half = variant_config("demo", {"stage1.iterations": 0.5}, base={"stage1.iterations": 300})
+    double = variant_config("demo", {"stage1.iterations": 2.0}, base={"stage1.iterations": 300})
+    assert (half.stage1.iterations, half.stage1.densify_until) == (150, 75)
+    assert (double.stage1.iterations, double.stage1.densify_until) == (600, 300)
+
+
 def test_round_trip_is_exact():
     c = resolve("tiny", overrides={"scene.frame_range": [0, 3], "stage1.background": [0.5, 0.5, 0.5]})
     again = RunConfig.from_dict(json.loads(json.dumps(c.to_dict())))
