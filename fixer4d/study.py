@@ -142,6 +142,37 @@ def markdown_table(results: list[StudyResult]) -> str:
     return "\n".join(lines) + "\n"
 
 
+# Where a point's label may go, in points from the point (dx, dy, horizontal alignment), tried in
+# this order until the label's box overlaps no label placed before it.
+_LABEL_OFFSETS = ((4, 4, "left"), (4, -11, "left"), (-4, 4, "right"), (-4, -11, "right"), (4, 14, "left"),
+                  (4, -21, "left"), (-4, 14, "right"), (-4, -21, "right"))
+
+
+def _label_points(ax, fig, points: list[tuple[float, float, str, bool]]) -> None:
+    """Annotate (x, y, name, on_front) points so that their labels do not overlap (greedy, in
+    display pixels; front labels first); a label with no free slot takes the first one."""
+    fig.canvas.draw()  # fixes the axis limits, so data -> pixel is final
+    px_per_pt = fig.dpi / 72.0
+    placed: list[tuple[float, float, float, float]] = []
+    for x, y, name, on in sorted(points, key=lambda p: (not p[3], p[0])):
+        size = 8 if on else 7
+        w, h = 0.6 * size * len(name) * px_per_pt, size * px_per_pt
+        px, py = ax.transData.transform((x, y))
+        choice = _LABEL_OFFSETS[0]
+        for dx, dy, ha in _LABEL_OFFSETS:
+            x0 = px + dx * px_per_pt - (w if ha == "right" else 0.0)
+            y0 = py + dy * px_per_pt
+            box = (x0, y0, x0 + w, y0 + h)
+            if not any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in placed):
+                choice = (dx, dy, ha)
+                break
+        dx, dy, ha = choice
+        x0 = px + dx * px_per_pt - (w if ha == "right" else 0.0)
+        placed.append((x0, py + dy * px_per_pt, x0 + w, py + dy * px_per_pt + h))
+        ax.annotate(name, (x, y), textcoords="offset points", xytext=(dx, dy), ha=ha, fontsize=size,
+                    color="#d1495b" if on else "#52606d")
+
+
 def plot_study(results: list[StudyResult], out_dir: Path) -> list[Path]:
     """Write the three PNG plots; returns their paths."""
     import matplotlib
@@ -162,10 +193,7 @@ def plot_study(results: list[StudyResult], out_dir: Path) -> list[Path]:
             front = [pts[i] for i in pareto_front(xs, ys, higher_is_better=better)]
             ax.plot([r.total_seconds for r in front], [getattr(r, metric) for r in front], "-o", c="#d1495b",
                     lw=1.8, ms=6, label="Pareto front", zorder=3)
-            for r in pts:
-                on = r in front
-                ax.annotate(r.name, (r.total_seconds, getattr(r, metric)), textcoords="offset points", xytext=(4, 4),
-                            fontsize=7 if not on else 8, color="#d1495b" if on else "#52606d")
+            _label_points(ax, fig, [(r.total_seconds, getattr(r, metric), r.name, r in front) for r in pts])
         else:
             ax.text(0.5, 0.5, f"{metric.upper()} unavailable", ha="center", va="center", transform=ax.transAxes)
         ax.set_xlabel("wall-clock seconds (all stages)")

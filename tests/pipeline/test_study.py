@@ -90,3 +90,29 @@ def test_study_on_tiny_scene_with_the_real_pipeline(tmp_path):
     assert set(data["pareto_psnr"]) == expected and "no-restore" in expected
     for name in ("psnr_vs_time.png", "lpips_vs_time.png", "stage_seconds.png"):
         assert (tmp_path / name).stat().st_size > 1000
+
+
+def test_plot_labels_of_close_points_do_not_overlap():
+    """Points a few pixels apart (the base and a variant equal to it) get label boxes that do
+    not intersect; front labels are placed first."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from fixer4d.study import _label_points
+
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
+    pts = [(100.0, 24.05, "base", True), (101.0, 24.05, "restorer-warp", False), (100.5, 24.04, "rounds-2", False),
+           (40.0, 20.0, "far", False)]
+    ax.scatter([p[0] for p in pts], [p[1] for p in pts])
+    _label_points(ax, fig, pts)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    boxes = {t.get_text(): t.get_window_extent(renderer) for t in ax.texts}
+    assert set(boxes) == {"base", "restorer-warp", "rounds-2", "far"}
+    names = sorted(boxes)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            assert not boxes[a].overlaps(boxes[b]), (a, b)
+    plt.close(fig)
