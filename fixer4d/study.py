@@ -148,6 +148,11 @@ _LABEL_OFFSETS = ((4, 4, "left"), (4, -11, "left"), (-4, 4, "right"), (-4, -11, 
                   (4, -21, "left"), (-4, 14, "right"), (-4, -21, "right"))
 
 
+def _boxes_overlap(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
+    """Whether two (x0, y0, x1, y1) boxes intersect."""
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
 def _label_points(ax, fig, points: list[tuple[float, float, str, bool]]) -> None:
     """Annotate (x, y, name, on_front) points so that their labels do not overlap (greedy, in
     display pixels; front labels first); a label with no free slot takes the first one."""
@@ -158,17 +163,14 @@ def _label_points(ax, fig, points: list[tuple[float, float, str, bool]]) -> None
         size = 8 if on else 7
         w, h = 0.6 * size * len(name) * px_per_pt, size * px_per_pt
         px, py = ax.transData.transform((x, y))
-        choice = _LABEL_OFFSETS[0]
-        for dx, dy, ha in _LABEL_OFFSETS:
-            x0 = px + dx * px_per_pt - (w if ha == "right" else 0.0)
-            y0 = py + dy * px_per_pt
-            box = (x0, y0, x0 + w, y0 + h)
-            if not any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in placed):
-                choice = (dx, dy, ha)
-                break
-        dx, dy, ha = choice
-        x0 = px + dx * px_per_pt - (w if ha == "right" else 0.0)
-        placed.append((x0, py + dy * px_per_pt, x0 + w, py + dy * px_per_pt + h))
+
+        def box(dx: float, dy: float, ha: str) -> tuple[float, float, float, float]:
+            x0, y0 = px + dx * px_per_pt - (w if ha == "right" else 0.0), py + dy * px_per_pt
+            return x0, y0, x0 + w, y0 + h
+
+        free = [o for o in _LABEL_OFFSETS if not any(_boxes_overlap(box(*o), b) for b in placed)]
+        dx, dy, ha = (free or _LABEL_OFFSETS)[0]
+        placed.append(box(dx, dy, ha))
         ax.annotate(name, (x, y), textcoords="offset points", xytext=(dx, dy), ha=ha, fontsize=size,
                     color="#d1495b" if on else "#52606d")
 
