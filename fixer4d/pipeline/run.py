@@ -222,7 +222,8 @@ def run_segmented(config: RunConfig, out: str | Path, *, progress: bool = True,
 
         seg_reports = [json.loads((Path(d) / "report.json").read_text()) for d in dirs]
         summary_file = ctx.path / "segments" / SHARED_DIR / "summary.json"
-        shared_summary = json.loads(summary_file.read_text()) if summary_file.is_file() else None
+        # a folder that once ran with sharing keeps the files; only a sharing run reports them
+        shared_summary = json.loads(summary_file.read_text()) if sharing and summary_file.is_file() else None
 
     own = owners(scene.num_frames, ranges)
     share = np.bincount(own, minlength=len(ranges)) / float(scene.num_frames)
