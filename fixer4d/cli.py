@@ -10,7 +10,7 @@ import argparse
 import importlib
 import sys
 
-from fixer4d.errors import Fixer4DError, InputError
+from fixer4d.errors import Fixer4DError, InputError, Terminated
 
 # verb -> (module, one-line help)
 VERBS: dict[str, tuple[str, str]] = {
@@ -63,6 +63,9 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "_missing", None):
         print(f"fixer4d {args.verb}: not available in this build ({args._missing})", file=sys.stderr)
         return 2
+    from fixer4d.signals import install_sigterm
+
+    install_sigterm()
     mod = importlib.import_module(args._module)
     try:
         return int(mod.run(args) or 0)
@@ -72,6 +75,10 @@ def main(argv: list[str] | None = None) -> int:
     except Fixer4DError as exc:
         print(f"fixer4d {args.verb}: error: {exc}", file=sys.stderr)
         return 1
+    except Terminated:
+        print(f"\nfixer4d {args.verb}: terminated (SIGTERM); completed stages are saved and a rerun resumes",
+              file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print(f"\nfixer4d {args.verb}: interrupted; completed stages are saved and a rerun resumes", file=sys.stderr)
         return 130

@@ -15,3 +15,9 @@ class NumericalError(Fixer4DError, FloatingPointError):
 
 class BackendUnavailable(Fixer4DError, RuntimeError):
     """An optional backend (gsplat, diffusers, MVSAnywhere, LPIPS weights) is not installed or lacks weights."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, a scheduler's time limit), raised in the main thread like Ctrl-C's
+    KeyboardInterrupt so that every ``finally`` and atomic write unwinds the same way
+    (``fixer4d.signals``); a KeyboardInterrupt so that ``except Exception`` never swallows it."""

@@ -59,6 +59,9 @@ def _pycolmap():
         import pycolmap
     except ImportError as exc:  # pragma: no cover - pycolmap is a declared dependency of [init]
         raise BackendUnavailable("pycolmap is not installed; install fixer4d[init] (pip install pycolmap)") from exc
+    from fixer4d.signals import reassert_python_handlers
+
+    reassert_python_handlers()  # its glog took SIGTERM on import (fixer4d.signals)
     return pycolmap
 
 
