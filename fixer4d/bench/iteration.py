@@ -60,6 +60,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--init", default=None, help="with --effects: a decomposed init folder to reuse "
                                                      "(default: computed into a temporary folder)")
     parser.add_argument("--init-stride", type=int, default=4, help="with --effects: init frame stride (the pipeline's)")
+    parser.add_argument("--frames", default=None, metavar="A:B",
+                        help="with --effects: the clip, half-open (the run's frame_range, e.g. 0:30 for the README's "
+                             "Panoptic command; its init's times are clip times)")
     args = parser.parse_args(argv)
     if args.effects:
         return _effects_main(args)
@@ -189,7 +192,10 @@ def _effects_main(args) -> int:
     from fixer4d.scene import load_scene
     from fixer4d.train.config import Stage1Config
 
-    scene = load_scene(args.scene, scale=args.scale)
+    from fixer4d.scene import parse_frame_range
+
+    clip = None if args.frames is None else tuple(parse_frame_range(args.frames))
+    scene = load_scene(args.scene, scale=args.scale, frame_range=clip)
     frames = list(range(0, scene.num_frames, max(1, args.init_stride)))
     if args.init is None:
         with tempfile.TemporaryDirectory() as tmp:
@@ -200,7 +206,7 @@ def _effects_main(args) -> int:
     extra = {} if args.max_points is None else {"init_max_points": args.max_points}
     cfg = Stage1Config(iterations=10 ** 9, backend=args.backend, progress=False,
                        densify_from=10 ** 9, densify_until=10 ** 9 + 1, **extra)
-    result = {"benchmark": "iteration-effects", "scene": scene.name, "init_frames": frames,
+    result = {"benchmark": "iteration-effects", "scene": scene.name, "frame_range": clip, "init_frames": frames,
               "iterations": args.iterations, "warmup": args.warmup, "init_max_points": cfg.init_max_points,
               "torch_threads": torch.get_num_threads(), "load_average": list(os.getloadavg()),
               **effects_comparison(scene, init, cfg, args.iterations, args.warmup)}
