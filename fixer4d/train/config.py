@@ -31,6 +31,9 @@ _MIN_RESET_INTERVAL = 500
 SCHEDULE_KEYS = ("densify_every", "densify_from", "densify_until", "opacity_reset_every", "checkpoint_every")
 
 
+FRAME_ORDERS = ("iid", "shuffled")
+
+
 @dataclass
 class Stage1Config:
     """Stage 1: spacetime Gaussians optimized on the observed (train) views.
@@ -43,6 +46,11 @@ class Stage1Config:
     seed: int = 0
     backend: str = "auto"
     views_per_step: int = 2
+    # Which frame each step trains on: "iid" draws it uniformly at random; "shuffled" visits
+    # every frame once per pass over the clip, in a random order drawn from (seed, pass) (3DGS's
+    # camera stack), so every frame gets the same share of the steps and a resumed run draws
+    # the same frames without extra state.
+    frame_order: str = "iid"
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     # -- initialization -------------------------------------------------------------------
@@ -122,6 +130,8 @@ class Stage1Config:
         self.background = tuple(float(x) for x in self.background)  # type: ignore[assignment]
         if self.iterations < 0:
             raise InputError(f"Stage1Config.iterations must be >= 0, got {self.iterations}")
+        if self.frame_order not in FRAME_ORDERS:
+            raise InputError(f"Stage1Config.frame_order {self.frame_order!r}: choose one of {list(FRAME_ORDERS)}")
         if self.views_per_step < 1:
             raise InputError(f"Stage1Config.views_per_step must be >= 1, got {self.views_per_step}")
         if self.densify_every < 1 or self.checkpoint_every < 1 or self.opacity_reset_every < 1:

@@ -233,6 +233,8 @@ class Trainer:
         self.extent = scene_extent(scene.train_cameras, model.means)
         self.background = torch.tensor(config.background, dtype=torch.float32)
         seed = config.seed if stage2 is None else stage2.seed
+        self._seed = int(seed)
+        self._frame_pass: tuple[int, np.ndarray] | None = None  # (pass index, frame order) of "shuffled"
         self.rng = np.random.default_rng(seed)
         self.generator = torch.Generator().manual_seed(seed)
         if model.means.device.type == "cuda":
@@ -304,8 +306,7 @@ class Trainer:
             self._maybe_refresh()
             timing["t_refresh"] = time.perf_counter() - tic
         self._set_learning_rates()
-        T = self.scene.num_frames
-        frame = int(self.rng.integers(0, T))
+        frame = self._next_frame()
         k = min(cfg.views_per_step, len(self.train_ids))
         views = self.rng.choice(len(self.train_ids), size=k, replace=False)
         t = self.scene.time(frame)
@@ -379,6 +380,17 @@ class Trainer:
                **{f"densify_{k}": float(v) for k, v in counts.items()}}
         self.history.append({k: rec[k] for k in ("step", "loss", "psnr", "num_gaussians")})
         return rec
+
+    def _next_frame(self) -> int:
+        """The frame of this step (``Stage1Config.frame_order``)."""
+        T = self.scene.num_frames
+        if self.config.frame_order == "shuffled":
+            rounds, k = divmod(self.step_count, T)
+            if self._frame_pass is None or self._frame_pass[0] != rounds:
+                order = np.random.default_rng([self._seed, self.stage, rounds]).permutation(T)
+                self._frame_pass = (rounds, order)
+            return int(self._frame_pass[1][k])
+        return int(self.rng.integers(0, T))
 
     def _hold_frozen_rows(self) -> None:
         """Zero the gradients of the frozen rows: Adam's moments of a row whose gradient is always
