@@ -4,11 +4,15 @@ A study is a list of variants, each a set of overrides of the pipeline configura
 (dotted keys such as ``"stage1.iterations"``). Every variant runs the real pipeline in its own
 run folder (so an interrupted study resumes: finished variants are read back, half-finished
 ones resume stage by stage), is evaluated on the held-out cameras, and lands in
-``study.json``, a markdown table sorted by time, and three plots:
+``study.json``, a markdown table sorted by time, and five plots:
 
-- ``psnr_vs_time.png`` / ``lpips_vs_time.png``: quality against wall-clock seconds, the Pareto
-  front highlighted and labelled;
+- ``psnr_vs_time.png``, ``psnr_dynamic_vs_time.png``, ``psnr_static_vs_time.png``,
+  ``lpips_vs_time.png``: quality against wall-clock seconds (all pixels, the held-out
+  moving-content mask, the rest), the Pareto front highlighted and labelled;
 - ``stage_seconds.png``: seconds per stage as stacked bars.
+
+Fronts are drawn for every metric in ``METRICS``; "the fastest variant within 0.5 dB of the
+best" ranks by ``StudyConfig.rank`` (PSNR, or the moving / static pixels' PSNR).
 
 A budget (minutes) bounds the sweep: variants run in the order given (the default sweep puts
 the base configuration first) and the study starts no new variant once the budget is spent.
@@ -58,9 +62,19 @@ RELATIVE_KNOBS = {"scene.scale", "stage1.iterations", "stage1.max_gaussians", "i
                   "restorer.learned.loo_iterations"}
 
 
+# The metrics a study draws fronts for and can rank by: name -> (higher is better, label). The
+# dynamic / static PSNRs are over the held-out moving-content mask and the rest of the image
+# (issue 11; None where a run has no moving pixels).
+METRICS: dict[str, tuple[bool, str]] = {"psnr": (True, "PSNR"), "psnr_dynamic": (True, "PSNR dyn."),
+                                        "psnr_static": (True, "PSNR static"), "lpips": (False, "LPIPS")}
+# the dB metrics "fastest within X dB of the best" can rank by
+RANK_METRICS = ("psnr", "psnr_dynamic", "psnr_static")
+
+
 @dataclass
 class StudyResult:
-    """One finished variant: its overrides, its metrics and its per-stage seconds."""
+    """One finished variant: its overrides, its metrics, its per-stage seconds and the metrics on
+    whose Pareto front it lies (``pareto``, keys of METRICS)."""
 
     name: str
     overrides: dict[str, Any]
@@ -70,8 +84,9 @@ class StudyResult:
     lpips: float | None
     seconds: dict[str, float]
     run_dir: str
-    pareto_psnr: bool = False
-    pareto_lpips: bool = False
+    psnr_dynamic: float | None = None
+    psnr_static: float | None = None
+    pareto: list[str] = field(default_factory=list)
 
     @property
     def total_seconds(self) -> float:
@@ -107,21 +122,32 @@ def pareto_front(costs: list[float], scores: list[float | None], higher_is_bette
 
 
 def mark_fronts(results: list[StudyResult]) -> None:
+    """Set each result's ``pareto``: the METRICS on whose time/quality front it lies."""
     costs = [r.total_seconds for r in results]
     for r in results:
-        r.pareto_psnr = r.pareto_lpips = False
-    for i in pareto_front(costs, [r.psnr for r in results], higher_is_better=True):
-        results[i].pareto_psnr = True
-    for i in pareto_front(costs, [r.lpips for r in results], higher_is_better=False):
-        results[i].pareto_lpips = True
+        r.pareto = []
+    for metric, (higher, _) in METRICS.items():
+        for i in pareto_front(costs, [getattr(r, metric) for r in results], higher_is_better=higher):
+            results[i].pareto.append(metric)
 
 
-def fastest_within(results: list[StudyResult], db: float = 0.5) -> StudyResult | None:
-    """The fastest variant whose PSNR is within ``db`` of the best one."""
-    if not results:
+def check_rank(metric: str) -> str:
+    if metric not in RANK_METRICS:
+        from fixer4d.errors import InputError
+
+        raise InputError(f"study rank metric {metric!r}: choose one of {list(RANK_METRICS)}")
+    return metric
+
+
+def fastest_within(results: list[StudyResult], db: float = 0.5, metric: str = "psnr") -> StudyResult | None:
+    """The fastest variant whose ``metric`` (a dB metric of RANK_METRICS) is within ``db`` of the
+    best one; variants without that metric are not ranked. None when none has it."""
+    check_rank(metric)
+    scored = [r for r in results if getattr(r, metric) is not None and math.isfinite(getattr(r, metric))]
+    if not scored:
         return None
-    best = max(r.psnr for r in results)
-    ok = [r for r in results if r.psnr >= best - db]
+    best = max(getattr(r, metric) for r in scored)
+    ok = [r for r in scored if getattr(r, metric) >= best - db]
     return min(ok, key=lambda r: r.total_seconds)
 
 
@@ -131,14 +157,19 @@ def fastest_within(results: list[StudyResult], db: float = 0.5) -> StudyResult |
 def markdown_table(results: list[StudyResult]) -> str:
     rows = sorted(results, key=lambda r: r.total_seconds)
     stages = sorted({k for r in rows for k in r.seconds if k != "total"})
-    head = "| Variant | PSNR | DSSIM1 | DSSIM2 | LPIPS | Total s | " + " | ".join(f"{s} s" for s in stages) + " | Pareto |"
-    sep = "|" + "---|" * (6 + len(stages) + 1)
+    head = ("| Variant | PSNR | PSNR dyn. | PSNR static | DSSIM1 | DSSIM2 | LPIPS | Total s | "
+            + " | ".join(f"{s} s" for s in stages) + " | Pareto |")
+    sep = "|" + "---|" * (8 + len(stages) + 1)
     lines = [head, sep]
+
+    def fmt(v: float | None, digits: int) -> str:
+        return "n/a" if v is None else f"{v:.{digits}f}"
+
     for r in rows:
-        lp = "n/a" if r.lpips is None else f"{r.lpips:.4f}"
         per = " | ".join(f"{r.seconds.get(s, 0.0):.1f}" for s in stages)
-        mark = ", ".join(m for m, on in (("PSNR", r.pareto_psnr), ("LPIPS", r.pareto_lpips)) if on)
-        lines.append(f"| {r.name} | {r.psnr:.2f} | {r.dssim1:.4f} | {r.dssim2:.4f} | {lp} | {r.total_seconds:.1f} | {per} | {mark} |")
+        mark = ", ".join(METRICS[m][1] for m in METRICS if m in r.pareto)
+        lines.append(f"| {r.name} | {r.psnr:.2f} | {fmt(r.psnr_dynamic, 2)} | {fmt(r.psnr_static, 2)} | {r.dssim1:.4f} | "
+                     f"{r.dssim2:.4f} | {fmt(r.lpips, 4)} | {r.total_seconds:.1f} | {per} | {mark} |")
     return "\n".join(lines) + "\n"
 
 
@@ -176,7 +207,7 @@ def _label_points(ax, fig, points: list[tuple[float, float, str, bool]]) -> None
 
 
 def plot_study(results: list[StudyResult], out_dir: Path) -> list[Path]:
-    """Write the three PNG plots; returns their paths."""
+    """Write the PNG plots (one per METRICS entry, and the stage seconds); returns their paths."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -184,8 +215,11 @@ def plot_study(results: list[StudyResult], out_dir: Path) -> list[Path]:
 
     out_dir = Path(out_dir)
     written = []
-    for metric, better, fname, label in (("psnr", True, "psnr_vs_time.png", "PSNR (dB, higher is better)"),
-                                         ("lpips", False, "lpips_vs_time.png", "LPIPS-alex (lower is better)")):
+    axis_labels = {"psnr": "PSNR (dB, higher is better)", "lpips": "LPIPS-alex (lower is better)",
+                   "psnr_dynamic": "PSNR on the moving pixels (dB, higher is better)",
+                   "psnr_static": "PSNR on the static pixels (dB, higher is better)"}
+    for metric, (better, _) in METRICS.items():
+        fname, label = f"{metric}_vs_time.png", axis_labels[metric]
         pts = [r for r in results if getattr(r, metric) is not None]
         fig, ax = plt.subplots(figsize=(7.5, 4.8), dpi=110)
         if pts:
@@ -201,7 +235,8 @@ def plot_study(results: list[StudyResult], out_dir: Path) -> list[Path]:
         ax.set_xlabel("wall-clock seconds (all stages)")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
-        ax.legend(loc="best", fontsize=8)
+        if pts:
+            ax.legend(loc="best", fontsize=8)
         fig.tight_layout()
         with atomic.atomic_path(out_dir / fname) as tmp:
             fig.savefig(tmp)
@@ -234,7 +269,8 @@ def plot_study(results: list[StudyResult], out_dir: Path) -> list[Path]:
 # The sweep
 # ---------------------------------------------------------------------------------------------
 RunVariant = Callable[[dict[str, Any], Path], dict[str, Any]]
-"""(variant overrides, run_dir) -> {"psnr", "dssim1", "dssim2", "lpips", "seconds": {stage: s, "total": s}};
+"""(variant overrides, run_dir) -> {"psnr", "dssim1", "dssim2", "lpips", optional "psnr_dynamic" / "psnr_static",
+"seconds": {stage: s, "total": s}};
 the study's base overrides are the runner's business (the default runner passes them as absolute values)."""
 
 
@@ -244,6 +280,7 @@ class StudyConfig:
 
     source: str = "demo"
     budget_minutes: float | None = None
+    rank: str = "psnr"  # RANK_METRICS: what "fastest within 0.5 dB of the best" ranks by
     variants: list[dict[str, Any]] = field(default_factory=lambda: [dict(v) for v in DEFAULT_SWEEP])
     base: dict[str, Any] = field(default_factory=dict)  # absolute overrides applied to every variant
 
@@ -287,6 +324,7 @@ def _slug(name: str) -> str:
 def run_study(config: StudyConfig, out_dir: str | Path, run_variant: RunVariant | None = None,
               progress: bool = True) -> list[StudyResult]:
     """Run (or resume) every variant within the budget; write study.json, study.md and the plots."""
+    check_rank(config.rank)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     if run_variant is None:
@@ -320,26 +358,29 @@ def run_study(config: StudyConfig, out_dir: str | Path, run_variant: RunVariant 
             atomic.write_json(done_file, res)
         results.append(StudyResult(name=name, overrides=overrides, psnr=float(res["psnr"]), dssim1=float(res["dssim1"]),
                                    dssim2=float(res["dssim2"]), lpips=res.get("lpips"),
-                                   seconds={k: float(v) for k, v in res["seconds"].items()}, run_dir=str(run_dir)))
-        _write_outputs(results, skipped, out_dir)
-    _write_outputs(results, skipped, out_dir)
+                                   seconds={k: float(v) for k, v in res["seconds"].items()}, run_dir=str(run_dir),
+                                   psnr_dynamic=res.get("psnr_dynamic"), psnr_static=res.get("psnr_static")))
+        _write_outputs(results, skipped, out_dir, config.rank)
+    _write_outputs(results, skipped, out_dir, config.rank)
     return results
 
 
-def _write_outputs(results: list[StudyResult], skipped: list[str], out_dir: Path) -> None:
+def _write_outputs(results: list[StudyResult], skipped: list[str], out_dir: Path, rank: str = "psnr") -> None:
     mark_fronts(results)
-    best = fastest_within(results, 0.5)
+    best = fastest_within(results, 0.5, rank)
+    by_time = sorted(results, key=lambda r: r.total_seconds)
     payload = {
         "results": [{**r.__dict__, "total_seconds": r.total_seconds} for r in results],
-        "pareto_psnr": [r.name for r in sorted(results, key=lambda r: r.total_seconds) if r.pareto_psnr],
-        "pareto_lpips": [r.name for r in sorted(results, key=lambda r: r.total_seconds) if r.pareto_lpips],
+        **{f"pareto_{m}": [r.name for r in by_time if m in r.pareto] for m in METRICS},
+        "rank": rank,
         "fastest_within_0.5db": None if best is None else best.name,
         "skipped_over_budget": skipped,
     }
     atomic.write_json(out_dir / "study.json", payload)
     text = "# Study: accuracy vs time\n\n" + markdown_table(results)
     if best is not None:
-        text += f"\nFastest variant within 0.5 dB of the best PSNR: **{best.name}** ({best.total_seconds:.1f} s, {best.psnr:.2f} dB).\n"
+        text += (f"\nFastest variant within 0.5 dB of the best {METRICS[rank][1]}: **{best.name}** "
+                 f"({best.total_seconds:.1f} s, {getattr(best, rank):.2f} dB).\n")
     if skipped:
         text += f"\nNot run (budget spent): {', '.join(skipped)}.\n"
     atomic.write_text(out_dir / "study.md", text)

@@ -3,7 +3,9 @@ from __future__ import annotations
 
 import json
 
+import pytest
 
+from fixer4d.errors import InputError
 from fixer4d.study import StudyConfig, StudyResult, fastest_within, markdown_table, pareto_front, run_study
 
 
@@ -55,9 +57,10 @@ def test_run_study_writes_outputs_and_resumes(tmp_path):
     data = json.loads((tmp_path / "study.json").read_text())
     assert data["pareto_psnr"] == ["fast", "slow"]
     assert data["fastest_within_0.5db"] == "slow"
-    for name in ("psnr_vs_time.png", "lpips_vs_time.png", "stage_seconds.png", "study.md"):
+    for name in ("psnr_vs_time.png", "psnr_dynamic_vs_time.png", "psnr_static_vs_time.png", "lpips_vs_time.png",
+                 "stage_seconds.png", "study.md"):
         assert (tmp_path / name).stat().st_size > 0
-    assert {r.name for r in results if r.pareto_psnr} == {"fast", "slow"}
+    assert {r.name for r in results if "psnr" in r.pareto} == {"fast", "slow"}
     # a second run reads finished variants back instead of running them again
     run_study(StudyConfig(source="demo", variants=variants), tmp_path, run_variant=_fake_runner(calls), progress=False)
     assert calls == ["fast", "slow", "worse"]
@@ -116,3 +119,32 @@ def test_plot_labels_of_close_points_do_not_overlap():
         for b in names[i + 1:]:
             assert not boxes[a].overlaps(boxes[b]), (a, b)
     plt.close(fig)
+
+
+def test_the_study_ranks_by_the_moving_pixels(tmp_path):
+    """Issue 11: dynamic / static PSNR in the table, their own fronts, and --rank psnr_dynamic
+    picks a different variant than PSNR when the moving pixels disagree with the mean."""
+    table = {"cheap": (10.0, 24.0, 18.0, 24.2), "moving": (20.0, 23.9, 23.0, 23.9), "slow": (40.0, 24.1, 18.5, 24.3)}
+
+    def run(overrides, run_dir):
+        secs, psnr, dyn, static = table[overrides["tag"]]
+        return {"psnr": psnr, "psnr_dynamic": dyn, "psnr_static": static, "dssim1": 0.1, "dssim2": 0.05,
+                "lpips": 0.2, "seconds": {"stage1": secs, "total": secs}}
+
+    variants = [{"name": n, "tag": n} for n in table]
+    by_psnr = run_study(StudyConfig(source="demo", variants=variants), tmp_path / "a", run_variant=run, progress=False)
+    assert fastest_within(by_psnr, 0.5).name == "cheap"
+    assert fastest_within(by_psnr, 0.5, "psnr_dynamic").name == "moving"
+    run_study(StudyConfig(source="demo", variants=variants, rank="psnr_dynamic"), tmp_path / "b", run_variant=run,
+              progress=False)
+    data = json.loads((tmp_path / "b" / "study.json").read_text())
+    assert data["rank"] == "psnr_dynamic" and data["fastest_within_0.5db"] == "moving"
+    assert data["pareto_psnr_dynamic"] == ["cheap", "moving"] and data["pareto_psnr"] == ["cheap", "slow"]
+    text = (tmp_path / "b" / "study.md").read_text()
+    assert "| PSNR dyn. | PSNR static |" in text and "| moving | 23.90 | 23.00 | 23.90 |" in text
+    assert "best PSNR dyn.: **moving**" in text
+    # a variant without moving pixels is shown as n/a and never ranked by them
+    assert fastest_within([_res("x", 5, 30.0)], 0.5, "psnr_dynamic") is None
+    assert "| x | 30.00 | n/a | n/a |" in markdown_table([_res("x", 5, 30.0)])
+    with pytest.raises(InputError, match="rank"):
+        fastest_within(by_psnr, 0.5, "lpips")
