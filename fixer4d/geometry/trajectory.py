@@ -138,6 +138,11 @@ def _coincident(a: np.ndarray, b: np.ndarray) -> bool:
     return float(np.linalg.norm(b - a)) <= COINCIDENT_REL * scale
 
 
+def same_pose(cam_i: Camera, cam_j: Camera) -> bool:
+    """Whether two cameras share centre and orientation (no trajectory runs between them)."""
+    return _coincident(cam_i.center, cam_j.center) and float(np.max(np.abs(cam_i.R - cam_j.R))) <= SAME_ORIENTATION_TOL
+
+
 def _image_up(cam: Camera) -> np.ndarray:
     """World direction that points up in the image (OpenCV image-up is camera -y)."""
     return -cam.c2w[:3, 1] / np.linalg.norm(cam.c2w[:3, 1])
@@ -196,7 +201,7 @@ def interpolate_pair(cam_i: Camera, cam_j: Camera, alphas: Sequence[float] | np.
         if amplitude != 0.0:
             raise InputError(f"no trajectory exists between identical centres ({cam_i.name!r}, {cam_j.name!r}) "
                              f"with amplitude {amplitude}: an arc needs a baseline; use amplitude 0")
-        if float(np.max(np.abs(cam_i.R - cam_j.R))) <= SAME_ORIENTATION_TOL:
+        if same_pose(cam_i, cam_j):
             raise InputError(f"no trajectory exists between identical centres ({cam_i.name!r}, {cam_j.name!r}): "
                              "the two cameras are the same; pick two distinct cameras")
         n = np.zeros(3)

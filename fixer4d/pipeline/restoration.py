@@ -161,7 +161,12 @@ def restoration_render_fn(model, scene, restorer, backend: str = "auto") -> Call
     h are the references, the clip is (midpoint ref_a..h, h, midpoint h..ref_b) and the restored
     middle frame is returned (the "restoration" rows of the paper's Table 2).
     """
-    from fixer4d.geometry.trajectory import interpolate_pair
+    from fixer4d.geometry.trajectory import interpolate_pair, same_pose
+
+    def midpoint(c0: Camera, c1: Camera) -> Camera:
+        # a held-out camera may sit exactly where a train camera is (a duplicated pose): no path
+        # runs between them, and the midpoint is that pose itself
+        return c1 if same_pose(c0, c1) else interpolate_pair(c0, c1, np.array([0.5]), 0.0)[0]
 
     def fn(camera: Camera, t: float) -> np.ndarray:
         frame = int(round(t * scene.num_frames))
@@ -169,8 +174,7 @@ def restoration_render_fn(model, scene, restorer, backend: str = "auto") -> Call
         order = np.argsort(d)
         ids = (scene.train_ids[order[0]], scene.train_ids[order[1]])
         a, b = scene.cameras[ids[0]], scene.cameras[ids[1]]
-        cams = [interpolate_pair(a, camera, np.array([0.5]), 0.0)[0], camera,
-                interpolate_pair(camera, b, np.array([0.5]), 0.0)[0]]
+        cams = [midpoint(a, camera), camera, midpoint(camera, b)]
         req = make_request(model, scene, cams, frame, ids, backend=backend,
                            trajectory={"name": f"through-{camera.name}", "pair": list(ids), "amplitude": 0.0})
         return restorer.restore(req).rgb[1]
