@@ -274,7 +274,8 @@ def novel_frame_mask(cameras: Sequence[Camera], train_cameras: Sequence[Camera])
 def scene_trajectories(train_cameras: list[Camera], n_frames: int = DEFAULT_FRAMES, *,
                        amplitude: float | None = None, arcs: bool = True, seed: int = 0) -> list[Trajectory]:
     """The pair trajectories (A = 0) of every pair of train cameras (6 for 4 cameras), then the
-    arcs on the diagonal pairs (``diagonal_pairs``).
+    arcs on the diagonal pairs (``diagonal_pairs``). A pair of cameras on one pose (a duplicated
+    camera) has no path between them and is left out; InputError when no pair is left.
 
     amplitude: the arcs' A in world units; None draws A / baseline uniformly from
     ``ARC_AMPLITUDE_RANGE`` with ``numpy.random.default_rng(seed)``. n_ij uses the whole rig's
@@ -287,13 +288,19 @@ def scene_trajectories(train_cameras: list[Camera], n_frames: int = DEFAULT_FRAM
     up = np.sum([_image_up(c) for c in train_cameras], axis=0)
     forward = np.sum([c.forward for c in train_cameras], axis=0)
     out = []
-    for i, j in itertools.combinations(range(len(train_cameras)), 2):
+    distinct = [(i, j) for i, j in itertools.combinations(range(len(train_cameras)), 2)
+                if not same_pose(train_cameras[i], train_cameras[j])]
+    if not distinct:
+        raise InputError(f"trajectories need two train cameras at different poses; all {len(train_cameras)} share one "
+                         "pose (check the capture's camera poses)")
+    for i, j in distinct:
         name = f"{i}-{j}"
         out.append(Trajectory(name, interpolate_pair(train_cameras[i], train_cameras[j], alphas, 0.0, name=name),
                               alphas, pair=(i, j), amplitude=0.0))
     if arcs:
         rng = np.random.default_rng(seed)
-        for k, (i, j) in enumerate(diagonal_pairs(centers)):
+        diagonals = [p for p in diagonal_pairs(centers) if not _coincident(centers[p[0]], centers[p[1]])]
+        for k, (i, j) in enumerate(diagonals):
             n = arc_normal(centers[i], centers[j], up, forward)
             if amplitude is None:
                 amp = float(rng.uniform(*ARC_AMPLITUDE_RANGE) * np.linalg.norm(centers[j] - centers[i]))

@@ -159,12 +159,19 @@ def model_from_init(init: Any, scene: MultiViewVideo, config: Stage1Config,
     init: a DecomposedInit (fixer4d.init.decompose) -> effects decided by evidence
     (fixer4d.model.effects.decide_effects; ``effects`` picks auto | all | static and forced
     switches), or per-frame clouds -> ``model_from_clouds`` with the default effects on every
-    Gaussian (decision None; e.g. the sparse baseline).
+    Gaussian (decision None; e.g. the sparse baseline). A decomposed init with fewer than
+    MIN_INIT_POINTS points takes the per-frame path too (random points, decision None).
     """
     from fixer4d.model.effects import decide_effects, model_from_decomposed
 
     if isinstance(init, (list, tuple)):
         return model_from_clouds(init, scene, config), None
+    if init.num_static + init.num_dynamic < MIN_INIT_POINTS:
+        # nothing to decide effects from (e.g. a textureless capture): the per-frame path, whose
+        # degenerate init is topped up with random points like any other
+        log.warning("the decomposed init has %d point(s): training from random points with every effect on",
+                    init.num_static + init.num_dynamic)
+        return model_from_clouds(init.frame_clouds(), scene, config), None
     decision = decide_effects(init, effects)
     model = model_from_decomposed(init, decision, opacity=config.init_opacity, max_points=config.init_max_points,
                                   seed=config.seed)

@@ -306,3 +306,18 @@ def test_novel_frame_mask_flags_exactly_the_train_cameras():
     turned_c2w = rig[0].c2w.copy()
     turned_c2w[:3, :3] = rig[1].c2w[:3, :3]
     assert list(novel_frame_mask([rig[0].with_pose(turned_c2w), rig[0].scaled(0.5), turned], rig)) == [True, True, False]
+
+
+def test_scene_trajectories_leave_out_a_duplicated_camera_pair():
+    """A capture whose two train cameras share one pose (a duplicated camera) still gets its other
+    pairs and arcs; only a rig with a single pose is an error."""
+    rig = [Camera.look_at(np.array([x, 0.0, -4.0]), np.zeros(3), width=32, height=24, name=f"c{k}")
+           for k, x in enumerate((-1.0, 1.1, 0.4, -1.0))]  # c3 duplicates c0
+    trajs = scene_trajectories(rig, 4, amplitude=0.3)
+    pairs = [t.pair for t in trajs if t.arc_index is None]
+    assert (0, 3) not in pairs and len(pairs) == 5
+    assert all(t.pair != (0, 3) for t in trajs) and any(t.arc_index is not None for t in trajs)
+    for t in trajs:
+        assert all(np.isfinite(c.c2w).all() for c in t.cameras)
+    with pytest.raises(InputError, match="different poses"):
+        scene_trajectories([rig[0], rig[3]], 4)

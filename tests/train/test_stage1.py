@@ -206,3 +206,22 @@ def test_shuffled_frame_order_visits_every_frame_once_per_pass(small_scene, smal
     assert Stage1Config().frame_order == "iid"
     with pytest.raises(InputError, match="frame_order"):
         make_config(4, frame_order="epochs")
+
+
+def test_an_empty_decomposed_init_trains_from_random_points(small_scene, make_config):
+    """A textureless capture gives a decomposed init without points: stage 1 starts from random
+    points (as the per-frame path does), not an error."""
+    from fixer4d.init.decompose import DecomposedInit
+    from fixer4d.train.trainer import model_from_init
+
+    z3 = np.zeros((0, 3), np.float32)
+    empty = DecomposedInit(frames=np.array([0, 2]), times=np.array([0.0, small_scene.time(2)]), static_points=z3,
+                           static_colors=z3, static_view_std=np.zeros(0, np.float32), dyn_points=z3, dyn_colors=z3,
+                           dyn_times=np.zeros(0), dyn_frames=np.zeros(0, np.int64),
+                           dyn_coeffs=np.zeros((0, 3, 3), np.float32), dyn_degree=np.zeros(0, np.int8),
+                           dyn_fit_px=np.zeros(0, np.float32), dyn_omega=z3, dyn_rot_gain=np.zeros(0, np.float32),
+                           scene_scale=1.0)
+    cfg = make_config(3)
+    model, decision = model_from_init(empty, small_scene, cfg)
+    assert decision is None and model.num_gaussians >= 100
+    Trainer(model, small_scene, cfg).train()
