@@ -358,17 +358,21 @@ def save_png(path: str | Path, image: np.ndarray) -> None:
 
 def setup_logging() -> Path:
     """Log the viewer's messages (notifications, errors with tracebacks) to
-    ~/.config/fixer4d/view/viewer.log as well as stderr: a viewer started from the desktop has
-    no terminal. Returns the log file's path."""
+    ~/.config/fixer4d/view/viewer.log (everything: a viewer started from the desktop has no
+    terminal) and its warnings and errors to stderr as well. Returns the log file's path."""
     import logging
 
     path = _config_dir() / "viewer.log"
     path.parent.mkdir(parents=True, exist_ok=True)
     log = logging.getLogger("fixer4d.view")
     if not log.handlers:
-        handler = logging.FileHandler(path, encoding="utf-8")
-        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
-        log.addHandler(handler)
+        form = logging.Formatter("%(asctime)s %(levelname)s %(message)s")
+        to_file = logging.FileHandler(path, encoding="utf-8")
+        to_stderr = logging.StreamHandler()  # sys.stderr
+        to_stderr.setLevel(logging.WARNING)
+        for handler in (to_file, to_stderr):
+            handler.setFormatter(form)
+            log.addHandler(handler)
         log.setLevel(logging.INFO)
     return path
 

@@ -141,6 +141,13 @@ class Viewer:
         # screen rectangles of the panel windows this frame and last frame (panels._layout.alone)
         self.window_rects: dict[str, tuple[float, float, float, float]] = {}
         self.last_window_rects: dict[str, tuple[float, float, float, float]] = {}
+        # every panel's latest rectangle (hidden ones included), whether it is docked, the
+        # rectangles due after a window resize, and the window size they were laid out for
+        # (panels._layout.rescale_layout)
+        self.known_window_rects: dict[str, tuple[float, float, float, float]] = {}
+        self.docked_windows: dict[str, bool] = {}
+        self.pending_window_rects: dict[str, tuple[float, float, float, float]] = {}
+        self._layout_size: tuple[float, float] | None = None
         self._trajectory_cache: dict[int, tuple[TrajectorySpec, list[Camera]]] = {}
         from app.panels import PANELS  # the panels import the viewer's helpers
 
@@ -168,6 +175,7 @@ class Viewer:
         imgui.backends.opengl3_new_frame()
         imgui.new_frame()
         self.last_window_rects, self.window_rects = self.window_rects, {}
+        self._follow_window_size((io.display_size.x, io.display_size.y))
         if io.mouse_delta.x or io.mouse_delta.y or io.mouse_wheel or any(io.mouse_down) or io.want_text_input:
             self.last_input = time.monotonic()
         imgui.dock_space_over_viewport(0, imgui.get_main_viewport(),
@@ -196,6 +204,17 @@ class Viewer:
         self.frame_times.append(self.frame_ms)
         del self.frame_times[:-240]
 
+    def _follow_window_size(self, size: tuple[float, float]) -> None:
+        """Rescale the panels when the app window changed size (a minimized window, size 0, does not
+        count: restoring it returns to the layout it had)."""
+        if min(size) <= 0:
+            return
+        if self._layout_size is not None and size != self._layout_size:
+            from app.panels._layout import rescale_layout
+
+            rescale_layout(self, self._layout_size, size)
+        self._layout_size = size
+
     def _plan_budget(self, ui_ms: float) -> None:
         """The splat draw's budget while moving: what is left of FRAME_TARGET_MS after the rest of
         the frame (panels, imgui's GL pass, the display), from a running estimate of it."""
@@ -222,7 +241,8 @@ class Viewer:
             self._notifications_seen = notes.serial
         if not self.show_notifications:
             return
-        with panel(self, "notifications", "Notifications", 300, 640, 800, 150) as expanded:
+        # over the bottom of the Compare panel's image: its controls (top) stay usable
+        with panel(self, "notifications", "Notifications", 300, 765, 800, 130) as expanded:
             if not expanded:
                 return
             if imgui.small_button("clear"):

@@ -30,12 +30,32 @@ def alone(viewer, name: str) -> bool:
     return rect is not None and not any(overlaps(rect, r) for other, r in rects.items() if other != name)
 
 
-def place(x: float, y: float, w: float, h: float) -> None:
-    """First-use position and size of the next window, in DESIGN_SIZE pixels."""
+def place(viewer, name: str, x: float, y: float, w: float, h: float) -> None:
+    """Position and size of panel ``name``'s next window: on first use (x, y, w, h) in DESIGN_SIZE
+    pixels scaled to the window; after the app window was resized, the panel's own last rectangle
+    scaled by the same factors (``rescale_layout``), so the user's arrangement keeps filling it."""
+    pending = viewer.pending_window_rects.pop(name, None)
+    if pending is not None:
+        x0, y0, x1, y1 = pending
+        imgui.set_next_window_pos(imgui.ImVec2(x0, y0), imgui.Cond_.always.value)
+        imgui.set_next_window_size(imgui.ImVec2(x1 - x0, y1 - y0), imgui.Cond_.always.value)
+        return
     size = imgui.get_io().display_size
     sx, sy = size.x / DESIGN_SIZE[0], size.y / DESIGN_SIZE[1]
     imgui.set_next_window_pos(imgui.ImVec2(x * sx, y * sy), imgui.Cond_.first_use_ever.value)
     imgui.set_next_window_size(imgui.ImVec2(w * sx, h * sy), imgui.Cond_.first_use_ever.value)
+
+
+def rescale_layout(viewer, old: tuple[float, float], new: tuple[float, float]) -> None:
+    """The app window went from ``old`` to ``new`` (width, height) pixels: every floating panel
+    seen so far is due at its last rectangle scaled by new / old (placed when it next draws, so a
+    hidden panel follows too). Docked panels are left to their dock node, which resizes itself."""
+    sx, sy = new[0] / old[0], new[1] / old[1]
+    for name, known in viewer.known_window_rects.items():
+        if not viewer.docked_windows.get(name, False):
+            # a panel still hidden since the last resize has its due rectangle in the old size
+            x0, y0, x1, y1 = viewer.pending_window_rects.get(name, known)
+            viewer.pending_window_rects[name] = (x0 * sx, y0 * sy, x1 * sx, y1 * sy)
 
 
 @contextmanager
@@ -63,14 +83,15 @@ def panel(viewer, name: str, title: str, x: float, y: float, w: float, h: float)
     """
     saved = imgui.internal.ErrorRecoveryState()
     imgui.internal.error_recovery_store_state(saved)
-    place(x, y, w, h)
+    place(viewer, name, x, y, w, h)
     if alone(viewer, name):
         imgui.set_next_window_bg_alpha(0.0)
     try:
         expanded, _ = imgui.begin(title)
         pos, size = imgui.get_window_pos(), imgui.get_window_size()
-        viewer.item_rects[f"window_{name}"] = viewer.window_rects[name] = (pos.x, pos.y, pos.x + size.x,
-                                                                           pos.y + size.y)
+        viewer.item_rects[f"window_{name}"] = viewer.window_rects[name] = viewer.known_window_rects[name] = (
+            pos.x, pos.y, pos.x + size.x, pos.y + size.y)
+        viewer.docked_windows[name] = imgui.is_window_docked()
         yield expanded
     except Exception as exc:
         imgui.internal.error_recovery_try_to_recover_state(saved)  # ends the panel window too

@@ -60,17 +60,26 @@ def queue_restore(viewer, k: int, frame: int):
     scene = src.scene
     if spec.pair is not None:
         ref_ids = (scene.train_ids[spec.pair[0]], scene.train_ids[spec.pair[1]])
-        # the pipeline's clip names: scene camera ids, not positions in the train-camera list
-        key = src.cache.key(frame, ref_ids[0], ref_ids[1], spec.arc_index)
+        key = viewer_clip_key(src.cache.key(frame, ref_ids[0], ref_ids[1], spec.arc_index), spec)
     else:
         ref_ids = tuple(_nearest_train(scene, c) for c in (cams[0], cams[-1]))
-        key = f"t{frame:04d}_" + re.sub(r"[^A-Za-z0-9_-]+", "_", spec.name)
+        key = viewer_clip_key(f"t{frame:04d}_" + re.sub(r"[^A-Za-z0-9_-]+", "_", spec.name), spec)
     if spec.reverse:
         ref_ids = ref_ids[::-1]
     render_fn = viewer.model_render_fn()
     meta = {"source": "viewer", "trajectory": spec_meta(spec)}
     return src.restore.queue(key, spec.name, frame,
                              lambda: restore_request(render_fn, scene, cams, frame, ref_ids, spec_meta(spec)), meta)
+
+
+def viewer_clip_key(base: str, spec) -> str:
+    """Cache key of a clip restored in the viewer: the pipeline's name of the clip (``base``:
+    ``RestoreCache.key`` with scene camera ids, or the trajectory's own name) with the viewer's
+    trajectory settings after it. A viewer clip therefore never replaces a pipeline pseudo-target
+    of that pair and frame (which an edited amplitude or frame count would misname), and two
+    edits of one pair keep two clips."""
+    tag = f"_viewer_A{float(spec.amplitude):.3f}_F{int(spec.n_frames)}" + ("_rev" if spec.reverse else "")
+    return base + tag
 
 
 def _nearest_train(scene, cam) -> int:

@@ -24,9 +24,19 @@ def draw(viewer) -> None:
     with panel(viewer, "trajectories", "Trajectories", 5, 300, 290, 595) as expanded:
         if not expanded:
             return
-        if scene is not None and imgui.button("add the 6 pairs + arcs"):
-            st.set_trajectories(st.trajectories + traj.default_specs(scene.train_cameras, max(2, scene.num_frames)),
-                                "add default trajectories", selected=len(st.trajectories))
+        if scene is not None:
+            clicked = imgui.button("add the 6 pairs + arcs")
+            viewer.record_item("add_default_trajectories")
+            if clicked:
+                # only those not in the list yet (by name): a second click does not duplicate them
+                have = {spec.name for spec in st.trajectories}
+                new = [spec for spec in traj.default_specs(scene.train_cameras, max(2, scene.num_frames))
+                       if spec.name not in have]
+                if new:
+                    st.set_trajectories(st.trajectories + new, "add default trajectories",
+                                        selected=len(st.trajectories))
+                else:
+                    st.status = "the pairs and arcs are in the list already"
         imgui.same_line()
         if imgui.button("new from view"):
             cam = viewer.render_camera or st.view.camera(640, 480)

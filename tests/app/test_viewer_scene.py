@@ -97,9 +97,11 @@ def test_queued_restoration_lands_in_cache_and_compare_shows_it(make_viewer, tin
     d.click_item("queue")
     assert queue.wait_all(timeout=300)
     assert [i.status for i in queue.items] == ["done"]
-    key = cache.key(2, tiny.train_ids[0], tiny.train_ids[3])  # the pipeline's names: scene camera ids
-    assert key == "t0002_0-7"
-    assert cache.has(0, key)
+    # the pipeline's clip name (scene camera ids) with the viewer's trajectory settings after it:
+    # never the pipeline's own entry
+    key = cache.key(2, tiny.train_ids[0], tiny.train_ids[3]) + "_viewer_A0.000_F4"
+    assert key == "t0002_0-7_viewer_A0.000_F4"
+    assert cache.has(0, key) and not cache.has(0, "t0002_0-7")
     d.frame(2)
     ui = d.viewer._compare_ui
     ui["polled"] = -1e9

@@ -1,0 +1,28 @@
+"""The viewer's log: everything to ~/.config/fixer4d/view/viewer.log, warnings and errors (the
+notifications' errors) to stderr too (a scripted walk found stderr empty while the window showed
+errors)."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_errors_reach_stderr_and_the_log_file(tmp_path):
+    code = ("import logging\n"
+            "from app.main import setup_logging\n"
+            "path = setup_logging()\n"
+            "log = logging.getLogger('fixer4d.view')\n"
+            "log.info('opened a run')\n"
+            "log.error('file: InputError: bad.ply')\n"
+            "print(path)\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120,
+                         env={**os.environ, "XDG_CONFIG_HOME": str(tmp_path)})
+    assert out.returncode == 0, out.stderr
+    assert "ERROR file: InputError: bad.ply" in out.stderr and "opened a run" not in out.stderr
+    text = Path(out.stdout.strip()).read_text()
+    assert "opened a run" in text and "bad.ply" in text
+    assert Path(out.stdout.strip()).parent == tmp_path / "fixer4d" / "view"
