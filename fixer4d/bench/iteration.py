@@ -189,10 +189,8 @@ def _effects_main(args) -> int:
     from fixer4d.atomic import write_json
     from fixer4d.init import run_init
     from fixer4d.init.decompose import DecomposedInit
-    from fixer4d.scene import load_scene
+    from fixer4d.scene import load_scene, parse_frame_range
     from fixer4d.train.config import Stage1Config
-
-    from fixer4d.scene import parse_frame_range
 
     clip = None if args.frames is None else tuple(parse_frame_range(args.frames))
     scene = load_scene(args.scene, scale=args.scale, frame_range=clip)
