@@ -2,8 +2,10 @@
 
 Opens the run folder (``fixer4d.pipeline.RunFolder``: versioned config, its scene), loads the latest model
 (``model_final.ply``, else ``model_stage1.ply``, or ``--model``), renders every held-out camera at
-every S-th frame and writes ``RUN/eval/<method-slug>/`` (metrics.json, metrics.md, PNGs) and a
-copy of metrics.json at ``RUN/metrics.json``.
+every S-th frame (default: the run's ``eval.stride``, the report's protocol) and writes
+``RUN/eval/<method-slug>/`` (metrics.json, metrics.md, PNGs) and a copy of metrics.json at
+``RUN/metrics.json``. Another stride writes ``RUN/eval/<method-slug>-stride<S>/`` only: the
+report's rows are never replaced by figures over other frames.
 """
 from __future__ import annotations
 
@@ -19,7 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", help="run folder (holds config.json and model_*.ply)")
     parser.add_argument("--model", default=None,
                         help="model to evaluate (.ply); default: RUN/model_final.ply, else RUN/model_stage1.ply")
-    parser.add_argument("--stride", type=int, default=1, help="evaluate every S-th frame (default 1: every frame)")
+    parser.add_argument("--stride", type=int, default=None,
+                        help="evaluate every S-th frame (default: the run's eval.stride, as the report; another "
+                             "stride writes RUN/eval/<method>-stride<S>/ and leaves the report's files alone)")
     parser.add_argument("--backend", default="auto", help="render backend: auto, reference, cpu, gsplat")
     parser.add_argument("--method", default=None, help="method name in the table (default: from the model file)")
     parser.add_argument("--examples", type=int, default=3, help="frames saved as render|gt|error PNGs per view")
@@ -76,14 +80,21 @@ def run(args: argparse.Namespace) -> int:
     model = load_ply(model_path).eval()
     render_fn = model_render_fn(model, args.backend, folder.config.stage1.background)
     method = args.method or method_name_for(model_path, folder.config.init_method)
-    out = folder.path / "eval" / eval_slug(method)
-    result = evaluate(render_fn, folder.scene, out, frame_stride=args.stride, method_name=method,
+    stride = folder.config.eval.stride if args.stride is None else args.stride
+    if stride < 1:
+        raise InputError(f"--stride {stride}: must be >= 1")
+    protocol = stride == folder.config.eval.stride
+    out = folder.path / "eval" / (eval_slug(method) if protocol else f"{eval_slug(method)}-stride{stride}")
+    result = evaluate(render_fn, folder.scene, out, frame_stride=stride, method_name=method,
                       seconds=known_seconds(folder, model_path), save_examples=args.examples, progress=not args.quiet)
     result["model"] = str(model_path)
     write_json(out / "metrics.json", result)
-    write_json(folder.path / "metrics.json", result)
+    if protocol:
+        write_json(folder.path / "metrics.json", result)
     print(markdown_table([result]), end="")
     if result["lpips_unavailable_reason"]:
         print(f"LPIPS unavailable: {result['lpips_unavailable_reason']}")
-    print(f"wrote {folder.path / 'metrics.json'} and {out}/")
+    print(f"wrote {folder.path / 'metrics.json'} and {out}/" if protocol else
+          f"wrote {out}/ (stride {stride}, not the run's {folder.config.eval.stride}: RUN/metrics.json and the "
+          "report's rows are left as they are)")
     return 0

@@ -49,6 +49,8 @@ def run(args: argparse.Namespace) -> int:
         "stage2.iterations": args.iterations, "stage2.batch_pseudo": args.batch_pseudo,
         "stage2.confidence_weighting": False if args.no_confidence else None, "eval.stride": args.eval_stride,
     }.items() if v is not None}
+    if args.iterations is not None and args.iterations < 1:
+        raise InputError(f"refine --iterations {args.iterations}: must be >= 1 (leave it out for R x K)")
     overrides.update(config_tree.parse_set_overrides(args.set))
     bad = [k for k in overrides if not k.startswith(REFINABLE)]
     if bad:
@@ -57,6 +59,9 @@ def run(args: argparse.Namespace) -> int:
     current = folder.config.to_dict()
     if current["stage2"]["rounds"] == 0 and "stage2.rounds" not in overrides:
         overrides["stage2.rounds"] = Stage2Config().rounds  # a reconstruction: refine means stage 2
+    if ({"stage2.rounds", "stage2.refresh_every"} & set(overrides) and "stage2.iterations" not in overrides
+            and current["stage2"].get("iterations") is not None):
+        overrides["stage2.iterations"] = None  # R x K of the new rounds, not a count an earlier refine set
     config = resolve(config_file=current, overrides=overrides, defaults={})
     if maybe_print_config(args, config):
         return 0
@@ -65,5 +70,6 @@ def run(args: argparse.Namespace) -> int:
     for row in report["rows"]:
         if row.get("status") == "ok":
             print(f"{row['method']}: held-out PSNR {row['psnr']:.2f} dB")
-    print(f"-> {folder.path}/model_final.ply, {folder.path}/report.md")
+    model = "model_final.ply" if config.stage2.rounds > 0 else "model_stage1.ply (rounds = 0: no stage 2)"
+    print(f"-> {folder.path}/{model}, {folder.path}/report.md")
     return 0

@@ -137,6 +137,8 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
                                  stage_key(s2_key, r_key), seconds("stage1", "restorer", "stage2"))
             add(R.metrics_row(R.ROW_RESTORED_REFINED, m, full_secs
                               + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_REFINED)}")))
+    else:
+        S.retire_stage2(ctx)
     atomic.write_json(ctx.path / "metrics.json", final_metrics)
     return R.write_report(ctx.path, ctx.scene.describe(), _ordered(rows), rec.as_seconds(), extra())
 

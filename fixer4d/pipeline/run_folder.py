@@ -76,6 +76,13 @@ class StageRecords:
         self._save()
         return stale
 
+    def forget(self, name: str) -> bool:
+        """Drop stage ``name``'s record (a stage the config no longer runs); True when there was one."""
+        if self.records.pop(name, None) is None:
+            return False
+        self._save()
+        return True
+
     def finish(self, name: str, key: str, seconds: float) -> None:
         self.records[name] = {"key": key, "seconds": float(seconds), "done": True}
         self._save()

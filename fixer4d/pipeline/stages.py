@@ -306,6 +306,24 @@ def eval_slug(name: str) -> str:
     return re.sub(r"[^a-z0-9._-]+", "-", name.lower().replace("/", "")).strip("-") or "model"
 
 
+def retire_stage2(ctx: StageContext) -> None:
+    """The config runs no stage 2 (R = 0) but an earlier one ran here: its model moves to
+    RUN/stale/ (never left to pass for this config's "Full" model), its record and checkpoints go."""
+    final = ctx.path / "model_final.ply"
+    forgot = ctx.run.records.forget("stage2")
+    _drop_checkpoints(ctx.path, 2)
+    if final.exists():
+        stale = ctx.path / "stale"
+        stale.mkdir(exist_ok=True)
+        n = 0
+        while (stale / f"{final.name}-{n}").exists():
+            n += 1
+        final.rename(stale / f"{final.name}-{n}")
+        log.warning("stage 2 is off (rounds = 0): moved the earlier %s to %s", final, stale / f"{final.name}-{n}")
+    elif forgot:
+        log.warning("stage 2 is off (rounds = 0): dropped the earlier stage-2 record")
+
+
 def _drop_checkpoints(run_dir: Path, stage: int) -> None:
     """Delete the trainer checkpoints of ``stage`` under ``run_dir`` (a finished or stale stage)."""
     from fixer4d.train.trainer import Trainer

@@ -49,6 +49,27 @@ def test_refine_continues_a_run_with_its_own_config(tiny_run, tmp_path, capsys):
     assert "would change the stage-1 model" in capsys.readouterr().err
 
 
+def test_refine_rounds_and_iterations_do_not_leave_stale_results(tiny_run, tmp_path, capsys):
+    """A count set by an earlier refine does not outlive new rounds (it made an untrained "Full"),
+    and R = 0 moves the earlier stage-2 model aside instead of leaving it as the run's final one."""
+    src, _ = tiny_run
+    run = tmp_path / "copy"
+    shutil.copytree(src, run)
+    assert main(["refine", str(run), "--iterations", "0", "--quiet"]) == 2
+    assert "must be >= 1" in capsys.readouterr().err
+    assert main(["refine", str(run), "--iterations", "3", "--quiet"]) == 0
+    assert main(["refine", str(run), "--rounds", "1", "--refresh-every", "4", "--quiet"]) == 0
+    assert json.loads((run / "config.json").read_text())["config"]["stage2"]["iterations"] is None
+    final = (run / "model_final.ply").read_bytes()
+    assert main(["refine", str(run), "--rounds", "0", "--quiet"]) == 0
+    assert not (run / "model_final.ply").exists() and (run / "stale" / "model_final.ply-0").read_bytes() == final
+    assert "stage2" not in json.loads((run / "stages.json").read_text())
+    report = json.loads((run / "report.json").read_text())
+    assert R.ROW_FULL not in [r["method"] for r in report["rows"]]
+    assert "model_stage1.ply (rounds = 0" in capsys.readouterr().out
+    assert find_model(run).name == "model_stage1.ply"  # `fixer4d eval` now scores the stage-1 model
+
+
 def test_eval_verb_on_a_run(tiny_run, tmp_path, capsys):
     src, report = tiny_run
     run = tmp_path / "copy"
@@ -60,6 +81,14 @@ def test_eval_verb_on_a_run(tiny_run, tmp_path, capsys):
     assert res["mean"]["psnr"] == pytest.approx(full["psnr"], abs=1e-6)
     assert res["seconds"]["train"] > 0 and np.isfinite(res["mean"]["psnr"])
     assert "| Full |" in capsys.readouterr().out
+    # the default stride is the run's (the report's protocol); another one never replaces its files
+    assert main(["eval", str(run), "--quiet", "--examples", "0"]) == 0
+    assert json.loads((run / "metrics.json").read_text())["mean"]["psnr"] == pytest.approx(full["psnr"], abs=1e-6)
+    before = {p: (run / p).read_bytes() for p in ("metrics.json", "eval/full/metrics.json")}
+    assert main(["eval", str(run), "--stride", "1", "--quiet", "--examples", "0"]) == 0
+    assert (run / "eval" / "full-stride1" / "metrics.json").is_file()
+    assert {p: (run / p).read_bytes() for p in before} == before
+    assert "not the run's 2" in capsys.readouterr().out
 
 
 def test_eval_helpers_and_errors(tmp_path, capsys):
