@@ -313,13 +313,7 @@ def retire_stage2(ctx: StageContext) -> None:
     forgot = ctx.run.records.forget("stage2")
     _drop_checkpoints(ctx.path, 2)
     if final.exists():
-        stale = ctx.path / "stale"
-        stale.mkdir(exist_ok=True)
-        n = 0
-        while (stale / f"{final.name}-{n}").exists():
-            n += 1
-        final.rename(stale / f"{final.name}-{n}")
-        log.warning("stage 2 is off (rounds = 0): moved the earlier %s to %s", final, stale / f"{final.name}-{n}")
+        log.warning("stage 2 is off (rounds = 0): moved the earlier %s to %s", final, _move_aside(final))
     elif forgot:
         log.warning("stage 2 is off (rounds = 0): dropped the earlier stage-2 record")
 
@@ -340,10 +334,15 @@ def _clear(path: Path, keep_aside: bool = True) -> None:
     if not keep_aside or not path.is_dir() or not any(path.iterdir()):
         shutil.rmtree(path) if path.is_dir() else path.unlink()
         return
+    log.warning("moved %s (made with other settings) to %s", path, _move_aside(path))
+
+
+def _move_aside(path: Path) -> Path:
+    """Move ``path`` to RUN/stale/<name>-<n> (the first free n); returns where it went."""
     stale = path.parent / "stale"
     stale.mkdir(exist_ok=True)
     n = 0
     while (stale / f"{path.name}-{n}").exists():
         n += 1
     path.rename(stale / f"{path.name}-{n}")
-    log.warning("moved %s (made with other settings) to %s", path, stale / f"{path.name}-{n}")
+    return stale / f"{path.name}-{n}"
