@@ -321,11 +321,67 @@ def _slug(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "-" for c in name)
 
 
+def check_variants(variants: Any) -> None:
+    """A study's variants: a list of objects, each with a distinct non-empty "name" (its run folder
+    is named after it) and dotted config keys; InputError naming what is wrong otherwise."""
+    from fixer4d.errors import InputError
+
+    if not isinstance(variants, list) or not variants:
+        raise InputError('study variants: expected a non-empty JSON list of objects like [{"name": "base"}, '
+                         f'{{"name": "iters-2x", "stage1.iterations": 2.0}}], got {type(variants).__name__}')
+    seen: dict[str, str] = {}
+    for k, v in enumerate(variants):
+        if not isinstance(v, dict):
+            raise InputError(f"study variant #{k}: expected an object with a \"name\", got {v!r}")
+        name = v.get("name")
+        if not isinstance(name, str) or not _slug(name).strip("-."):
+            raise InputError(f"study variant #{k}: needs a non-empty \"name\" (its run folder is named after it), "
+                             f"got {name!r}")
+        if _slug(name) in seen:
+            raise InputError(f"study variants: {seen[_slug(name)]!r} and {name!r} would share the run folder "
+                             f"runs/{_slug(name)}; give every variant its own name")
+        seen[_slug(name)] = name
+
+
+def _variant_settings(config: StudyConfig, overrides: dict[str, Any]) -> dict[str, Any]:
+    """What a variant's result depends on (kept in its study_result.json): scene, base, overrides."""
+    return json.loads(json.dumps({"source": config.source, "base": config.base, "overrides": overrides}))
+
+
+def _check_finished(done_file: Path, name: str, settings: dict[str, Any]) -> None:
+    """Refuse to reuse a finished variant run under other settings (a result without recorded
+    settings, from before they were recorded, is reused as it is)."""
+    from fixer4d.errors import InputError
+
+    old = json.loads(done_file.read_text()).get("settings")
+    if old is None or old == settings:
+        return
+    changed = []
+    for part in ("source", "base", "overrides"):
+        a, b = old.get(part), settings[part]
+        if a == b:
+            continue
+        if isinstance(a, dict) and isinstance(b, dict):
+            changed += [f"{part} {k}: {a.get(k)!r} -> {b.get(k)!r}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+        else:
+            changed.append(f"{part}: {a!r} -> {b!r}")
+    raise InputError(f"{done_file.parent}: variant {name!r} finished under other settings ({'; '.join(changed)}); "
+                     f"study into a new --out, or delete {done_file.parent} to run it again")
+
+
 def run_study(config: StudyConfig, out_dir: str | Path, run_variant: RunVariant | None = None,
               progress: bool = True) -> list[StudyResult]:
-    """Run (or resume) every variant within the budget; write study.json, study.md and the plots."""
+    """Run (or resume) every variant within the budget; write study.json, study.md and the plots.
+    A variant already finished in ``out_dir`` is read back, and refused when it ran under other
+    settings (scene, base or its own overrides)."""
     check_rank(config.rank)
+    check_variants(config.variants)
     out_dir = Path(out_dir)
+    for variant in config.variants:
+        done_file = out_dir / "runs" / _slug(variant["name"]) / "study_result.json"
+        if done_file.exists():
+            _check_finished(done_file, variant["name"],
+                            _variant_settings(config, {k: v for k, v in variant.items() if k != "name"}))
     out_dir.mkdir(parents=True, exist_ok=True)
     if run_variant is None:
         def run_variant(overrides: dict[str, Any], run_dir: Path) -> dict[str, Any]:
@@ -353,7 +409,7 @@ def run_study(config: StudyConfig, out_dir: str | Path, run_variant: RunVariant 
                 continue
             if progress:
                 print(f"[study] variant {name}: {overrides}", flush=True)
-            res = run_variant(overrides, run_dir)
+            res = {**run_variant(overrides, run_dir), "settings": _variant_settings(config, overrides)}
             ran_any = True
             atomic.write_json(done_file, res)
         results.append(StudyResult(name=name, overrides=overrides, psnr=float(res["psnr"]), dssim1=float(res["dssim1"]),

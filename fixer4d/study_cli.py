@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from fixer4d.errors import InputError
     from fixer4d.pipeline.config_tree import parse_set_overrides
-    from fixer4d.study import DEFAULT_SWEEP, StudyConfig, fastest_within, run_study
+    from fixer4d.study import DEFAULT_SWEEP, StudyConfig, check_variants, fastest_within, run_study
 
     variants = DEFAULT_SWEEP
     if args.variants:
@@ -32,6 +32,10 @@ def run(args: argparse.Namespace) -> int:
                 variants = json.load(fh)
         except (OSError, json.JSONDecodeError) as exc:
             raise InputError(f"--variants {args.variants}: cannot read a JSON list of variants ({exc})") from exc
+        try:
+            check_variants(variants)
+        except InputError as exc:
+            raise InputError(f"--variants {args.variants}: {exc}") from None
     if args.only:
         wanted = [s.strip() for s in args.only.split(",") if s.strip()]
         unknown = set(wanted) - {v["name"] for v in variants}

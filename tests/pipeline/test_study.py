@@ -148,3 +148,30 @@ def test_the_study_ranks_by_the_moving_pixels(tmp_path):
     assert "| x | 30.00 | n/a | n/a |" in markdown_table([_res("x", 5, 30.0)])
     with pytest.raises(InputError, match="rank"):
         fastest_within(by_psnr, 0.5, "lpips")
+
+
+def test_variants_are_checked_and_a_finished_variant_is_not_reused_under_other_settings(tmp_path):
+    """A scripted probe found a rerun into the same --out reporting the old numbers for new settings,
+    two variants of one name sharing a run folder, and tracebacks for malformed variant files."""
+    calls: list[str] = []
+    runner = _fake_runner(calls)
+    for bad, match in (({"name": "a"}, "non-empty JSON list"), ([1, 2], "#0"), ([{"tag": "fast"}], "name"),
+                       ([], "non-empty"), ([{"name": ""}], "name"), ([{"name": ".."}], "name"),
+                       ([{"name": "a", "tag": "fast"}, {"name": "a", "tag": "slow"}], "share the run folder")):
+        with pytest.raises(InputError, match=match):
+            run_study(StudyConfig(source="demo", variants=bad), tmp_path / "bad", run_variant=runner, progress=False)
+    assert calls == [] and not (tmp_path / "bad").exists()
+    v = [{"name": "fast", "tag": "fast"}]
+    run_study(StudyConfig(source="demo", variants=v, base={"stage1.iterations": 20}), tmp_path / "s",
+              run_variant=runner, progress=False)
+    # the same settings: read back, not run again
+    run_study(StudyConfig(source="demo", variants=v, base={"stage1.iterations": 20}), tmp_path / "s",
+              run_variant=runner, progress=False)
+    assert calls == ["fast"]
+    with pytest.raises(InputError, match=r"base stage1.iterations: 20 -> 300"):
+        run_study(StudyConfig(source="demo", variants=v, base={"stage1.iterations": 300}), tmp_path / "s",
+                  run_variant=runner, progress=False)
+    with pytest.raises(InputError, match="overrides"):
+        run_study(StudyConfig(source="demo", variants=[{"name": "fast", "tag": "slow"}], base={"stage1.iterations": 20}),
+                  tmp_path / "s", run_variant=runner, progress=False)
+    assert calls == ["fast"]
