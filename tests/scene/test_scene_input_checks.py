@@ -107,3 +107,23 @@ def test_open_scene_checked_does_every_check_before_returning(n3dv_copy):
     _zero_frame_data(n3dv_copy / "cam01.mp4", 0.6)
     with pytest.raises(InputError, match=r"cam01\.mp4: cannot decode frame"):
         open_scene_checked(n3dv_copy)
+
+
+def test_check_split_refuses_what_would_fail_late_or_mislead():
+    """Found by a scripted probe: a train camera listed twice trained on it twice under "4 train";
+    images under 7x7 trained and then failed in the evaluation's SSIM; a camera of another size
+    failed deep in the masks or a trajectory."""
+    from fixer4d.scene.validate import check_split
+
+    scene = load_scene("tiny")
+    check_split(scene)  # the bundled split is fine
+    with pytest.raises(InputError, match=r"train camera\(s\) \['cam02'\] listed twice"):
+        check_split(load_scene("tiny", train_ids=[0, 2, 2, 5]))
+    with pytest.raises(InputError, match="held-out camera"):
+        check_split(load_scene("tiny", train_ids=[0, 2, 5, 7], test_ids=[1, 1]))
+    with pytest.raises(InputError, match="at least 7x7 pixels: use a larger --scale"):
+        check_split(load_scene("tiny", scale=0.1))
+    odd = load_scene("tiny")
+    odd.cameras[odd.test_ids[0]] = odd.cameras[odd.test_ids[0]].resized(32, 24)
+    with pytest.raises(InputError, match=r"different sizes: \['cam01 \(32x24\)'\]"):
+        check_split(odd)
