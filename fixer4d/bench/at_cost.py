@@ -14,6 +14,8 @@ import platform
 import time
 from pathlib import Path
 
+from fixer4d.bench import positive_int
+
 DEFAULT_OUT = "benchmarks/results/at.json"
 DEFAULT_N = 200_000
 SHARES = (0.0, 0.1, 0.5, 1.0)
@@ -86,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="fixer4d bench at", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=DEFAULT_OUT, help=f"JSON output (default {DEFAULT_OUT})")
     parser.add_argument("--n", type=int, default=DEFAULT_N, help=f"number of Gaussians (default {DEFAULT_N})")
-    parser.add_argument("--repeats", type=int, default=15, help="timed runs per row (best and median reported)")
+    parser.add_argument("--repeats", type=positive_int, default=15, help="timed runs per row (best and median reported)")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (default: torch's choice)")
     args = parser.parse_args(argv)
     if args.threads > 0:

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from fixer4d.bench import positive_int
+
 # Pixel stride of the depth-based init: every 2nd pixel of every train view of every frame, a
 # dense init comparable in size to what the MVS fusion keeps.
 INIT_STRIDE = 2
@@ -49,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="fixer4d bench iteration", description=__doc__.splitlines()[0])
     parser.add_argument("--scene", default="demo")
     parser.add_argument("--scale", type=float, default=1.0, help="image scale of the scene")
-    parser.add_argument("--iterations", type=int, default=30, help="timed iterations")
+    parser.add_argument("--iterations", type=positive_int, default=30, help="timed iterations")
     parser.add_argument("--warmup", type=int, default=3, help="untimed iterations first (JIT compilation)")
     parser.add_argument("--backend", default="auto")
     parser.add_argument("--max-points", type=int, default=None, help="init point cap (default: Stage1Config's)")
@@ -61,8 +63,8 @@ def main(argv: list[str] | None = None) -> int:
                                                      "(default: computed into a temporary folder)")
     parser.add_argument("--init-stride", type=int, default=4, help="with --effects: init frame stride (the pipeline's)")
     parser.add_argument("--frames", default=None, metavar="A:B",
-                        help="with --effects: the clip, half-open (the run's frame_range, e.g. 0:30 for the README's "
-                             "Panoptic command; its init's times are clip times)")
+                        help="the clip, half-open (the run's frame_range, e.g. 0:30 for the README's Panoptic "
+                             "command; an --init's times are clip times)")
     args = parser.parse_args(argv)
     if args.effects:
         return _effects_main(args)
@@ -76,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     from fixer4d.train.config import Stage1Config
     from fixer4d.train.trainer import Trainer, model_from_clouds
 
-    scene = load_scene(args.scene, scale=args.scale)
+    scene = load_scene(args.scene, scale=args.scale, frame_range=_clip(args.frames))
     cam = scene.cameras[scene.train_ids[0]]
     extra = {} if args.max_points is None else {"init_max_points": args.max_points}
     # statistics gathered every step, but no densify call inside the timed loop (it would change N)
@@ -180,6 +182,13 @@ def effects_comparison(scene, init, cfg, iterations: int, warmup: int) -> dict:
     return {"rows": rows, "speedup_auto_vs": {k: v["seconds_per_iteration"] / auto for k, v in rows.items()}}
 
 
+def _clip(frames: str | None) -> tuple[int, int] | None:
+    """``--frames A:B`` -> (A, B), checked against the scene when it opens."""
+    from fixer4d.scene import parse_frame_range
+
+    return None if frames is None else tuple(parse_frame_range(frames))
+
+
 def _effects_main(args) -> int:
     import os
     import tempfile
@@ -189,10 +198,10 @@ def _effects_main(args) -> int:
     from fixer4d.atomic import write_json
     from fixer4d.init import run_init
     from fixer4d.init.decompose import DecomposedInit
-    from fixer4d.scene import load_scene, parse_frame_range
+    from fixer4d.scene import load_scene
     from fixer4d.train.config import Stage1Config
 
-    clip = None if args.frames is None else tuple(parse_frame_range(args.frames))
+    clip = _clip(args.frames)
     scene = load_scene(args.scene, scale=args.scale, frame_range=clip)
     frames = list(range(0, scene.num_frames, max(1, args.init_stride)))
     if args.init is None:

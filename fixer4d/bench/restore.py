@@ -22,6 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from fixer4d.bench import positive_int
 from fixer4d.geometry.camera import Camera
 
 DEFAULT_OUT = "benchmarks/results/restore.json"
@@ -226,8 +227,8 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(prog="fixer4d bench restore", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=DEFAULT_OUT, help=f"JSON output (default {DEFAULT_OUT})")
-    parser.add_argument("--frames", type=int, default=16, help="frames per clip (default 16)")
-    parser.add_argument("--repeats", type=int, default=3, help="timed runs per size; the median is reported")
+    parser.add_argument("--frames", type=positive_int, default=16, help="frames per clip (default 16)")
+    parser.add_argument("--repeats", type=positive_int, default=3, help="timed runs per size; the median is reported")
     args = parser.parse_args(argv)
 
     rows = []

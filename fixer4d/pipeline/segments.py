@@ -38,9 +38,11 @@ class SegmentConfig:
 
     def __post_init__(self) -> None:
         if self.frames is not None and self.frames < 2:
-            raise InputError(f"frames must be >= 2 (a segment needs motion to learn), got {self.frames}")
+            raise InputError(f"segments.frames (--segment-frames) must be >= 2 (a segment needs motion to learn), "
+                             f"got {self.frames}")
         if self.overlap < 0 or (self.frames is not None and self.overlap >= self.frames):
-            raise InputError(f"overlap must be in [0, frames), got {self.overlap}")
+            raise InputError(f"segments.overlap must be in [0, segments.frames) = [0, {self.frames}), got {self.overlap}: "
+                             "use longer segments (--segment-frames) or --set segments.overlap=N")
 
 
 def split_segments(num_frames: int, frames: int, overlap: int) -> list[tuple[int, int]]:

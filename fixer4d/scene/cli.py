@@ -4,6 +4,17 @@ from __future__ import annotations
 import argparse
 
 
+def _crf(text: str) -> int:
+    """argparse type: x264's constant-rate factor, 0..51."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number in 0..51") from None
+    if not 0 <= value <= 51:
+        raise argparse.ArgumentTypeError(f"{value}: x264's CRF is 0 (lossless) .. 51 (worst)")
+    return value
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("spec", help="scene spec: 'demo', another bundled name (tiny, static_matte) or a .json path")
     parser.add_argument("--out", required=True, help="output folder (replaced atomically if it exists)")
@@ -13,7 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, nargs=2, metavar=("A", "B"), default=None,
                         help="keep spec frames A..B-1 only")
     parser.add_argument("--supersample", type=int, default=None, help="k x k rays per pixel (default: the spec's)")
-    parser.add_argument("--crf", type=int, default=None, help="x264 constant-rate factor (default 12, 0 = lossless)")
+    parser.add_argument("--crf", type=_crf, default=None, metavar="0..51",
+                        help="x264 constant-rate factor (default 12, 0 = lossless, 51 = worst)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

@@ -1,0 +1,20 @@
+"""Counts on the command line are checked by argparse (a probe found `--repeats 0`, `--frames 0`
+and `--iterations 0` ending in numpy tracebacks, and `make-scene --crf -5` in a PyAV one)."""
+from __future__ import annotations
+
+import pytest
+
+from fixer4d.cli import main
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["bench", "at", "--n", "10", "--repeats", "0"], "--repeats: 0: must be >= 1"),
+    (["bench", "restore", "--frames", "0"], "--frames: 0: must be >= 1"),
+    (["bench", "iteration", "--scene", "tiny", "--iterations", "0"], "--iterations: 0: must be >= 1"),
+    (["bench", "iteration", "--scene", "tiny", "--iterations", "x"], "expected a whole number >= 1"),
+    (["make-scene", "tiny", "--out", "unused", "--crf", "-5"], "CRF is 0 (lossless) .. 51"),
+])
+def test_bad_counts_are_argument_errors(argv, message, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv + (["--out", str(tmp_path / "x.json")] if argv[0] == "bench" else []))
+    assert exc.value.code == 2 and message in capsys.readouterr().err
