@@ -16,6 +16,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="output file; the extension (.ply or .npz) picks the format")
 
 
+def missing_model_message(run: Path, names: tuple[str, ...] = RUN_MODELS) -> str:
+    """Why ``run`` has none of ``names``, and what to do: a segmented run (``--segment-frames``)
+    keeps one run folder per segment under RUN/segments/; any other run has not trained yet."""
+    segments = sorted(p for p in (run / "segments").glob("seg*") if p.is_dir()) if (run / "segments").is_dir() else []
+    if segments:
+        return (f"{run}: a segmented run: each segment is its own run folder with its models "
+                f"({', '.join(p.name for p in segments[:3])}{', ...' if len(segments) > 3 else ''} under "
+                f"{run / 'segments'}); pass one of those, e.g. {segments[0]}")
+    return f"{run}: run folder without a model ({' or '.join(names)}); run `fixer4d reconstruct` (or `fixer4d run`) first"
+
+
 def resolve_model_path(source: str | Path) -> Path:
     """A model file as given, or the latest model inside a run folder."""
     from fixer4d.errors import InputError
@@ -25,8 +36,7 @@ def resolve_model_path(source: str | Path) -> Path:
         for name in RUN_MODELS:
             if (path / name).is_file():
                 return path / name
-        raise InputError(f"{path}: run folder without a model ({' or '.join(RUN_MODELS)}); "
-                         "run `fixer4d reconstruct` first")
+        raise InputError(missing_model_message(path))
     return path
 
 

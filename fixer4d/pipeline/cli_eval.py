@@ -13,8 +13,7 @@ import argparse
 from pathlib import Path
 
 from fixer4d.errors import InputError
-
-MODEL_NAMES = ("model_final.ply", "model_stage1.ply")
+from fixer4d.model.cli import RUN_MODELS, missing_model_message
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,10 +36,10 @@ def find_model(run: Path, model: str | None = None) -> Path:
         if not path.is_file():
             raise InputError(f"--model {path}: no such file")
         return path
-    for name in MODEL_NAMES:
+    for name in RUN_MODELS:
         if (run / name).is_file():
             return run / name
-    raise InputError(f"{run}: no {' or '.join(MODEL_NAMES)}; run `fixer4d reconstruct` first or pass --model")
+    raise InputError(missing_model_message(run) + "; or pass --model")
 
 
 def known_seconds(folder, model_path: Path) -> dict[str, float]:

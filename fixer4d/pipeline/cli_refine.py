@@ -42,8 +42,9 @@ def run(args: argparse.Namespace) -> int:
 
     folder = RunFolder.open(args.run)
     if not (folder.path / "model_stage1.ply").is_file():
-        raise InputError(f"{folder.path}: has no model_stage1.ply; run `fixer4d reconstruct SCENE --out {folder.path}` "
-                         "(or `fixer4d run`) first")
+        from fixer4d.model.cli import missing_model_message
+
+        raise InputError(missing_model_message(folder.path, ("model_stage1.ply",)))
     overrides = {k: v for k, v in {
         "stage2.rounds": args.rounds, "stage2.refresh_every": args.refresh_every, "stage2.lambda_gen": args.lambda_gen,
         "stage2.iterations": args.iterations, "stage2.batch_pseudo": args.batch_pseudo,

@@ -102,3 +102,18 @@ def test_eval_helpers_and_errors(tmp_path, capsys):
     assert method_name_for(tmp_path / "model_final.ply", "mvs") == R.ROW_FULL
     assert method_name_for(tmp_path / "model_stage1.ply", "sparse") == R.ROW_COLMAP
     assert method_name_for(tmp_path / "model_edit_1.ply", "mvs") == "model_edit_1"
+
+
+def test_a_segmented_run_folder_points_to_its_segments(tmp_path, capsys):
+    """export / eval / refine on a segmented run's top folder said "run reconstruct first" although
+    the run was complete: its models live in one run folder per segment."""
+    from fixer4d.model.cli import missing_model_message
+
+    run = tmp_path / "whole"
+    for name in ("seg00_00000-00052", "seg01_00050-00102"):
+        (run / "segments" / name).mkdir(parents=True)
+    text = missing_model_message(run)
+    assert "a segmented run" in text and str(run / "segments" / "seg00_00000-00052") in text
+    assert main(["export", str(run), "--out", str(tmp_path / "x.ply")]) == 2
+    assert "a segmented run" in capsys.readouterr().err
+    assert "reconstruct" in missing_model_message(tmp_path / "empty")
