@@ -121,7 +121,12 @@ class RunFolder:
             previous = cls.open(path).config
             changes = config_tree.diff(previous.to_dict(), config.to_dict())
             if changes:
-                shown = "; ".join(changes[:4]) + ("; ..." if len(changes) > 4 else "")
+                from fixer4d.train.config import SCHEDULE_KEYS
+
+                # the keys a user sets first, the densification schedule an iteration count implies last
+                derived = tuple(f"stage1.{k}" for k in SCHEDULE_KEYS)
+                changes = sorted(changes, key=lambda c: c.startswith(derived))
+                shown = "; ".join(changes[:4]) + (f"; and {len(changes) - 4} more" if len(changes) > 4 else "")
                 raise InputError(f"{path} holds a run with a different configuration ({shown}); use another --out, "
                                  f"`fixer4d refine {path}` to change stage-2 settings, or delete the folder")
         elif path.is_dir() and any(p for p in path.iterdir() if not p.name.startswith(".")):

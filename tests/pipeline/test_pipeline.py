@@ -47,6 +47,10 @@ def test_other_config_in_same_folder_is_refused_naming_the_change(tiny_run):
     run_dir, _ = tiny_run
     with pytest.raises(InputError, match=r"different configuration \(stage1.iterations: 40 -> 41"):
         run_pipeline(tiny_config(**{"stage1.iterations": 41}), run_dir, progress=False)
+    # a new count moves the schedule it implies too: the key the user changed is named first
+    with pytest.raises(InputError, match=r"different configuration \(stage1.iterations: 40 -> 3000.*and \d+ more\)"):
+        run_pipeline(tiny_config(**{"stage1.iterations": 3000, "stage1.seed": 5, "stage2.seed": 5,
+                                    "trajectories.seed": 5}), run_dir, progress=False)
 
 
 def test_foreign_and_newer_folders_are_refused(tmp_path):
