@@ -4,6 +4,24 @@ from __future__ import annotations
 import argparse
 
 
+def _check_llff_scale(scene, spec: str, scale: float) -> None:
+    """The Neural3DV layout stores one focal and a centred principal point per camera; a scale that
+    rounds the image to a size breaking that is refused with scales near it that work."""
+    from fixer4d.errors import InputError
+    from fixer4d.scene.n3dv import llff_compatible
+    from fixer4d.scene.synthetic import SyntheticScene
+
+    if all(llff_compatible(c) for c in scene.cameras):
+        return
+    rig = SyntheticScene(spec).cameras
+    near = sorted({round(scale * d) / d for d in (4, 8, 16, 32) if round(scale * d) > 0}, key=lambda s: abs(s - scale))
+    good = [s for s in near if all(llff_compatible(c.scaled(s)) for c in rig)][:3]
+    c = scene.cameras[0]
+    raise InputError(f"--scale {scale}: the {c.width}x{c.height} images it gives do not keep square pixels and a centred "
+                     "principal point, which the Neural3DV layout (poses_bounds.npy) needs"
+                     + (f"; scales near it that do: {', '.join(f'{s:g}' for s in good)}" if good else ""))
+
+
 def _crf(text: str) -> int:
     """argparse type: x264's constant-rate factor, 0..51."""
     try:
@@ -36,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
 
     scene = SyntheticScene(args.spec, scale=args.scale, frame_range=tuple(args.frames) if args.frames else None,
                            supersample=args.supersample)
+    _check_llff_scale(scene, args.spec, args.scale)
     out = export_n3dv(scene, args.out, crf=VIDEO_CRF if args.crf is None else args.crf, progress=not args.no_progress)
     print(f"{scene.describe()} -> {out} ({args.format})")
     return 0

@@ -68,13 +68,18 @@ def llff_to_cameras(poses_bounds: np.ndarray, names: list[str] | None = None,
     return cams, pb[:, 15:17].copy()
 
 
+def llff_compatible(cam: Camera) -> bool:
+    """Whether LLFF's poses_bounds can store ``cam``: square pixels, centred principal point, no skew."""
+    return not (abs(cam.fx - cam.fy) > LLFF_FOCAL_RTOL * cam.fx or abs(cam.cx - cam.width / 2) > LLFF_PRINCIPAL_TOL_PX
+                or abs(cam.cy - cam.height / 2) > LLFF_PRINCIPAL_TOL_PX or abs(cam.K[0, 1]) > 0)
+
+
 def cameras_to_llff(cameras: list[Camera], near_far: np.ndarray) -> np.ndarray:
     """Cameras (square pixels, centred principal point) + near/far ((2,) or (N, 2)) -> (N, 17)."""
     nf = np.broadcast_to(np.asarray(near_far, np.float64), (len(cameras), 2))
     rows = []
     for cam in cameras:
-        if (abs(cam.fx - cam.fy) > LLFF_FOCAL_RTOL * cam.fx or abs(cam.cx - cam.width / 2) > LLFF_PRINCIPAL_TOL_PX
-                or abs(cam.cy - cam.height / 2) > LLFF_PRINCIPAL_TOL_PX or abs(cam.K[0, 1]) > 0):
+        if not llff_compatible(cam):
             raise InputError(f"camera {cam.name}: LLFF poses_bounds stores one focal and a centred principal point; "
                              f"this camera has fx={cam.fx}, fy={cam.fy}, cx={cam.cx}, cy={cam.cy}: "
                              f"undistort/crop the images to a centred square-pixel camera first")

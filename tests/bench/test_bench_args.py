@@ -18,3 +18,10 @@ def test_bad_counts_are_argument_errors(argv, message, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(argv + (["--out", str(tmp_path / "x.json")] if argv[0] == "bench" else []))
     assert exc.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_make_scene_names_scales_that_fit_the_llff_layout(tmp_path, capsys):
+    # 0.27 rounds tiny's 64x48 to 17x13: the advice was to "undistort/crop" a synthetic render
+    assert main(["make-scene", "tiny", "--out", str(tmp_path / "m"), "--scale", "0.27", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "17x13" in err and "scales near it that do: 0.25" in err and not (tmp_path / "m").exists()
