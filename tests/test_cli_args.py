@@ -1,4 +1,4 @@
-"""Counts on the command line are checked by argparse (a probe found `--repeats 0`, `--frames 0`
+"""Command-line values are checked before anything runs (a probe found `--repeats 0`, `--frames 0`
 and `--iterations 0` ending in numpy tracebacks, and `make-scene --crf -5` in a PyAV one)."""
 from __future__ import annotations
 
