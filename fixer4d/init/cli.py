@@ -7,6 +7,7 @@ with the preparation-time ratio and both clouds' quality side by side.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 
@@ -22,9 +23,13 @@ def parse_frames(text: str | None) -> list[int] | None:
             if len(parts) not in (2, 3):
                 raise ValueError
             return list(range(*parts))
-        return [int(p) for p in text.split(",") if p.strip()]
+        frames = [int(p) for p in text.split(",") if p.strip()]
     except ValueError:
         raise InputError(f"--frames {text!r}: use a:b (half-open range), a:b:step or a comma list like 0,5,10") from None
+    twice = sorted({f for f in frames if frames.count(f) > 1})
+    if twice:
+        raise InputError(f"--frames {text!r}: frame(s) {twice} listed twice; list each frame once")
+    return frames
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -98,6 +103,11 @@ def run(args: argparse.Namespace) -> int:
         _, reports[method] = run_init(scene, method, target, frames=frames, config=config, progress=not args.quiet)
     print(scene.describe())
     print(summary_table(reports))
+    for method, rep in reports.items():
+        if not any(rep["points_per_frame"]):
+            print(f"warning: {method} found no point in any frame"
+                  + (" (textureless images, or a --mvs-scale too small to match)" if method == "mvs" else "")
+                  + "; training from it starts from random points", file=sys.stderr)
     for method, rep in reports.items():
         pe = rep.get("pose_error")
         if pe and "error" not in pe:

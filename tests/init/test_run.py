@@ -66,3 +66,5 @@ def test_parse_frames():
     assert parse_frames(None) is None
     with pytest.raises(InputError, match="--frames"):
         parse_frames("a:b")
+    with pytest.raises(InputError, match=r"frame\(s\) \[0\] listed twice"):
+        parse_frames("0,0,3")
