@@ -263,7 +263,8 @@ def run_window(args: argparse.Namespace) -> int:
     glfw.make_context_current(window)
     glfw.swap_interval(0 if args.screenshot else 1)
     ctx = moderngl.create_context()
-    session_dir.mkdir(parents=True, exist_ok=True)
+    if not args.no_session:  # --no-session writes nothing into a run folder (read-only or shared runs)
+        session_dir.mkdir(parents=True, exist_ok=True)
     address = ctypes.cast(window, ctypes.c_void_p).value
     viewer = Viewer(ctx, state, src, ini_path=None if args.no_session else session_dir / "imgui.ini",
                     session_path=None if args.no_session else session_dir / "session.json",

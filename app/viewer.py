@@ -559,7 +559,8 @@ class Viewer:
                 st.view.pan(io.mouse_delta.x, io.mouse_delta.y, int(h))
             if hovered and io.mouse_wheel != 0.0:
                 st.view.zoom(io.mouse_wheel)
-            if hovered and st.view.mode == "fly":
+            # fly keys are letters: not while a text field takes them, nor as part of a Ctrl/Alt chord (Ctrl+S saves)
+            if hovered and st.view.mode == "fly" and not (io.want_text_input or io.key_ctrl or io.key_alt or io.key_super):
                 step = 0.02 * st.view.scene_radius
                 keys = {imgui.Key.w: (step, 0, 0), imgui.Key.s: (-step, 0, 0), imgui.Key.d: (0, step, 0),
                         imgui.Key.a: (0, -step, 0), imgui.Key.e: (0, 0, step), imgui.Key.q: (0, 0, -step)}

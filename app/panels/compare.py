@@ -126,7 +126,8 @@ def body(viewer, ui: dict) -> None:
                 img[:, cut] = (1.0, 1.0, 0.0)
             caption = "left: render | right: pseudo-target"
         else:
-            if imgui.button("A/B (B key)") or imgui.is_key_pressed(imgui.Key.b, False):
+            b_key = not imgui.get_io().want_text_input and imgui.is_key_pressed(imgui.Key.b, False)  # not while typing
+            if imgui.button("A/B (B key)") or b_key:
                 ui["show_b"] = not ui["show_b"]
             img = imgs["target"] if ui["show_b"] else imgs["render"]
             caption = "B: pseudo-target (cache)" if ui["show_b"] else "A: render (current model)"

@@ -148,5 +148,9 @@ def run_action(viewer, action: str, text: str) -> str:
             raise ValueError("select a trajectory to export")
         return f"wrote {traj.save_camera_path(path, st.trajectories[k], train, min(st.time, 0.999999), st.fps)}"
     if action == "save_model_as":
+        # a run's models are the pipeline's results: a typed name must never replace one (or any file)
+        if path.exists():
+            raise ValueError(f"{path} exists: the viewer never replaces a file; type a new name, or use "
+                             "File > Save as new model version")
         return f"wrote {viewer.save_model(path)}"
     raise ValueError(f"unknown file action {action!r}")

@@ -1,7 +1,8 @@
 """What a scripted walk through the viewer (stop 24, xdotool on Xvfb) found, fixed and kept fixed:
 resizing the app window left the panels at their old positions (cut off when it shrank, the new
 area empty when it grew): now the layout scales with it, a panel hidden during the resize
-included; "add the 6 pairs + arcs" appended duplicates on every click."""
+included; "add the 6 pairs + arcs" appended duplicates on every click; fly keys moved the camera
+during Ctrl chords (Ctrl+S) and while typing; "Save model as" replaced the run's model_final.ply."""
 from __future__ import annotations
 
 import pytest
@@ -58,3 +59,52 @@ def test_adding_the_default_trajectories_twice_does_not_duplicate_them(make_view
     d.click_item("add_default_trajectories")
     assert [t.name for t in d.viewer.state.trajectories] == names
     assert "already" in d.viewer.state.status
+
+
+def test_fly_keys_leave_ctrl_chords_alone(make_viewer):
+    """Ctrl+S (save) in fly mode also flew the camera backwards while S was held."""
+    from imgui_bundle import imgui
+
+    from viewer_helpers import scene_gaussians
+
+    scene = load_scene("tiny")
+    src = ViewerSource(scene=scene, label="tiny")
+    d = make_viewer(initial_state(src, scene_gaussians(scene, stride=8)), src, size=DEFAULT_WINDOW)
+    st = d.viewer.state
+    st.view.mode = "fly"
+    x0, y0, x1, y1 = d.viewer.window_rects["viewport"]
+    d.move((x0 + x1) / 2, (y0 + y1) / 2)
+    io = imgui.get_io()
+
+    def held(keys) -> float:
+        eye = st.view.eye().copy()
+        for k in keys:
+            io.add_key_event(k, True)
+        d.frame(3)
+        for k in keys:
+            io.add_key_event(k, False)
+        d.frame()
+        return float(abs(st.view.eye() - eye).max())
+
+    assert held([imgui.Key.mod_ctrl, imgui.Key.s]) == 0.0
+    assert held([imgui.Key.s]) > 0.0  # S alone still flies
+
+
+def test_save_model_as_never_replaces_a_file(make_viewer, tmp_path):
+    """"Save model as" with the name of the run's model_final.ply replaced the pipeline's result."""
+    from app.panels import files
+    from fixer4d.model.io import save_ply
+    from viewer_helpers import scene_gaussians
+
+    scene = load_scene("tiny")
+    src = ViewerSource(scene=scene, label="tiny", run_dir=tmp_path)
+    st = initial_state(src, scene_gaussians(scene, stride=8))
+    d = make_viewer(st, src, size=DEFAULT_WINDOW)
+    final = tmp_path / "model_final.ply"
+    save_ply(scene_gaussians(scene, stride=16).to_model(), final)
+    before = final.read_bytes()
+    with pytest.raises(ValueError, match="never replaces a file"):
+        files.run_action(d.viewer, "save_model_as", str(final))
+    assert final.read_bytes() == before
+    assert "wrote" in files.run_action(d.viewer, "save_model_as", str(tmp_path / "mine.ply"))
+    assert (tmp_path / "mine.ply").is_file()
