@@ -545,6 +545,10 @@ class Viewer:
         if src.restore is not None and any(i.status in ("rendering", "queued", "running", "submitted")
                                            for i in src.restore.items):
             return False
+        # imgui hands queued input to later frames one event kind at a time (a quick Ctrl+Z arrives
+        # as four events in one poll): waiting for the next OS event would leave the chord half-read
+        if len(imgui.get_current_context().input_events_queue) > 0:
+            return False
         return not imgui.get_io().want_text_input and not any(imgui.get_io().mouse_down)
 
     def _viewport_input(self, hovered: bool, active: bool) -> None:

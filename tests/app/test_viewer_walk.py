@@ -108,3 +108,25 @@ def test_save_model_as_never_replaces_a_file(make_viewer, tmp_path):
     assert final.read_bytes() == before
     assert "wrote" in files.run_action(d.viewer, "save_model_as", str(tmp_path / "mine.ply"))
     assert (tmp_path / "mine.ply").is_file()
+
+
+def test_a_quick_chord_keeps_the_viewer_awake_until_it_is_read(make_viewer):
+    """A Ctrl+Z sent within a few ms (macro tools, remote desktops) was dropped while the viewer
+    idled: imgui spreads queued events over frames, and the window loop slept in between."""
+    from imgui_bundle import imgui
+
+    from viewer_helpers import scene_gaussians
+
+    scene = load_scene("tiny")
+    src = ViewerSource(scene=scene, label="tiny")
+    d = make_viewer(initial_state(src, scene_gaussians(scene, stride=8)), src, size=DEFAULT_WINDOW)
+    d.settle()
+    assert d.viewer.is_idle()
+    io = imgui.get_io()
+    for key, down in ((imgui.Key.mod_ctrl, True), (imgui.Key.z, True), (imgui.Key.z, False), (imgui.Key.mod_ctrl, False)):
+        io.add_key_event(key, down)
+    frames = 0
+    while not d.viewer.is_idle() and frames < 10:
+        d.frame()
+        frames += 1
+    assert 1 <= frames < 10 and len(imgui.get_current_context().input_events_queue) == 0
