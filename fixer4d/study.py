@@ -132,6 +132,7 @@ def mark_fronts(results: list[StudyResult]) -> None:
 
 
 def check_rank(metric: str) -> str:
+    """``metric`` when the study can rank by it (RANK_METRICS), else InputError listing them."""
     if metric not in RANK_METRICS:
         from fixer4d.errors import InputError
 
