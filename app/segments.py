@@ -98,3 +98,20 @@ class SegmentTimeline:
     @property
     def num_gaussians(self) -> int:
         return int(sum(g.n for g in self.arrays))
+
+    def cache_entries(self) -> list[Any]:
+        """Every segment's restored clips (each segment run's latest round) on this timeline: frame
+        and time as in the whole clip (a segment's own are local to it), key prefixed with the
+        segment's folder so clips of different segments never share a name."""
+        import dataclasses
+
+        from fixer4d.restore.cache import RestoreCache
+
+        out = []
+        for (start, _), path in zip(self.ranges, self.paths):
+            seg_dir = path.parent  # the segment's run folder (the model may be one of its edits)
+            for entry in RestoreCache(seg_dir / "cache").entries():
+                f = start + int(entry.frame)
+                out.append(dataclasses.replace(entry, key=f"{seg_dir.name}/{entry.key}", frame=f,
+                                               time=f / float(self.num_frames)))
+        return out

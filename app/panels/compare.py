@@ -31,7 +31,10 @@ def draw(viewer) -> None:
 def refresh_entries(viewer, ui: dict) -> list:
     now = time.monotonic()
     if now - ui["polled"] > CACHE_POLL_S:
-        ui["entries"] = list(viewer.source.cache.entries())
+        src = viewer.source
+        # a segmented run's clips live in its segments' run folders (the top-level cache holds the
+        # viewer's own restorations of the whole clip)
+        ui["entries"] = list(src.cache.entries()) + (src.segments.cache_entries() if src.segments is not None else [])
         ui["polled"] = now
     return ui["entries"]
 

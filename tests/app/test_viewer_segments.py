@@ -118,3 +118,37 @@ def test_segmented_run_plays_along_one_timeline(gl_ctx, segmented_run, tmp_path,
     src2, _, _ = open_source(str(run))
     assert src2.segments.paths[1] == path and src2.segments.arrays[1].n == n_edit
     assert src2.segments.arrays[0].n == arrays[0].n
+
+
+def test_compare_lists_the_segments_clips_on_the_clip_timeline(gl_ctx, segmented_run, tmp_path, monkeypatch):
+    """A segmented run keeps its restored clips in each segment's run folder; the Compare panel
+    showed "no finished clips" for it. The clips now list with whole-clip frames and times."""
+    import dataclasses
+
+    from app.panels.compare import refresh_entries
+    from app.viewer import Viewer
+    from fixer4d.bench.restore import make_request
+    from fixer4d.restore.base import RestoreResult
+    from fixer4d.restore.cache import RestoreCache
+
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "cfg"))
+    run, scene, ranges, _ = segmented_run
+    request, gt = make_request(32, 24, 3, seed=0)
+    seg1 = segment_dir(run, 1, ranges[1])
+    local = dataclasses.replace(request, frame=1, time=1 / (ranges[1][1] - ranges[1][0]))
+    result = RestoreResult(rgb=gt, confidence=np.ones(gt.shape[:3], np.float32), frame_confidence=np.ones(3, np.float32))
+    RestoreCache(seg1 / "cache").write(0, RestoreCache.key(1, 0, 2), local, result, {"restorer": "test"})
+
+    src, g, session_dir = open_source(str(run))
+    entries = src.segments.cache_entries()
+    assert [(e.key, e.frame) for e in entries] == [(f"{seg1.name}/t0001_0-2", ranges[1][0] + 1)]
+    assert entries[0].time == pytest.approx((ranges[1][0] + 1) / scene.num_frames)
+    v = Viewer(gl_ctx, initial_state(src, g), src, session_path=session_dir / "session.json")
+    d = Driver(v, gl_ctx, DEFAULT_WINDOW)
+    d.frame(2)
+    ui = v._compare_ui
+    ui["polled"] = -1e9
+    assert [e.key for e in refresh_entries(v, ui)] == [entries[0].key]
+    d.frame(2)
+    assert "compare" not in v.panel_errors
+    v.close()
