@@ -27,6 +27,10 @@ VERBS: dict[str, tuple[str, str]] = {
 }
 
 
+# verbs whose finished work survives an interruption and is reused by the same command
+RESUMABLE = frozenset({"run", "reconstruct", "refine", "study"})
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fixer4d", description="Four synchronized cameras -> spacetime Gaussians, with the unseen views repaired "
@@ -75,13 +79,11 @@ def main(argv: list[str] | None = None) -> int:
     except Fixer4DError as exc:
         print(f"fixer4d {args.verb}: error: {exc}", file=sys.stderr)
         return 1
-    except Terminated:
-        print(f"\nfixer4d {args.verb}: terminated (SIGTERM); completed stages are saved and a rerun resumes",
-              file=sys.stderr)
-        return 143
-    except KeyboardInterrupt:
-        print(f"\nfixer4d {args.verb}: interrupted; completed stages are saved and a rerun resumes", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM as errors.Terminated
+        what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+        resume = "; completed stages are saved and a rerun resumes" if args.verb in RESUMABLE else ""
+        print(f"\nfixer4d {args.verb}: {what}{resume}", file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
 
 
 if __name__ == "__main__":
