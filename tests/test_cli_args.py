@@ -25,3 +25,27 @@ def test_make_scene_names_scales_that_fit_the_llff_layout(tmp_path, capsys):
     assert main(["make-scene", "tiny", "--out", str(tmp_path / "m"), "--scale", "0.27", "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "17x13" in err and "scales near it that do: 0.25" in err and not (tmp_path / "m").exists()
+
+
+def test_bench_all_names_files_like_each_benchmark(monkeypatch, tmp_path, capsys):
+    """`bench all --out DIR` wrote train-step.json where the README and the committed results read
+    train_step.json; `bench all --help` showed the first benchmark's help."""
+    import types
+
+    from fixer4d.bench import cli as bench_cli
+
+    outs = {}
+
+    class Fake:
+        def __init__(self, name):
+            self.name = name
+
+        def main(self, argv):
+            outs[self.name] = argv[argv.index("--out") + 1]
+            return 0
+
+    monkeypatch.setattr(bench_cli, "importlib", types.SimpleNamespace(import_module=Fake))
+    assert main(["bench", "all", "--out", str(tmp_path)]) == 0
+    assert outs[bench_cli.BENCHES["train-step"]] == f"{tmp_path}/train_step.json"
+    assert main(["bench", "all", "--help"]) == 0
+    assert "one after the other" in capsys.readouterr().out

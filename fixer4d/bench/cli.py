@@ -26,11 +26,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     names = sorted(BENCHES) if args.name == "all" else [args.name]
+    if args.name == "all" and {"-h", "--help"} & set(args.rest):
+        print("fixer4d bench all [--out DIR]: runs " + ", ".join(names) + " one after the other, each writing "
+              "DIR/<name>.json (see `fixer4d bench NAME --help` for each one's options)")
+        return 0
     status = 0
     for name in names:
         rest = list(args.rest)
         if args.name == "all" and "--out" in rest:
             i = rest.index("--out")
-            rest[i + 1] = f"{rest[i + 1].rstrip('/')}/{name}.json"
+            # the file each benchmark writes by default (train-step -> train_step.json)
+            rest[i + 1] = f"{rest[i + 1].rstrip('/')}/{name.replace('-', '_')}.json"
         status |= int(importlib.import_module(BENCHES[name]).main(rest) or 0)
     return status
