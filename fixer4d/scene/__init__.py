@@ -63,8 +63,19 @@ def load_scene(source: str | Path, *, scale: float = 1.0, frame_range: tuple[int
     scale: image scale (0.5 = half resolution); intrinsics scale with the image.
     frame_range: (a, b), half-open: keep frames a..b-1; times become t = (f - a) / (b - a).
     train_ids / test_ids: camera ids (the XX of camXX, the Panoptic cam_id, the synthetic
-      camera index) overriding the layout's default split.
+      camera index) overriding the layout's default split. A camera listed twice, or both train
+      and held-out, is refused (InputError; ``validate.check_ids``).
     """
+    from fixer4d.scene.validate import check_ids
+
+    scene = _open_layout(source, scale, frame_range, train_ids, test_ids)
+    check_ids(scene)
+    return scene
+
+
+def _open_layout(source: str | Path, scale: float, frame_range: tuple[int, int] | None, train_ids: list[int] | None,
+                 test_ids: list[int] | None) -> MultiViewVideo:
+    """``load_scene`` without the split check: the layout's reader."""
     if frame_range is not None:
         frame_range = check_frame_range(frame_range)  # 0 <= a < b here; each layout checks b <= its length
     if is_builtin_name(source):

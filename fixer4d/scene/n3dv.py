@@ -209,7 +209,7 @@ class Neural3DVScene(MultiViewVideo):
                 raise InputError(f"{self.root}: camera id {i} (scene.json or arguments) has no loaded camXX.mp4; "
                                  f"loaded ids: {want}")
         self.train_ids = [index_of[i] for i in tr]
-        self.test_ids = [index_of[i] for i in te]  # a train id listed here too: validate.check_split says so
+        self.test_ids = [index_of[i] for i in te]  # a train id listed here too: load_scene refuses it (validate.check_ids)
 
         self._depth_dir = self.root / meta["depth"] if meta.get("depth") else None
         self._depth_cache: OrderedDict[int, np.ndarray] = OrderedDict()

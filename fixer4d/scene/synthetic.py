@@ -401,7 +401,7 @@ class SyntheticScene(MultiViewVideo):
         spec_train, spec_test = select_views(self.cameras, raw.get("rig", {}).get("train", "auto"), where)
         self.train_ids = [int(i) for i in train_ids] if train_ids is not None else spec_train
         if test_ids is not None:
-            self.test_ids = [int(i) for i in test_ids]  # overlap with train: validate.check_split says so
+            self.test_ids = [int(i) for i in test_ids]  # overlap with train: load_scene refuses it (validate.check_ids)
         elif train_ids is not None:
             self.test_ids = [i for i in range(len(self.cameras)) if i not in self.train_ids]
         else:

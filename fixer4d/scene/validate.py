@@ -5,7 +5,7 @@ still fail to decode its frames; a Panoptic image can exist and be truncated. Tr
 then stop minutes in, at the first frame it needs. ``validate_scene`` decodes the first and
 last frame of the range for every camera now and raises one InputError naming the file and the
 frame. Synthetic scenes are ray-cast, not read, and have nothing to decode. ``check_split``
-(every scene) catches what would otherwise fail late or mislead: a camera listed twice or as
+(every scene; its id part, ``check_ids``, already when a scene opens) catches what would otherwise fail late or mislead: a camera listed twice or as
 both train and held-out, cameras of different sizes, images too small to evaluate.
 """
 from __future__ import annotations
@@ -18,8 +18,9 @@ from fixer4d.scene.base import MultiViewVideo
 MIN_IMAGE_SIDE = 7
 
 
-def check_split(scene: MultiViewVideo) -> None:
-    """The camera split and sizes a run can use; InputError naming the cameras otherwise."""
+def check_ids(scene: MultiViewVideo) -> None:
+    """Every camera in the split once, none both train and held-out (``load_scene`` runs it on
+    every scene it opens: an overlap would score a trained camera as held-out)."""
     names = [c.name for c in scene.cameras]
     for what, ids in (("train", scene.train_ids), ("held-out", scene.test_ids)):
         twice = sorted({names[i] for i in ids if list(ids).count(i) > 1})
@@ -29,6 +30,12 @@ def check_split(scene: MultiViewVideo) -> None:
     if both:
         raise InputError(f"{scene.name}: camera(s) {both} are both train and held-out; a held-out camera must not be "
                          "trained on")
+
+
+def check_split(scene: MultiViewVideo) -> None:
+    """The camera split and sizes a run can use (``check_ids``, one size, at least the SSIM window);
+    InputError naming the cameras otherwise."""
+    check_ids(scene)
     used = [scene.cameras[i] for i in list(scene.train_ids) + list(scene.test_ids)]
     sizes = {(c.width, c.height) for c in used}
     if len(sizes) > 1:

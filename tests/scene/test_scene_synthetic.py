@@ -201,11 +201,9 @@ def test_load_scene_errors(tmp_path):
 def test_split_override_and_builtin_name_precedence(tmp_path, monkeypatch):
     scene = load_scene("tiny", train_ids=[1, 2, 4, 5])
     assert scene.train_ids == [1, 2, 4, 5] and scene.test_ids == [0, 3, 6, 7]
-    # a camera in both lists is kept as given and refused before a run (it used to vanish from the held-out set)
-    from fixer4d.scene.validate import check_split
-
+    # a camera in both lists is refused when the scene opens (it used to vanish from the held-out set)
     with pytest.raises(InputError, match=r"\['cam07'\] are both train and held-out"):
-        check_split(load_scene("tiny", train_ids=[0, 7], test_ids=[3, 7]))
+        load_scene("tiny", train_ids=[0, 7], test_ids=[3, 7])
     with pytest.raises(InputError, match="camera id 8"):
         load_scene("tiny", train_ids=[0, 8])
     # A folder called "demo" in the working directory does not shadow the bundled spec.
