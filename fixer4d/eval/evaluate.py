@@ -25,6 +25,16 @@ plus ``moving_fraction``. The moving mask of a held-out image is
 The mask only selects pixels to score; it never feeds training. A region with no pixels in an
 image scores None there; means are over the images where the region is not empty (None when
 there is none). ``protocol.regions`` records which mask was used.
+
+Unobserved pixels: given ``unobserved_fn(camera_index, frame) -> (H, W) bool``, every row also
+holds ``psnr_unobserved`` (PSNR over the pixels no train camera explains; the run passes the mask
+of ``restore.visibility`` computed from the stage-1 model's renders at the held-out camera and the
+train cameras: no held-out image is read) and ``unobserved_fraction``.
+
+Exposure-aligned PSNR: ``psnr_aligned`` is the PSNR after a per-image, per-channel affine fit of
+the render to the ground truth (least squares, ``exposure_aligned``), the "colour-corrected"
+convention of in-the-wild view synthesis: it shows how much of the error is camera exposure and
+white balance rather than geometry. The raw PSNR stays the headline.
 """
 from __future__ import annotations
 
@@ -45,6 +55,9 @@ from fixer4d.geometry.camera import Camera
 METRIC_KEYS = ("psnr", "dssim1", "dssim2", "lpips")
 # Scores over the held-out image's moving / static pixels (None where the region is empty).
 REGION_KEYS = ("psnr_dynamic", "psnr_static", "ssim_dynamic", "ssim_static")
+# Scores present only when their input is (an unobserved-pixel mask): None otherwise.
+OPTIONAL_KEYS = ("psnr_unobserved",)
+ALIGNED_KEYS = ("psnr_aligned",)
 REGION_MASK_EXACT = "exact: ray-caster moving-object mask (synthetic ground truth)"
 REGION_MASK_ESTIMATED = "estimated: temporal statistics of the held-out video (fixer4d.init.masks)"
 # Absolute error (per pixel, mean over RGB) that maps to the top of the heatmap's colour scale.
@@ -120,6 +133,22 @@ def heldout_moving_masks(scene, cam_idx: int, frames: Sequence[int]) -> tuple[np
     return moving_masks_for_scene(scene, [cam_idx], frames)[0], REGION_MASK_ESTIMATED
 
 
+def exposure_aligned(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """(H, W, 3) ``pred`` after a per-channel affine fit a_c x + b_c to ``gt`` (least squares over
+    the image's pixels), clipped to [0, 1]; a flat channel gets only the offset."""
+    pred = np.asarray(pred, np.float64)
+    gt = np.asarray(gt, np.float64)
+    out = np.empty_like(pred)
+    for c in range(pred.shape[-1]):
+        x = pred[..., c].ravel()
+        y = gt[..., c].ravel()
+        var = float(x.var())
+        a = float(np.mean((x - x.mean()) * (y - y.mean())) / var) if var > 1e-12 else 0.0
+        b = float(y.mean() - a * x.mean())
+        out[..., c] = a * pred[..., c] + b
+    return np.clip(out, 0.0, 1.0).astype(np.float32)
+
+
 def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_") or "view"
 
@@ -185,7 +214,8 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
 def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: str | Path, *,
              frame_stride: int = 1, frames: Sequence[int] | None = None, method_name: str = "fixer4d",
              seconds: dict[str, float] | None = None, save_examples: int = 3,
-             progress: bool = True) -> dict[str, Any]:
+             progress: bool = True,
+             unobserved_fn: Callable[[int, int], np.ndarray] | None = None) -> dict[str, Any]:
     """Score ``render_fn`` on every held-out camera of ``scene`` and write the results to ``out_dir``.
 
     render_fn(camera, t) -> (H, W, 3) float32 RGB for the camera at clip time t = f / T.
@@ -193,6 +223,8 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
     ground truth). frames / frame_stride: see :func:`select_frames`. seconds: the run's
     ``{"prep": s, "train": s}`` (unknown ones are written as null); ``eval`` is measured here.
     save_examples: frames (evenly spaced among those evaluated) saved as PNGs per view.
+    unobserved_fn(camera_index, frame) -> (H, W) bool: the pixels no train camera explains
+    (scored as ``psnr_unobserved``; None: not scored).
     Returns the metrics.json content. Raises InputError for a scene without held-out cameras
     or a render of the wrong shape, NumericalError for a non-finite render.
     """
@@ -238,9 +270,15 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
             t0 = time.perf_counter()
             m = M.image_metrics(pred, gt)
             m.update(M.region_metrics(pred, gt, moving[j]))
+            m["psnr_aligned"] = M.psnr(exposure_aligned(pred, gt), gt)
+            extra: dict[str, Any] = {}
+            if unobserved_fn is not None:
+                hidden = np.asarray(unobserved_fn(cam_idx, f), bool)
+                m["psnr_unobserved"] = M.masked_psnr(pred, gt, hidden)
+                extra["unobserved_fraction"] = float(hidden.mean())
             metric_s += time.perf_counter() - t0
             per_frame.append({"camera": key, "camera_index": cam_idx, "frame": f, "time": t, **m,
-                              "moving_fraction": float(moving[j].mean())})
+                              "moving_fraction": float(moving[j].mean()), **extra})
             if f in example_frames:
                 name = f"example_{_slug(key)}_f{f:04d}.png"
                 _save_png(out_dir / name, side_by_side(pred, gt))
@@ -249,17 +287,23 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
             bar.set_postfix(psnr=f"{m['psnr']:.2f}")
     bar.close()
 
+    scored = METRIC_KEYS + ALIGNED_KEYS
+    present = REGION_KEYS + (OPTIONAL_KEYS if unobserved_fn is not None else ())
     per_view: dict[str, dict[str, Any]] = {}
     for cam_idx, key in zip(test_ids, keys):
         rows = [r for r in per_frame if r["camera_index"] == cam_idx]
         per_view[key] = {"camera_index": cam_idx, "frames": len(rows),
-                         **{k: _finite_or_none(_mean([r[k] for r in rows])) for k in METRIC_KEYS},
-                         **{k: _mean_present([r[k] for r in rows]) for k in REGION_KEYS},
+                         **{k: _finite_or_none(_mean([r[k] for r in rows])) for k in scored},
+                         **{k: _mean_present([r[k] for r in rows]) for k in present},
                          "moving_fraction": float(np.mean([r["moving_fraction"] for r in rows]))}
-    mean = {k: _finite_or_none(_mean([r[k] for r in per_frame])) for k in METRIC_KEYS}
-    mean.update({k: _mean_present([r[k] for r in per_frame]) for k in REGION_KEYS})
+        if unobserved_fn is not None:
+            per_view[key]["unobserved_fraction"] = float(np.mean([r["unobserved_fraction"] for r in rows]))
+    mean = {k: _finite_or_none(_mean([r[k] for r in per_frame])) for k in scored}
+    mean.update({k: _mean_present([r[k] for r in per_frame]) for k in present})
+    if unobserved_fn is not None:
+        mean["unobserved_fraction"] = float(np.mean([r["unobserved_fraction"] for r in per_frame]))
     for r in per_frame:
-        for k in METRIC_KEYS + REGION_KEYS:
+        for k in scored + present:
             r[k] = _finite_or_none(r[k])
 
     seconds = dict(seconds or {})
@@ -290,7 +334,10 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
                         "psnr": "10 log10(1 / MSE) over the region's pixels, per image; mean over images "
                                 "where the region is not empty",
                         "ssim": "mean of the SSIM map (data range 1) over the region",
-                        "moving_fraction": float(np.mean([r["moving_fraction"] for r in per_frame]))},
+                        "moving_fraction": float(np.mean([r["moving_fraction"] for r in per_frame])),
+                        "unobserved": None if unobserved_fn is None else
+                        "restore.visibility of the stage-1 model's renders (train cameras only), weight > 0.5"},
+            "psnr_aligned": "PSNR after a per-image per-channel affine fit of the render to the ground truth",
         },
         "timing": {"render_seconds": render_s, "metrics_seconds": metric_s, "mask_seconds": mask_s},
         "examples": examples,

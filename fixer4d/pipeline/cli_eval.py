@@ -1,4 +1,5 @@
-"""`fixer4d eval RUN [--model PATH] [--stride S] [--backend B]`: evaluate a run on its held-out cameras.
+"""`fixer4d eval RUN [--model PATH] [--stride S] [--backend B] [--cameras-from DIR]`: evaluate a run on its
+held-out cameras (or, with ``--cameras-from``, on another folder's: ``pipeline.other_cameras``).
 
 Opens the run folder (``fixer4d.pipeline.RunFolder``: versioned config, its scene), loads the latest model
 (``model_final.ply``, else ``model_stage1.ply``, or ``--model``), renders every held-out camera at
@@ -27,6 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", default=None, help="method name in the table (default: from the model file)")
     parser.add_argument("--examples", type=int, default=3, help="frames saved as render|gt|error PNGs per view")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--cameras-from", default=None, metavar="DIR",
+                        help="score the run's models on the held-out cameras of DIR instead (a validation folder "
+                             "with the same train cameras) -> RUN/heldout/<DIR name>/report.md")
 
 
 def find_model(run: Path, model: str | None = None) -> Path:
@@ -74,6 +78,13 @@ def run(args: argparse.Namespace) -> int:
     from fixer4d.pipeline.run_folder import RunFolder
     from fixer4d.pipeline.stages import eval_slug
 
+    if args.cameras_from is not None:
+        from fixer4d.pipeline.other_cameras import evaluate_on_other_cameras
+
+        report = evaluate_on_other_cameras(args.run, args.cameras_from, progress=not args.quiet)
+        print(f"wrote {Path(args.run) / 'heldout' / Path(args.cameras_from).resolve().name}/report.md "
+              f"({len(report['rows'])} rows on {report['scene']})")
+        return 0
     folder = RunFolder.open(args.run)
     model_path = find_model(folder.path, args.model)
     model = load_ply(model_path).eval()

@@ -11,6 +11,7 @@
       eval          EvalConfig         held-out evaluation
       segments      SegmentConfig      (pipeline/segments.py) long captures as temporal segments
       executor      ExecutorConfig     (pipeline/executors.py) where segments and restore jobs run
+      self_check    SelfCheckConfig    (pipeline/self_check.py) stage 2 checked on a held-back train camera
       baseline_sparse, init_frame_stride, seed
 
 A config is built from the defaults, then an optional config file (a ``config.json`` of another
@@ -31,6 +32,7 @@ from fixer4d.model.effects import EffectsConfig
 from fixer4d.pipeline import config_tree
 from fixer4d.pipeline.executors import ExecutorConfig
 from fixer4d.pipeline.segments import SegmentConfig
+from fixer4d.pipeline.self_check import SelfCheckConfig
 from fixer4d.restore.config import RestoreConfig
 from fixer4d.train.config import Stage1Config, Stage2Config
 
@@ -82,10 +84,16 @@ class EvalConfig:
     # stage 2 runs, without pseudo-views (shows that stage 2's gain is the restorer's)
     matched_row: bool = True
     examples: int = 3                # frames saved as render|gt|error PNGs per view
+    # the "Blur (init)" baseline row: the stage-1 render low-passed by a Gaussian of this many
+    # pixels, about the resampling blur of a bilinear warp (a restoration gain means something
+    # only against the render itself and a plain blur of it)
+    blur_sigma_px: float = 1.0
 
     def __post_init__(self) -> None:
         if self.stride < 1:
             raise InputError(f"stride must be >= 1, got {self.stride}")
+        if not self.blur_sigma_px > 0:
+            raise InputError(f"blur_sigma_px must be > 0, got {self.blur_sigma_px}")
 
 
 @dataclass
@@ -102,6 +110,7 @@ class RunConfig:
     eval: EvalConfig = field(default_factory=EvalConfig)
     segments: SegmentConfig = field(default_factory=SegmentConfig)
     executor: ExecutorConfig = field(default_factory=ExecutorConfig)
+    self_check: SelfCheckConfig = field(default_factory=SelfCheckConfig)
     baseline_sparse: bool = True     # also train from the sparse init for the "STGS w/ COLMAP" row
     # Point clouds from every `init_frame_stride`-th frame (both inits use the same frames).
     init_frame_stride: int = 4

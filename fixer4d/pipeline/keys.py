@@ -10,7 +10,8 @@ from typing import Any
 from fixer4d.pipeline.config import RunConfig
 from fixer4d.pipeline.run_folder import stage_key
 
-__all__ = ["init_key", "stage1_key", "restorer_key", "stage2_key", "matched_key", "training_settings", "shared_static_key"]
+__all__ = ["init_key", "stage1_key", "restorer_key", "stage2_key", "matched_key", "self_check_key", "training_settings",
+           "shared_static_key"]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -58,3 +59,8 @@ def restorer_key(config: RunConfig) -> str:
 
 def matched_key(config: RunConfig) -> str:
     return stage_key("matched", stage1_key(config, config.init_method), config.to_dict()["stage2"])
+
+
+def self_check_key(config: RunConfig) -> str:
+    """The stage-2 self-check: everything stage 2 depends on, and the check's own settings."""
+    return stage_key("self_check", stage2_key(config), config.to_dict()["self_check"], config.init_frame_stride)

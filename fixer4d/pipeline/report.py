@@ -17,14 +17,27 @@ ROW_MATCHED = "STGS w/ MVS (matched iterations)"
 ROW_RESTORED_INIT = "Restoration (init)"
 ROW_FULL = "Full"
 ROW_RESTORED_REFINED = "Restoration (refined)"
-ROW_NAMES = (ROW_COLMAP, ROW_MVS, ROW_MATCHED, ROW_RESTORED_INIT, ROW_FULL, ROW_RESTORED_REFINED)
-METRIC_KEYS = ("psnr", "dssim1", "dssim2", "lpips", "psnr_dynamic", "psnr_static")
+# Baselines beside the restoration rows: the stage-1 render itself, and a plain blur of it.
+ROW_IDENTITY = "Identity (init)"
+ROW_BLUR = "Blur (init)"
+ROW_NAMES = (ROW_COLMAP, ROW_MVS, ROW_MATCHED, ROW_IDENTITY, ROW_BLUR, ROW_RESTORED_INIT, ROW_FULL,
+             ROW_RESTORED_REFINED)
+METRIC_KEYS = ("psnr", "dssim1", "dssim2", "lpips", "psnr_dynamic", "psnr_static", "psnr_unobserved", "psnr_aligned",
+               "unobserved_fraction")
 
 
 def metrics_row(method: str, metrics: dict[str, Any], seconds: float | None) -> dict[str, Any]:
     """A finished row from an ``evaluate()`` result."""
     mean = metrics["mean"]
     return {"method": method, "status": "ok", **{k: mean.get(k) for k in METRIC_KEYS}, "seconds": seconds}
+
+
+def copied_row(method: str, metrics: dict[str, Any]) -> dict[str, Any]:
+    """A row whose images are another row's (the identity baseline is the stage-1 render): its
+    metrics, under ``method``, with no time of its own."""
+    row = metrics_row(method, metrics, None)
+    row["same_as"] = metrics.get("method")
+    return row
 
 
 def failed_row(method: str, reason: str) -> dict[str, Any]:
@@ -47,6 +60,22 @@ def restorer_line(summary: dict[str, Any]) -> str:
             f"warp restorer {v['psnr_warp']:.2f} dB" + (f"; {cpu:.0f} CPU s to train)" if cpu is not None else ")"))
 
 
+def self_check_line(check: dict[str, Any]) -> str:
+    """'Stage-2 self-check: ...' for the report (the decision and its fold figures)."""
+    psnr = check.get("psnr")
+    if not psnr:
+        return f"Stage-2 self-check: {check.get('decision')} ({check.get('reason', '')})"
+    secs = sum((check.get("seconds") or {}).values())
+    return (f"Stage-2 self-check on held-back train camera {check['held_back_camera']} (fold of cameras "
+            f"{check['fold_cameras']} at scale {check['scale']:g}, {secs:.0f} s): before {psnr['skip']:.2f} dB, "
+            f"more training {psnr['continue']:.2f} dB, stage 2 {psnr['refine']:.2f} dB -> **{check['decision']}**: "
+            f"the final model is {_FINAL[check['decision']]}.")
+
+
+_FINAL = {"skip": "the stage-1 model", "continue": "the matched-iterations control (no pseudo-views)",
+          "refine": "stage 2's"}
+
+
 def write_report(run_dir: Path, scene_text: str, rows: list[dict[str, Any]], stage_seconds: dict[str, float],
                  extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """Write RUN/report.json and RUN/report.md; returns the report dict."""
@@ -55,15 +84,25 @@ def write_report(run_dir: Path, scene_text: str, rows: list[dict[str, Any]], sta
     lines = [f"# fixer4d report: {run_dir.name}", "", f"Scene: {scene_text}", ""]
     if report.get("restorer"):
         lines += [restorer_line(report["restorer"]), ""]
-    lines += ["| Method | PSNR | PSNR dynamic | PSNR static | DSSIM1 | DSSIM2 | LPIPS | Time (s) |",
-              "|---|---|---|---|---|---|---|---|"]
+    if report.get("self_check"):
+        lines += [self_check_line(report["self_check"]), ""]
+    lines += ["| Method | PSNR | PSNR dynamic | PSNR static | PSNR unobserved | PSNR exposure-aligned | DSSIM1 | DSSIM2 "
+              "| LPIPS | Time (s) |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r.get("status") == "failed":
-            lines.append(f"| {r['method']} | failed: {r.get('error', '')} | | | | | | |")
+            lines.append(f"| {r['method']} | failed: {r.get('error', '')} | | | | | | | | |")
             continue
         lines.append(f"| {r['method']} | {_fmt(r['psnr'], 2)} | {_fmt(r.get('psnr_dynamic'), 2)} | "
-                     f"{_fmt(r.get('psnr_static'), 2)} | {_fmt(r['dssim1'], 4)} | {_fmt(r['dssim2'], 4)} | "
+                     f"{_fmt(r.get('psnr_static'), 2)} | {_fmt(r.get('psnr_unobserved'), 2)} | "
+                     f"{_fmt(r.get('psnr_aligned'), 2)} | {_fmt(r['dssim1'], 4)} | {_fmt(r['dssim2'], 4)} | "
                      f"{_fmt(r['lpips'], 4)} | {_fmt(r['seconds'], 1)} |")
+    fractions = [r.get("unobserved_fraction") for r in rows if r.get("unobserved_fraction") is not None]
+    if fractions:
+        lines += ["", f"PSNR unobserved: over the held-out pixels that no train camera explains in the stage-1 model "
+                      f"({100 * fractions[0]:.1f} % of them; restore.visibility, from renders only). PSNR "
+                      "exposure-aligned: after a per-image per-channel affine colour fit to the ground truth. "
+                      f"{ROW_IDENTITY} is the {ROW_MVS} render itself; {ROW_BLUR} a Gaussian blur of it."]
     lines += ["", "Seconds per stage:", "", "| Stage | Seconds |", "|---|---|"]
     lines += [f"| {k} | {v:.1f} |" for k, v in stage_seconds.items()]
     atomic.write_text(run_dir / "report.md", "\n".join(lines) + "\n")

@@ -14,6 +14,7 @@ import torch
 
 from fixer4d.geometry.camera import Camera
 from fixer4d.pipeline.config import RunConfig, TrajectoryConfig
+from fixer4d.restore.visibility import VisibilityConfig
 
 # The learned restorer's folder inside a run (weights, training pairs, validation.json).
 RESTORER_DIR = "restorer"
@@ -61,9 +62,14 @@ def model_render_fn(model, backend: str = "auto",
 
 
 def make_request(model, scene, cameras: list[Camera], frame: int, ref_ids: tuple[int, int], *,
-                 backend: str = "auto", trajectory: dict[str, Any] | None = None):
-    """Render a clip and everything the restorer needs at the references (restorers never render)."""
+                 backend: str = "auto", trajectory: dict[str, Any] | None = None,
+                 visibility: VisibilityConfig | None = None):
+    """Render a clip and everything the restorer needs at the references (restorers never render).
+
+    visibility: when given, the request carries ``unobserved`` (F, H, W): how unobserved each
+    clip pixel is by the scene's train cameras (``restore.visibility``, from these renders)."""
     from fixer4d.restore.base import RestoreRequest
+    from fixer4d.restore.visibility import TrainView, unobserved_clip
 
     t = scene.time(frame)
     ref_cams = [scene.cameras[i] for i in ref_ids]
@@ -74,12 +80,16 @@ def make_request(model, scene, cameras: list[Camera], frame: int, ref_ids: tuple
     n, m = len(cameras), len(cameras) + len(ref_cams)
     rgb, depth, alpha = rgb_all[:n], depth_all[:n], alpha_all[:n]
     ref_depth, ref_alpha, extra_depth = depth_all[n:m], alpha_all[n:m], depth_all[m:]
+    unobserved = None
+    if visibility is not None:
+        train = [TrainView(c, d, a) for c, d, a in zip(ref_cams + extra_cams, depth_all[n:], alpha_all[n:])]
+        unobserved = unobserved_clip(cameras, depth, alpha, train, visibility)
     return RestoreRequest(
         rgb=rgb, depth=depth, alpha=alpha, cameras=list(cameras), time=t, frame=frame,
         ref_images=[scene.frame(frame, i) for i in ref_ids], ref_cameras=ref_cams,
         ref_depths=list(ref_depth), ref_alphas=list(ref_alpha),
         extra_images=[scene.frame(frame, i) for i in extra_ids] or None, extra_cameras=extra_cams or None,
-        extra_depths=list(extra_depth) or None, trajectory=trajectory or {})
+        extra_depths=list(extra_depth) or None, trajectory=trajectory or {}, unobserved=unobserved)
 
 
 def build_restorer(config: RunConfig, run_dir: str | Path | None = None):
@@ -141,7 +151,8 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
             batch = todo[start:start + RESTORE_BATCH]
             requests = [make_request(model, scene, tr.cameras, f, ids, backend=backend,
                                      trajectory={"name": tr.name, "pair": list(ids), "amplitude": float(tr.amplitude),
-                                                 "arc_index": tr.arc_index})
+                                                 "arc_index": tr.arc_index},
+                                     visibility=config.stage2.visibility)
                         for f, tr, ids in batch]
             results = executor.map(_restore_job, [(restorer, req) for req in requests])
             for (f, tr, ids), req, res in zip(batch, requests, results):
@@ -154,13 +165,18 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
     return refresh
 
 
-def restoration_render_fn(model, scene, restorer, backend: str = "auto") -> Callable[[Camera, float], np.ndarray]:
+def restoration_render_fn(model, scene, restorer, backend: str = "auto",
+                          visibility: VisibilityConfig | None = None) -> Callable[[Camera, float], np.ndarray]:
     """A render function for evaluation whose images are *restored* renders.
 
     For a held-out camera h, the trajectory passes through it: the two train cameras nearest to
     h are the references, the clip is (midpoint ref_a..h, h, midpoint h..ref_b) and the restored
     middle frame is returned (the "restoration" rows of the paper's Table 2).
+    visibility: when given, the restored frame replaces the render only where the train cameras
+    leave the pixel unobserved and the restorer is confident (``restore.base.blend_with_render``);
+    None: the restorer's output as it is (the paper's rows).
     """
+    from fixer4d.restore.base import blend_with_render
     from fixer4d.geometry.trajectory import interpolate_pair, same_pose
 
     def midpoint(c0: Camera, c1: Camera) -> Camera:
@@ -176,7 +192,53 @@ def restoration_render_fn(model, scene, restorer, backend: str = "auto") -> Call
         a, b = scene.cameras[ids[0]], scene.cameras[ids[1]]
         cams = [midpoint(a, camera), camera, midpoint(camera, b)]
         req = make_request(model, scene, cams, frame, ids, backend=backend,
-                           trajectory={"name": f"through-{camera.name}", "pair": list(ids), "amplitude": 0.0})
-        return restorer.restore(req).rgb[1]
+                           trajectory={"name": f"through-{camera.name}", "pair": list(ids), "amplitude": 0.0},
+                           visibility=visibility)
+        result = restorer.restore(req)
+        if visibility is not None:
+            result = blend_with_render(req.rgb, result, req.unobserved)
+        return result.rgb[1]
 
     return fn
+
+
+def blur_render_fn(model, sigma_px: float, backend: str = "auto",
+                   background: tuple[float, float, float] | None = None) -> Callable[[Camera, float], np.ndarray]:
+    """``fn(camera, t) -> (H,W,3)``: the model's render blurred by a Gaussian of ``sigma_px``
+    pixels (the "Blur" baseline beside the restoration rows: a restoration gain means something
+    only against the render itself and against a plain low-pass of it)."""
+    import cv2
+
+    plain = model_render_fn(model, backend, background)
+
+    def fn(camera: Camera, t: float) -> np.ndarray:
+        return cv2.GaussianBlur(plain(camera, t), (0, 0), sigmaX=float(sigma_px), sigmaY=float(sigma_px))
+
+    return fn
+
+
+class UnobservedMasks:
+    """``masks(camera_index, frame) -> (H, W) bool``: the pixels of a (held-out) camera that no
+    train camera explains, from ``model``'s renders at that camera and at the train cameras
+    (``restore.visibility``; weight > 0.5). Reads no image: safe for held-out cameras. Masks are
+    memoized, so every report row of one model scores the same region."""
+
+    def __init__(self, model, scene, visibility: VisibilityConfig, backend: str = "auto") -> None:
+        self.model = model
+        self.scene = scene
+        self.visibility = visibility
+        self.backend = backend
+        self._memo: dict[tuple[int, int], np.ndarray] = {}
+
+    def __call__(self, cam_idx: int, frame: int) -> np.ndarray:
+        from fixer4d.restore.visibility import TrainView, unobserved_weight
+
+        key = (int(cam_idx), int(frame))
+        if key not in self._memo:
+            scene = self.scene
+            cam = scene.cameras[cam_idx]
+            train = scene.train_cameras
+            _, depth, alpha = render_views(self.model, [cam] + list(train), scene.time(frame), self.backend)
+            views = [TrainView(c, d, a) for c, d, a in zip(train, depth[1:], alpha[1:])]
+            self._memo[key] = unobserved_weight(cam, depth[0], alpha[0], views, self.visibility) > 0.5
+        return self._memo[key]

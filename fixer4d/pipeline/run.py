@@ -20,7 +20,8 @@ from fixer4d import atomic
 from fixer4d.pipeline import report as R
 from fixer4d.pipeline import stages as S
 from fixer4d.pipeline.config import RunConfig
-from fixer4d.pipeline.restoration import build_restorer, model_render_fn, restoration_render_fn
+from fixer4d.pipeline.restoration import (UnobservedMasks, blur_render_fn, build_restorer, model_render_fn,
+                                          restoration_render_fn)
 from fixer4d.pipeline.run_folder import RunFolder, load_scene_for, stage_key
 from fixer4d.pipeline.shared_static import SHARED_DIR, export_shared_static
 from fixer4d.pipeline.stage_cache import StageCache
@@ -70,8 +71,10 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
         rows.append(row)
         R.write_report(ctx.path, ctx.scene.describe(), _ordered(rows), rec.as_seconds(), extra())
 
+    checks: dict[str, Any] = {}
+
     def extra() -> dict[str, Any]:
-        out = {"restorer": S.restorer_summary(ctx), "peak_rss_mb": peak_rss_mb()}
+        out = {"restorer": S.restorer_summary(ctx), "peak_rss_mb": peak_rss_mb(), **checks}
         effects = ctx.path / S.EFFECTS_NAME
         if effects.is_file():  # the main model's effects and why
             out["model"] = json.loads(effects.read_text())
@@ -101,8 +104,10 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
     model = S.stage1(ctx, method, clouds, ctx.path / "model_stage1.ply", "stage1")
     main_row = R.ROW_MVS if method != "sparse" else R.ROW_COLMAP
     s1_key = S.stage1_key(config, method)
+    # the held-out pixels no train camera explains, from the stage-1 model: one region for every row
+    unobserved = UnobservedMasks(model, ctx.scene, config.stage2.visibility, ctx.backend)
     m = S.evaluate_stage(ctx, main_row, model_render_fn(model, ctx.backend, config.stage1.background), s1_key,
-                         seconds("stage1"))
+                         seconds("stage1"), unobserved)
     add(R.metrics_row(main_row, m, rec.seconds(f"init_{method}", "stage1")))
     final_metrics = m
 
@@ -110,31 +115,44 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
     restorer = S.restorer_stage(ctx, clouds, model) if needs_restorer else None
     del clouds
     r_key = S.restorer_key(config)
+    # restored renders replace the render only where the train cameras leave a pixel unobserved
+    # (None: the paper's restoration rows, every pixel)
+    gate = config.stage2.visibility if config.stage2.pseudo_mask == "unobserved" else None
     if restorer is not None and config.eval.restoration_rows:
-        m = S.evaluate_stage(ctx, R.ROW_RESTORED_INIT, restoration_render_fn(model, ctx.scene, restorer, ctx.backend),
-                             stage_key(s1_key, r_key), seconds("stage1", "restorer"))
+        add(R.copied_row(R.ROW_IDENTITY, m))
+        blur = blur_render_fn(model, config.eval.blur_sigma_px, ctx.backend, config.stage1.background)
+        mb = S.evaluate_stage(ctx, R.ROW_BLUR, blur, stage_key(s1_key, "blur", config.eval.blur_sigma_px),
+                              seconds("stage1"), unobserved)
+        add(R.metrics_row(R.ROW_BLUR, mb, rec.seconds(f"init_{method}", "stage1")))
+        m = S.evaluate_stage(ctx, R.ROW_RESTORED_INIT,
+                             restoration_render_fn(model, ctx.scene, restorer, ctx.backend, gate),
+                             stage_key(s1_key, r_key, gate is not None), seconds("stage1", "restorer"), unobserved)
         add(R.metrics_row(R.ROW_RESTORED_INIT, m, rec.seconds(f"init_{method}", "stage1", "restorer")
                           + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_INIT)}")))
 
-    # -- stage 2: (restore -> refine) x R, and its matched-iterations control -------------------
+    # -- stage 2: (restore -> refine) x R, checked on a held-back train camera, and its matched-
+    # iterations control
     if config.stage2.rounds > 0:
         if config.eval.matched_row:
             matched = S.matched_stage1(ctx, model)
             m = S.evaluate_stage(ctx, R.ROW_MATCHED, model_render_fn(matched, ctx.backend, config.stage1.background),
-                                 S.matched_key(config), seconds("stage1", "matched"))
+                                 S.matched_key(config), seconds("stage1", "matched"), unobserved)
             add(R.metrics_row(R.ROW_MATCHED, m, rec.seconds(f"init_{method}", "stage1", "matched")))
             del matched
-        model = S.stage2(ctx, model)
-        full_secs = rec.seconds(f"init_{method}", "stage1", "restorer", "stage2")
-        s2_key = S.stage2_key(config)
+        check = S.self_check_stage(ctx, restorer)
+        checks["self_check"] = check
+        model = S.final_stage(ctx, model, check["decision"])
+        full_secs = rec.seconds(f"init_{method}", "stage1", "restorer", "self_check", "matched", "stage2")
+        s2_key = stage_key(S.stage2_key(config), check["decision"])
         m = S.evaluate_stage(ctx, R.ROW_FULL, model_render_fn(model, ctx.backend, config.stage1.background), s2_key,
-                             seconds("stage1", "restorer", "stage2"))
+                             seconds("stage1", "restorer", "self_check", "stage2"), unobserved)
         add(R.metrics_row(R.ROW_FULL, m, full_secs))
         final_metrics = m
         if restorer is not None and config.eval.restoration_rows:
             m = S.evaluate_stage(ctx, R.ROW_RESTORED_REFINED,
-                                 restoration_render_fn(model, ctx.scene, restorer, ctx.backend),
-                                 stage_key(s2_key, r_key), seconds("stage1", "restorer", "stage2"))
+                                 restoration_render_fn(model, ctx.scene, restorer, ctx.backend, gate),
+                                 stage_key(s2_key, r_key, gate is not None), seconds("stage1", "restorer", "stage2"),
+                                 unobserved)
             add(R.metrics_row(R.ROW_RESTORED_REFINED, m, full_secs
                               + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_REFINED)}")))
     else:

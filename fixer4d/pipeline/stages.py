@@ -34,7 +34,7 @@ from fixer4d import atomic
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
 from fixer4d.pipeline.config import RunConfig
-from fixer4d.pipeline.keys import init_key, matched_key, restorer_key, stage1_key, stage2_key
+from fixer4d.pipeline.keys import init_key, matched_key, restorer_key, self_check_key, stage1_key, stage2_key
 from fixer4d.pipeline.run_folder import RunFolder, stage_key
 from fixer4d.pipeline.stage_cache import StageCache
 
@@ -59,10 +59,21 @@ class StageContext:
     scene: Any
     progress: bool = True
     cache: StageCache | None = None
+    _train_scene: Any = dataclasses.field(default=None, repr=False)
 
     @property
     def config(self) -> RunConfig:
         return self.run.config
+
+    @property
+    def train_scene(self):
+        """The scene as every stage but evaluation sees it: its train cameras only
+        (``TrainOnlyView``: a held-out frame, mask or depth read raises HeldOutAccess)."""
+        from fixer4d.scene.train_view import TrainOnlyView
+
+        if self._train_scene is None:
+            self._train_scene = TrainOnlyView(self.scene)
+        return self._train_scene
 
     @property
     def path(self) -> Path:
@@ -98,7 +109,7 @@ def init_stage(ctx: StageContext, method: str):
             t0 = time.perf_counter()
             frames = list(range(0, ctx.scene.num_frames, ctx.config.init_frame_stride))
             cfg = dataclasses.replace(ctx.config.init, method=method)
-            run_init(ctx.scene, method, out, frames=frames, config=cfg, progress=ctx.progress)
+            run_init(ctx.train_scene, method, out, frames=frames, config=cfg, progress=ctx.progress)
             ctx.run.records.finish(name, key, time.perf_counter() - t0)
             if ctx.cache is not None:
                 ctx.cache.store(key, [out / p.name for p in out.iterdir()], ctx.run.records.seconds(name))
@@ -151,18 +162,18 @@ def stage1_trainer(ctx: StageContext, init, run_dir: Path | None):
     from fixer4d.train.trainer import Trainer, model_from_init
 
     cfg = ctx.stage1_config()
-    model, decision = model_from_init(init, ctx.scene, cfg, ctx.config.effects)
+    model, decision = model_from_init(init, ctx.train_scene, cfg, ctx.config.effects)
     if ctx.config.segments.static_from is not None:
         from fixer4d.pipeline.shared_static import add_shared_static, load_shared
 
         shared = load_shared(ctx.config.segments.static_from, "stage1")
-        counts = add_shared_static(model, shared, ctx.scene.train_cameras, backend=ctx.backend)
+        counts = add_shared_static(model, shared, ctx.train_scene.train_cameras, backend=ctx.backend)
         if decision is not None:
             decision.reasons["shared_static"] = (
                 f"{counts['shared_static']} frozen static Gaussians of the first segment; own static points kept "
                 f"where they are not explained by them: {counts['own_static_kept']} kept, "
                 f"{counts['own_static_dropped']} dropped")
-    trainer = Trainer(model, ctx.scene, cfg, run_dir=run_dir,
+    trainer = Trainer(model, ctx.train_scene, cfg, run_dir=run_dir,
                       effects=ctx.config.effects if decision is not None else None)
     return trainer, decision
 
@@ -185,7 +196,7 @@ def restorer_stage(ctx: StageContext, clouds, model):
     if ctx.run.records.begin("restorer", key):
         _clear(ctx.path / RESTORER_DIR)
     t0 = time.perf_counter()
-    restorer = train_scene_restorer(ctx.scene, clouds, ctx.stage1_config(), ctx.path / RESTORER_DIR, rc,
+    restorer = train_scene_restorer(ctx.train_scene, clouds, ctx.stage1_config(), ctx.path / RESTORER_DIR, rc,
                                     progress=ctx.progress, model=model)
     ctx.run.records.finish("restorer", key, time.perf_counter() - t0)
     return restorer
@@ -234,9 +245,9 @@ def stage2(ctx: StageContext, model, refresh: Callable[[Any, int], None] | None 
     if refresh is None:
         from fixer4d.pipeline.executors import executor_for
 
-        refresh = make_refresh_callback(ctx.path, ctx.scene, ctx.config, progress=ctx.progress, backend=ctx.backend,
+        refresh = make_refresh_callback(ctx.path, ctx.train_scene, ctx.config, progress=ctx.progress, backend=ctx.backend,
                                         executor=executor_for(ctx.config.executor))
-    trainer = Trainer(model, ctx.scene, ctx.stage1_config(), run_dir=ctx.path, stage2=ctx.config.stage2,
+    trainer = Trainer(model, ctx.train_scene, ctx.stage1_config(), run_dir=ctx.path, stage2=ctx.config.stage2,
                       cache=RestoreCache(ctx.path / "cache", fingerprint=key), refresh_cache=refresh)
     prior = trainer.train_seconds if trainer.resume() else 0.0
     trainer.train()
@@ -259,15 +270,10 @@ def matched_stage1(ctx: StageContext, model):
         return load_ply(path)
     if ctx.run.records.begin("matched", key):
         _drop_checkpoints(out, 1)
-    s2 = ctx.config.stage2
-    n = s2.total_iterations
-    until = int(s2.densify_until_fraction * n)
-    cfg = ctx.stage1_config(iterations=n, lr_means_init=s2.lr_means_init, lr_means_final=s2.lr_means_final,
-                            densify_from=min(ctx.config.stage1.densify_every, until), densify_until=until,
-                            opacity_reset_every=n + 1, seed=s2.seed)
+    cfg = matched_config(ctx.stage1_config(), ctx.config.stage2)
     t0 = time.perf_counter()
     # a copy: the Trainer updates its model in place, and stage 2 must start from the stage-1 model
-    trainer = Trainer(copy.deepcopy(model), ctx.scene, cfg, run_dir=out)
+    trainer = Trainer(copy.deepcopy(model), ctx.train_scene, cfg, run_dir=out)
     prior = trainer.train_seconds if trainer.resume() else 0.0
     trainer.train()
     save_ply(trainer.model, path)
@@ -276,10 +282,70 @@ def matched_stage1(ctx: StageContext, model):
     return trainer.model
 
 
+def matched_config(stage1, s2):
+    """The Stage1Config of the matched-iterations control: ``stage1`` continued for stage 2's
+    length with stage 2's learning rates, densification window and seed, no opacity reset."""
+    n = s2.total_iterations
+    until = int(s2.densify_until_fraction * n)
+    return dataclasses.replace(stage1, iterations=n, lr_means_init=s2.lr_means_init, lr_means_final=s2.lr_means_final,
+                               densify_from=min(stage1.densify_every, until), densify_until=until,
+                               opacity_reset_every=n + 1, seed=s2.seed)
+
+
+def self_check_stage(ctx: StageContext, restorer) -> dict[str, Any]:
+    """The stage-2 self-check (``pipeline.self_check``) -> RUN/self_check/decision.json; its
+    ``decision`` (skip | continue | refine) chooses the run's final model. Disabled: refine."""
+    import json
+
+    from fixer4d.pipeline.self_check import DECISION_FILE, run_self_check
+
+    sc = ctx.config.self_check
+    if not sc.enabled:
+        return {"decision": "refine", "reason": "self-check off (self_check.enabled=false): stage 2 as configured"}
+    out = ctx.path / "self_check"
+    key = self_check_key(ctx.config)
+    if ctx.run.records.done("self_check", key) and (out / DECISION_FILE).is_file():
+        return json.loads((out / DECISION_FILE).read_text())
+    ctx.run.records.begin("self_check", key)
+    _clear(out, keep_aside=False)
+    t0 = time.perf_counter()
+    record = run_self_check(ctx.train_scene, ctx.config, out, restorer, progress=ctx.progress)
+    ctx.run.records.finish("self_check", key, time.perf_counter() - t0)
+    if ctx.progress:
+        print(f"[fixer4d] stage-2 self-check: {record['reason']}", flush=True)
+    return record
+
+
+def final_stage(ctx: StageContext, model, decision: str):
+    """The run's final model -> RUN/model_final.ply, as the self-check ``decision`` says: refine
+    (stage 2), continue (the matched-iterations control) or skip (the stage-1 model)."""
+    from fixer4d.model.io import load_ply, save_ply
+
+    if decision == "refine":
+        return stage2(ctx, model)
+    final = ctx.path / "model_final.ply"
+    key = stage_key(stage2_key(ctx.config), decision)
+    if ctx.run.records.done("stage2", key) and final.exists():
+        return load_ply(final)
+    ctx.run.records.begin("stage2", key)
+    _drop_checkpoints(ctx.path, 2)
+    t0 = time.perf_counter()
+    chosen = matched_stage1(ctx, model) if decision == "continue" else model
+    save_ply(chosen, final)
+    ctx.run.records.finish("stage2", key, time.perf_counter() - t0)
+    return chosen
+
+
+# Bumped when evaluation adds or changes a metric, so a finished row is scored again.
+EVAL_METRICS_VERSION = 2
+
+
 def evaluate_stage(ctx: StageContext, name: str, render_fn: Callable[[Camera, float], np.ndarray], inputs_key: str,
-                   seconds: dict[str, float]) -> dict[str, Any]:
+                   seconds: dict[str, float],
+                   unobserved: Callable[[int, int], np.ndarray] | None = None) -> dict[str, Any]:
     """Held-out metrics of ``render_fn`` -> RUN/eval/<slug>/metrics.json (keyed by ``inputs_key``,
-    the key of the model or restorer it evaluates)."""
+    the key of the model or restorer it evaluates). unobserved: the held-out pixels no train
+    camera explains (``restoration.UnobservedMasks``), scored as ``psnr_unobserved``."""
     import json
 
     from fixer4d.eval.evaluate import evaluate
@@ -288,13 +354,13 @@ def evaluate_stage(ctx: StageContext, name: str, render_fn: Callable[[Camera, fl
     out = ctx.path / "eval" / slug
     stage = f"eval:{slug}"
     ev = ctx.config.eval
-    key = stage_key("eval", inputs_key, ev.stride, ev.examples)
+    key = stage_key("eval", inputs_key, ev.stride, ev.examples, EVAL_METRICS_VERSION, unobserved is not None)
     if ctx.run.records.done(stage, key) and (out / "metrics.json").exists():
         return json.loads((out / "metrics.json").read_text())
     ctx.run.records.begin(stage, key)
     t0 = time.perf_counter()
     metrics = evaluate(render_fn, ctx.scene, out, frame_stride=ev.stride, method_name=name, seconds=seconds,
-                       save_examples=ev.examples, progress=ctx.progress)
+                       save_examples=ev.examples, progress=ctx.progress, unobserved_fn=unobserved)
     ctx.run.records.finish(stage, key, time.perf_counter() - t0)
     return metrics
 

@@ -53,6 +53,9 @@ class RestoreRequest:
     references (used for the occlusion test). extra_images / extra_cameras / extra_depths: the
     other real views of the same timestamp with the model's depth there, or None.
     trajectory: metadata (name, pair, amplitude, arc index, ...), JSON-serializable.
+    unobserved: (F, H, W) in [0, 1] or None: how unobserved each clip pixel is by the train
+    cameras (``restore.visibility``; 1 = no train camera explains it), computed from the model's
+    renders only. Restorers may ignore it; the pipeline gates pseudo-targets by it.
     """
 
     rgb: np.ndarray
@@ -69,6 +72,7 @@ class RestoreRequest:
     extra_cameras: list[Camera] | None = None
     extra_depths: list[np.ndarray] | None = None
     trajectory: dict[str, Any] = field(default_factory=dict)
+    unobserved: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.rgb = _as_array(self.rgb, "rgb")
@@ -113,6 +117,9 @@ class RestoreRequest:
                 _check_shape(self.extra_images[e], (cam.height, cam.width, 3), f"extra_images[{e}]")
                 _check_shape(self.extra_depths[e], (cam.height, cam.width), f"extra_depths[{e}]")
         self.trajectory = dict(self.trajectory)
+        if self.unobserved is not None:
+            self.unobserved = _as_array(self.unobserved, "unobserved")
+            _check_shape(self.unobserved, (F, H, W), "unobserved")
 
     @property
     def num_frames(self) -> int:
@@ -156,6 +163,27 @@ class RestoreResult:
     @property
     def num_frames(self) -> int:
         return int(self.rgb.shape[0])
+
+
+def blend_with_render(render: np.ndarray, result: RestoreResult, weight: np.ndarray | None = None) -> RestoreResult:
+    """The restored clip where it is trusted, the render elsewhere.
+
+    render: (F, H, W, 3) the rendered clip the restorer started from. weight: (F, H, W) in [0, 1]
+    or None, where the restorer may act (e.g. ``request.unobserved``). Per pixel
+    g = weight x confidence; rgb = render + g (restored - render), confidence = g. Where the
+    restorer has no confidence (its inputs were unreliable) or the pixel is observed, the render
+    comes back unchanged: restoration never overwrites what it cannot support.
+    """
+    render = _as_array(render, "render")
+    _check_shape(render, result.rgb.shape, "render")
+    g = np.clip(result.confidence, 0.0, 1.0)
+    if weight is not None:
+        weight = _as_array(weight, "weight")
+        _check_shape(weight, result.confidence.shape, "weight")
+        g = g * np.clip(weight, 0.0, 1.0)
+    rgb = render + g[..., None] * (result.rgb - render)
+    return RestoreResult(rgb=np.clip(rgb, 0.0, 1.0), confidence=g,
+                         frame_confidence=g.reshape(g.shape[0], -1).mean(axis=1))
 
 
 @runtime_checkable

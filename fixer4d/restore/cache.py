@@ -102,6 +102,12 @@ class CacheEntry:
         with np.load(self.path / CONFIDENCE_FILE, allow_pickle=False) as data:
             return data["confidence"].astype(np.float32)
 
+    def unobserved(self) -> np.ndarray | None:
+        """(F, H, W) float32 in [0, 1]: how unobserved each pixel is by the train cameras
+        (``restore.visibility``), or None for an entry written without it."""
+        with np.load(self.path / CONFIDENCE_FILE, allow_pickle=False) as data:
+            return data["unobserved"].astype(np.float32) if "unobserved" in data.files else None
+
     def frame_confidence(self) -> np.ndarray:
         """(F,) float32 per-frame confidence."""
         with np.load(self.path / CONFIDENCE_FILE, allow_pickle=False) as data:
@@ -187,7 +193,9 @@ class RestoreCache:
                 _write_png(tmp / FRAME_FILE.format(k), rgb8[k])
             np.savez_compressed(tmp / CONFIDENCE_FILE,
                                 confidence=np.clip(result.confidence, 0.0, 1.0).astype(np.float16),
-                                frame_confidence=result.frame_confidence.astype(np.float32))
+                                frame_confidence=result.frame_confidence.astype(np.float32),
+                                **({} if request.unobserved is None else
+                                   {"unobserved": np.clip(request.unobserved, 0.0, 1.0).astype(np.float16)}))
             # meta.json last: an entry directory without it is never treated as complete
             write_json(tmp / META_FILE, record)
         return self._load(path, int(round))
@@ -200,6 +208,8 @@ class RestoreCache:
             "frame_confidence": [float(c) for c in result.frame_confidence],
             "render_hole_fraction": float(hole.mean()),
             "psnr_restored_vs_render": _psnr(result.rgb, np.clip(np.nan_to_num(request.rgb, nan=0.0), 0, 1)),
+            # the share of the clip's pixels left to pseudo-supervision (None: not computed)
+            "unobserved_fraction": None if request.unobserved is None else float(np.mean(request.unobserved)),
         }
 
     # ---- reading -----------------------------------------------------------------------

@@ -269,15 +269,17 @@ class Neural3DVScene(MultiViewVideo):
         return d
 
     def bounds(self) -> SceneBounds:
-        """near/far from poses_bounds; the box from scene.json, else the union of the camera
-        frusta between near and far (loose but safe)."""
-        near = float(self._near_far[:, 0].min())
-        far = float(self._near_far[:, 1].max())
+        """near/far from the train cameras' poses_bounds rows; the box from scene.json, else the
+        union of the train cameras' frusta between near and far (loose but safe). Held-out cameras
+        never shape the bounds: they feed the random-point fallback of training."""
+        rows = self._near_far[list(self.train_ids)]
+        near = float(rows[:, 0].min())
+        far = float(rows[:, 1].max())
         if "bbox_min" in self._meta and "bbox_max" in self._meta:
             return SceneBounds(near, far, np.asarray(self._meta["bbox_min"], np.float64),
                                np.asarray(self._meta["bbox_max"], np.float64))
         pts = []
-        for c in self.cameras:
+        for c in self.train_cameras:
             corners = np.array([[0, 0], [c.width, 0], [0, c.height], [c.width, c.height]], np.float64)
             for z in (near, far):
                 pts.append(c.backproject(corners, np.full(4, z)))

@@ -8,10 +8,14 @@ train identically).
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from fixer4d.errors import InputError
+from fixer4d.restore.visibility import VisibilityConfig
+
+# Stage2Config.pseudo_mask values: where the pseudo-loss acts.
+PSEUDO_MASKS = ("unobserved", "all")
 
 # 3DGS trains 30k iterations and densifies from 500 to 15k every 100, resetting opacities every
 # 3000; ``Stage1Config.for_iterations`` scales that schedule to shorter runs.
@@ -228,8 +232,22 @@ class Stage2Config:
     # restored clips held decoded in memory (each is F frames of H x W x 3 float32)
     max_cached_clips: int = 8
     seed: int = 0
+    # Where the pseudo-loss acts: "unobserved" weights each pseudo pixel by how little the train
+    # cameras explain it (restore.visibility: holes and surfaces no train camera sees near the
+    # novel ray get the full weight, observed ones ``observed_weight``); "all" supervises every
+    # pixel (the paper's stage 2). On views the cameras cover, a pseudo-target can only repeat
+    # the real frames or contradict them.
+    pseudo_mask: str = "unobserved"
+    observed_weight: float = 0.0
+    visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
 
     def __post_init__(self) -> None:
+        if self.pseudo_mask not in PSEUDO_MASKS:
+            raise InputError(f"Stage2Config.pseudo_mask must be one of {', '.join(PSEUDO_MASKS)}, got {self.pseudo_mask!r}")
+        if not 0.0 <= self.observed_weight <= 1.0:
+            raise InputError(f"Stage2Config.observed_weight must be in [0, 1], got {self.observed_weight}")
+        if isinstance(self.visibility, dict):
+            self.visibility = VisibilityConfig(**self.visibility)
         if self.refresh_every < 1 or self.rounds < 0 or self.batch_pseudo < 0:
             raise InputError("Stage2Config: refresh_every must be >= 1, rounds and batch_pseudo >= 0 "
                              "(rounds = 0: no stage 2)")

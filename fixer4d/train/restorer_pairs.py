@@ -18,7 +18,7 @@ train camera c, a short stage 1 (``loo_iterations`` at ``loo_scale`` of the reso
   stage 2 gives it and leans on the references too much: on the demo, Restoration (init) was
   23.36 dB without them and 23.83 dB with them (warp restorer 23.43 dB, STGS w/ MVS 23.46 dB).
 
-Every camera used is one of ``scene.train_ids`` (asserted: ``_TrainViews.frame`` refuses any
+Every camera used is one of ``scene.train_ids`` (``TrainOnlyView`` raises ``HeldOutAccess`` for any
 other camera); held-out cameras are never read. The fold of train camera
 ``train_ids[validation_fold]`` is held back from training; its leave-one-out pairs score the
 restorer (PSNR of the render, the warp restorer and the learned restorer vs the real frame) in
@@ -35,7 +35,6 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
-import cv2
 import numpy as np
 import torch
 
@@ -48,6 +47,7 @@ from fixer4d.restore.config import META_FILE, VALIDATION_FILE, WEIGHTS_FILE, Res
 from fixer4d.restore.learned import LearnedRestorer, request_features, restore_features, train_network
 from fixer4d.restore.reference_warp import ReferenceWarpRestorer
 from fixer4d.scene.base import MultiViewVideo
+from fixer4d.scene.train_view import TrainOnlyView
 from fixer4d.train.config import SCHEDULE_KEYS, Stage1Config
 from fixer4d.train.trainer import Trainer, model_from_clouds
 
@@ -59,61 +59,6 @@ PAIRS_FORMAT = 2
 _SCHEDULE_FIELDS = ("iterations", *SCHEDULE_KEYS, "progress")
 
 
-class _TrainViews:
-    """A scene restricted to some of its train cameras, optionally at a lower resolution.
-
-    ``train_ids`` are the cameras a leave-one-out stage 1 trains on; ``frame`` serves only the
-    scene's own train cameras (anything else is a programming error: held-out cameras are for
-    evaluation only) and resizes to the scaled cameras.
-    """
-
-    def __init__(self, base: MultiViewVideo, train_ids: Sequence[int], scale: float) -> None:
-        allowed = set(base.train_ids)
-        if not set(train_ids) <= allowed:
-            raise InputError(f"restorer pairs: cameras {sorted(set(train_ids) - allowed)} are not train cameras")
-        self._base = base
-        self._allowed = allowed
-        self.name = f"{base.name}[{','.join(map(str, train_ids))}]"
-        self.train_ids = list(train_ids)
-        self.test_ids: list[int] = []
-        self.num_frames = base.num_frames
-        self.fps = base.fps
-        self.cameras = [c.scaled(scale) if scale != 1.0 else c for c in base.cameras]
-        self._frames: dict[tuple[int, int], np.ndarray] = {}
-
-    @property
-    def train_cameras(self) -> list[Camera]:
-        return [self.cameras[i] for i in self.train_ids]
-
-    def time(self, frame: int) -> float:
-        return self._base.time(frame)
-
-    def bounds(self):
-        return self._base.bounds()
-
-    def frame(self, frame: int, cam: int) -> np.ndarray:
-        assert cam in self._allowed, f"restorer pairs: camera {cam} is not a train camera and must never be read"
-        key = (frame, cam)
-        if key not in self._frames:
-            img = self._base.frame(frame, cam)
-            c = self.cameras[cam]
-            if img.shape[:2] != (c.height, c.width):
-                img = cv2.resize(img, (c.width, c.height), interpolation=cv2.INTER_AREA)
-            self._frames[key] = np.ascontiguousarray(img, dtype=np.float32)
-        return self._frames[key]
-
-    def mask(self, frame: int, cam: int) -> np.ndarray | None:
-        """The scene's own foreground segmentation of a train camera (None where it has none),
-        resized like ``frame``: the moving-content masks of a leave-one-out stage 1 use it as the
-        main run's do."""
-        assert cam in self._allowed, f"restorer pairs: camera {cam} is not a train camera and must never be read"
-        m = self._base.mask(frame, cam)
-        c = self.cameras[cam]
-        if m is None or m.shape[:2] == (c.height, c.width):
-            return m
-        return cv2.resize(np.asarray(m, np.uint8), (c.width, c.height), interpolation=cv2.INTER_NEAREST).astype(bool)
-
-
 def _render(model, cam: Camera, t: float, backend: str, background) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     with torch.no_grad():
         out = render(model.at(t, camera_center=cam.center), cam, background=background, backend=backend)
@@ -121,12 +66,12 @@ def _render(model, cam: Camera, t: float, backend: str, background) -> tuple[np.
             out.alpha.numpy().astype(np.float32))
 
 
-def _nearest(views: _TrainViews, target: int, candidates: Sequence[int]) -> list[int]:
+def _nearest(views: TrainOnlyView, target: int, candidates: Sequence[int]) -> list[int]:
     c = views.cameras[target].center
     return sorted(candidates, key=lambda i: (float(np.linalg.norm(views.cameras[i].center - c)), i))
 
 
-def _pair_request(model, views: _TrainViews, target: int, frame: int, backend: str, background) -> RestoreRequest:
+def _pair_request(model, views: TrainOnlyView, target: int, frame: int, backend: str, background) -> RestoreRequest:
     """A one-frame request at train camera ``target`` with references and extras from the other train cameras."""
     others = _nearest(views, target, [i for i in views._allowed if i != target])
     if len(others) < 2:
@@ -146,7 +91,7 @@ def _pair_request(model, views: _TrainViews, target: int, frame: int, backend: s
         trajectory={"name": f"pair-target-{target}", "target": int(target)})
 
 
-def _init_model(init: Any, views: _TrainViews, cfg: Stage1Config):
+def _init_model(init: Any, views: TrainOnlyView, cfg: Stage1Config):
     """The leave-one-out model from the run's init: per-frame clouds, or a decomposed init
     (static + moving parts, fixer4d.init.decompose) built with the default effects."""
     if isinstance(init, (list, tuple)):
@@ -176,7 +121,7 @@ def build_fold(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Confi
         raise InputError(f"restorer pairs: camera {left_out} is not a train camera of {scene.name}")
     lc = config.learned
     trained = [i for i in scene.train_ids if i != left_out]
-    views = _TrainViews(scene, trained, lc.loo_scale)
+    views = TrainOnlyView(scene, trained, lc.loo_scale)
     cfg = _loo_config(stage1, lc.loo_iterations)
     trainer = Trainer(_init_model(clouds, views, cfg), views, cfg, run_dir=None)
     warp = ReferenceWarpRestorer(config.warp)
@@ -185,7 +130,7 @@ def build_fold(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Confi
     samples: list[tuple[np.ndarray, np.ndarray, int, int, bool]] = []
     # the model trains at loo_scale but the pairs are rendered at full resolution: the restorer
     # then learns on the image statistics (blur widths, hole sizes in pixels) it will restore
-    full = _TrainViews(scene, trained, 1.0) if lc.loo_scale != 1.0 else views
+    full = TrainOnlyView(scene, trained, 1.0) if lc.loo_scale != 1.0 else views
 
     def add(target: int, loo: bool) -> None:
         for f in frames:
@@ -242,7 +187,7 @@ def seen_samples(model, scene: MultiViewVideo, config: RestoreConfig, background
     """Pairs from a model that saw every train camera (the run's stage-1 model): its render of each
     train camera against the real frame, the other train cameras as references. The mildest cases,
     like the renders stage 2 restores near the train cameras; same arrays as ``build_fold``."""
-    views = _TrainViews(scene, scene.train_ids, 1.0)
+    views = TrainOnlyView(scene, scene.train_ids, 1.0)
     warp = ReferenceWarpRestorer(config.warp)
     rows = []
     for cam in scene.train_ids:

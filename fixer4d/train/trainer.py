@@ -80,6 +80,8 @@ class PseudoEntry(Protocol):
 
     def confidence(self) -> np.ndarray: ...
 
+    def unobserved(self) -> np.ndarray | None: ...
+
 
 class PseudoCache(Protocol):
     def entries(self, round: int | None = None) -> list[PseudoEntry]: ...
@@ -510,19 +512,37 @@ class Trainer:
         self._clips.clear()
 
     def _clip(self, entry: PseudoEntry) -> tuple[torch.Tensor, torch.Tensor]:
-        """(F,H,W,3) restored frames and (F,H,W) confidence of an entry, decoded on first use and
-        kept in a small LRU (``max_cached_clips``)."""
+        """(F,H,W,3) restored frames and (F,H,W) per-pixel weight of an entry's pseudo-loss,
+        decoded on first use and kept in a small LRU (``max_cached_clips``)."""
         key = entry.key
         if key in self._clips:
             self._clips.move_to_end(key)
             return self._clips[key]
         rgb = torch.from_numpy(np.ascontiguousarray(entry.rgb(), dtype=np.float32))
-        conf = torch.from_numpy(np.ascontiguousarray(entry.confidence(), dtype=np.float32))
+        conf = torch.from_numpy(np.ascontiguousarray(self._pseudo_weight(entry), dtype=np.float32))
         self._clips[key] = (rgb, conf)
         assert self.stage2 is not None
         while len(self._clips) > max(self.stage2.max_cached_clips, 1):
             self._clips.popitem(last=False)
         return rgb, conf
+
+    def _pseudo_weight(self, entry: PseudoEntry) -> np.ndarray:
+        """(F, H, W) weight of the pseudo L1 (``Stage2Config``): the restorer's confidence (when
+        ``confidence_weighting``) times, with ``pseudo_mask = "unobserved"``, observed_weight +
+        (1 - observed_weight) x how unobserved the pixel is by the train cameras."""
+        s2 = self.stage2
+        assert s2 is not None
+        weight = entry.confidence() if s2.confidence_weighting else None
+        if s2.pseudo_mask == "unobserved":
+            hidden = entry.unobserved()
+            if hidden is None:
+                raise InputError(f"cache entry {entry.key} has no unobserved-pixel map (written with "
+                                 "stage2.pseudo_mask=all); refresh the cache or set stage2.pseudo_mask=all")
+            mask = s2.observed_weight + (1.0 - s2.observed_weight) * hidden
+            weight = mask if weight is None else weight * mask
+        if weight is None:
+            weight = np.ones_like(entry.confidence())
+        return weight
 
     def _pseudo_loss(self, outputs: list[tuple[RenderOutput, Camera, torch.Tensor]], timing: dict[str, float]) -> torch.Tensor:
         """Mean over ``batch_pseudo`` cached novel frames of the (confidence-weighted) L1 between the
@@ -548,7 +568,7 @@ class Trainer:
             if tuple(target.shape[:2]) != (cam.height, cam.width):
                 raise InputError(f"cache entry {entry.key}: frame {f} is {tuple(target.shape[:2])} but its camera is "
                                  f"{cam.height}x{cam.width}; the cache is stale, refresh it")
-            weight = conf[f] if s2.confidence_weighting else None
+            weight = conf[f] if s2.confidence_weighting or s2.pseudo_mask != "all" else None
             loss = loss + masked_l1(out.rgb, target, weight)
             timing["t_loss"] += time.perf_counter() - tic
             outputs.append((out, cam, _drawn(snap, out)))

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from pipeline_tiny import tiny_config
+from pipeline_tiny import run_spied, tiny_config
 
 
 @pytest.fixture(scope="session")
@@ -15,10 +15,15 @@ def stage_cache(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
-def tiny_run(tmp_path_factory, stage_cache):
-    """(run folder, report) of the whole pipeline on the tiny scene."""
-    from fixer4d.pipeline.run import run_pipeline
-
+def tiny_spied_run(tmp_path_factory, stage_cache):
+    """(run folder, report, HeldOutSpy) of the whole pipeline on the tiny scene, every held-out
+    read recorded."""
     run_dir = tmp_path_factory.mktemp("run") / "tiny"
-    report = run_pipeline(tiny_config(), run_dir, progress=False, stage_cache=stage_cache)
-    return run_dir, report
+    report, spy = run_spied(tiny_config(), run_dir, stage_cache)
+    return run_dir, report, spy
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tiny_spied_run):
+    """(run folder, report) of the whole pipeline on the tiny scene."""
+    return tiny_spied_run[:2]

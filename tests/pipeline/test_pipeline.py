@@ -19,9 +19,16 @@ def test_report_contract(tiny_run):
     assert [r["method"] for r in on_disk["rows"]] == list(R.ROW_NAMES)
     for r in on_disk["rows"]:
         assert r["status"] == "ok"
-        assert set(r) == {"method", "status", "psnr", "dssim1", "dssim2", "lpips", "psnr_dynamic", "psnr_static",
-                          "seconds"}
+        keys = {"method", "status", "psnr", "dssim1", "dssim2", "lpips", "psnr_dynamic", "psnr_static",
+                "psnr_unobserved", "psnr_aligned", "unobserved_fraction", "seconds"}
+        if r["method"] == R.ROW_IDENTITY:  # the stage-1 render itself: the MVS row's figures, no time of its own
+            assert set(r) == keys | {"same_as"} and r["same_as"] == R.ROW_MVS and r["seconds"] is None
+            continue
+        assert set(r) == keys
         assert r["psnr"] > 5.0 and 0.0 <= r["dssim1"] <= 1.0 and r["seconds"] > 0
+        assert r["psnr_aligned"] >= r["psnr"] - 1e-6  # an affine colour fit never raises the squared error
+    assert on_disk["self_check"]["decision"] in ("skip", "continue", "refine")
+    assert "Stage-2 self-check" in (run_dir / "report.md").read_text()
     for name in ("report.md", "model_stage1.ply", "model_final.ply", "metrics.json", "config.json",
                  "baseline_sparse/model_stage1.ply", "matched/model.ply", "init_mvs/init_report.json",
                  "init_sparse/init_report.json"):

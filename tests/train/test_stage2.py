@@ -34,6 +34,10 @@ class FakeEntry:
     def confidence(self) -> np.ndarray:
         return self.conf
 
+    def unobserved(self) -> np.ndarray:
+        """Every pixel unobserved: the pseudo-loss acts everywhere, as with pseudo_mask=all."""
+        return np.ones_like(self.conf)
+
 
 class FakeCache:
     """In-memory stand-in for RestoreCache: round -> entries."""
@@ -175,12 +179,16 @@ def test_real_restore_cache_plugs_in(small_scene, small_clouds, make_config, tmp
     request = RestoreRequest(rgb=gt, depth=np.ones((3, h, w), np.float32), alpha=np.ones((3, h, w), np.float32),
                              cameras=cams, time=small_scene.time(f), frame=f, ref_images=ref,
                              ref_cameras=[small_scene.cameras[i], small_scene.cameras[j]],
-                             ref_depths=[np.ones((h, w), np.float32)] * 2, ref_alphas=[np.ones((h, w), np.float32)] * 2)
+                             ref_depths=[np.ones((h, w), np.float32)] * 2, ref_alphas=[np.ones((h, w), np.float32)] * 2,
+                             unobserved=np.full((3, h, w), 0.25, np.float32))
     result = RestoreResult(rgb=gt, confidence=np.full((3, h, w), 0.5, np.float32),
                            frame_confidence=np.full(3, 0.5, np.float32))
     cache = RestoreCache(tmp_path / "cache")
     cache.write(0, RestoreCache.key(f, i, j), request, result, {"step": 0})
+    entry = cache.entries(0)[0]
+    assert entry.unobserved() == pytest.approx(np.full((3, h, w), 0.25)) and entry.meta["scores"]["unobserved_fraction"] == 0.25
     trainer = Trainer(model, small_scene, cfg, stage2=Stage2Config(refresh_every=3, rounds=1), cache=cache)
     rec = trainer.step()
     assert trainer.round == 0 and rec["loss_gen"] > 0
+    assert trainer._pseudo_weight(entry) == pytest.approx(np.full((3, h, w), 0.125))
     assert rec["loss"] == pytest.approx(rec["loss_stg"] + 0.5 * rec["loss_gen"], rel=1e-5)

@@ -30,6 +30,10 @@ class FakeEntry:
     def confidence(self) -> np.ndarray:
         return self.conf
 
+    def unobserved(self) -> np.ndarray:
+        """Every pixel unobserved: the pseudo-loss acts everywhere, as with pseudo_mask=all."""
+        return np.ones_like(self.conf)
+
 
 class FakeCache:
     """In-memory stand-in for RestoreCache: round -> entries."""
@@ -110,3 +114,46 @@ def test_confidence_weights_the_pseudo_loss(small_scene, small_clouds, make_conf
     assert losses[0] > 0
     assert losses[1] == pytest.approx(0.25 * losses[0], rel=1e-5)
     assert losses[2] == 0.0
+
+
+@dataclass
+class MaskedEntry(FakeEntry):
+    hidden: np.ndarray | None = None
+
+    def unobserved(self) -> np.ndarray | None:
+        return self.hidden
+
+
+def _masked_clip(scene) -> MaskedEntry:
+    base = _endpoint_clip(scene, conf=0.8, nan_endpoints=False)
+    rng = np.random.default_rng(0)
+    hidden = rng.random(base.conf.shape).astype(np.float32)
+    return MaskedEntry(base.key, base.cameras, base.time, base.frames, base.conf, hidden)
+
+
+def _pseudo_weight(scene, clouds, make_config, entry, **stage2):
+    model, cfg = _model(scene, clouds, make_config)
+    trainer = Trainer(model, scene, cfg, stage2=Stage2Config(refresh_every=5, rounds=1, **stage2),
+                      cache=FakeCache({0: [entry]}))
+    return trainer._pseudo_weight(entry)
+
+
+def test_paper_switch_gives_the_confidence_weighted_loss_exactly(small_scene, small_clouds, make_config):
+    # pseudo_mask=all: the weight is the restorer's confidence, bit for bit (the paper's stage 2,
+    # with the unobserved map ignored even where the cache has one)
+    entry = _masked_clip(small_scene)
+    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, pseudo_mask="all")
+    assert np.array_equal(w, entry.conf)
+    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, pseudo_mask="all", confidence_weighting=False)
+    assert np.array_equal(w, np.ones_like(entry.conf))
+
+
+def test_unobserved_mask_weights_the_pseudo_loss(small_scene, small_clouds, make_config):
+    entry = _masked_clip(small_scene)
+    w = _pseudo_weight(small_scene, small_clouds, make_config, entry)  # the default: unobserved pixels only
+    np.testing.assert_allclose(w, entry.conf * entry.hidden, rtol=1e-6)
+    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, observed_weight=0.25)
+    np.testing.assert_allclose(w, entry.conf * (0.25 + 0.75 * entry.hidden), rtol=1e-6)
+    blank = MaskedEntry(entry.key, entry.cameras, entry.time, entry.frames, entry.conf, None)
+    with pytest.raises(Exception, match="unobserved-pixel map"):
+        _pseudo_weight(small_scene, small_clouds, make_config, blank)

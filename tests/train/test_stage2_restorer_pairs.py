@@ -9,7 +9,8 @@ import pytest
 
 from fixer4d.restore.config import VALIDATION_FILE, WEIGHTS_FILE, LearnedRestorerConfig, RestoreConfig
 from fixer4d.restore.learned import LearnedRestorer
-from fixer4d.train.restorer_pairs import _TrainViews, build_fold, pair_frames, train_scene_restorer
+from fixer4d.scene.train_view import HeldOutAccess, TrainOnlyView
+from fixer4d.train.restorer_pairs import build_fold, pair_frames, train_scene_restorer
 
 # The smallest run that exercises every part: 10-iteration leave-one-out trainings, 2 timestamps.
 TINY = LearnedRestorerConfig(loo_iterations=10, loo_scale=1.0, pair_frames=2, steps=4, batch=2, crop=16)
@@ -56,13 +57,14 @@ def test_pairs_come_from_train_cameras_only(small_scene, small_clouds, make_conf
 
 
 def test_the_pair_scene_refuses_held_out_cameras(small_scene):
-    views = _TrainViews(small_scene, small_scene.train_ids[:3], 0.5)
+    views = TrainOnlyView(small_scene, small_scene.train_ids[:3], 0.5)
     assert views.test_ids == [] and views.train_ids == small_scene.train_ids[:3]
     views.frame(0, small_scene.train_ids[3])  # a train camera outside the fold may be a reference
-    with pytest.raises(AssertionError, match="not a train camera"):
-        views.frame(0, small_scene.test_ids[0])
+    for read in (views.frame, views.mask, views.depth):
+        with pytest.raises(HeldOutAccess, match="not a train camera"):
+            read(0, small_scene.test_ids[0])
     with pytest.raises(Exception, match="not train cameras"):
-        _TrainViews(small_scene, [small_scene.test_ids[0]], 1.0)
+        TrainOnlyView(small_scene, [small_scene.test_ids[0]], 1.0)
 
 
 def test_a_fold_must_leave_out_a_train_camera(small_scene, small_clouds, make_config):

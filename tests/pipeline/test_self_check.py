@@ -1,0 +1,84 @@
+"""Stage 2's self-check on a held-back train camera (pipeline.self_check): it never reads a
+held-out camera, and a restorer that returns noise is caught (stage 2 is not run)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fixer4d.pipeline.run_folder import load_scene_for
+from fixer4d.pipeline.self_check import decide, run_self_check
+from fixer4d.restore.base import RestoreResult
+
+from pipeline_tiny import tiny_config
+
+
+class NoiseRestorer:
+    """A restorer that returns bright noise with full confidence: pseudo-targets that can only harm."""
+
+    name = "noise"
+
+    def settings(self):
+        return {}
+
+    def restore(self, request, progress=None):
+        rng = np.random.default_rng(request.frame)
+        rgb = (0.7 + 0.3 * rng.random(request.rgb.shape)).astype(np.float32)
+        conf = np.ones(request.rgb.shape[:3], np.float32)
+        return RestoreResult(rgb, conf, conf.mean(axis=(1, 2)))
+
+
+class HeldOutSpy:
+    """The scene, failing on any read of a held-out camera's frame, mask or depth."""
+
+    def __init__(self, scene):
+        self._scene = scene
+
+    def __getattr__(self, name):
+        return getattr(self._scene, name)
+
+    def _check(self, cam):
+        if cam in self._scene.test_ids:
+            raise AssertionError(f"the self-check read held-out camera {cam}")
+
+    def frame(self, frame, cam):
+        self._check(cam)
+        return self._scene.frame(frame, cam)
+
+    def mask(self, frame, cam):
+        self._check(cam)
+        return self._scene.mask(frame, cam)
+
+    def depth(self, frame, cam):
+        self._check(cam)
+        return self._scene.depth(frame, cam)
+
+
+def test_decide_prefers_the_simpler_choice_within_the_tie():
+    assert decide({"skip": 20.0, "continue": 20.01, "refine": 20.015}, 0.02) == "skip"
+    assert decide({"skip": 20.0, "continue": 20.5, "refine": 20.51}, 0.02) == "continue"
+    assert decide({"skip": 20.0, "continue": 20.5, "refine": 20.6}, 0.02) == "refine"
+    assert decide({"skip": 21.0, "continue": 20.5, "refine": 20.6}, 0.02) == "skip"
+
+
+def test_noise_pseudo_targets_are_caught_without_held_out_cameras(tmp_path):
+    # the paper's stage 2 (every pixel, no visibility mask) with a heavy pseudo-loss on noise
+    config = tiny_config(**{"stage1.iterations": 300, "stage2.pseudo_mask": "all", "stage2.lambda_gen": 4.0,
+                            "stage2.refresh_every": 100,
+                            "self_check.scale": 1.0, "self_check.eval_frames": 2})
+    scene = HeldOutSpy(load_scene_for(config))
+    record = run_self_check(scene, config, tmp_path, NoiseRestorer())
+    psnr = record["psnr"]
+    assert psnr["refine"] < psnr["skip"] - 1.0 and psnr["refine"] < psnr["continue"] - 1.0
+    assert record["decision"] in ("skip", "continue")
+    assert record["held_back_camera"] == scene.train_ids[3] and record["held_back_camera"] not in record["fold_cameras"]
+    assert (tmp_path / "decision.json").is_file() and set(record["seconds"]) == {"init", "stage1", "continue", "refine"}
+
+
+def test_no_fold_below_three_train_cameras(tmp_path):
+    config = tiny_config()
+    scene = load_scene_for(config)
+
+    class Two:
+        train_ids = scene.train_ids[:2]
+
+    assert run_self_check(Two(), config, tmp_path, NoiseRestorer())["decision"] == "refine"
