@@ -15,7 +15,11 @@ back-projected, see ``demo_surface_gaussians``) while a left-drag orbits the cam
 frame: frames per second with adaptive resolution and level of detail (the viewer's default,
 ``orbit_fps``), with adaptive resolution only, and at full resolution, in alternating rounds.
 
-Part 3 (``live_vs_pipeline_ratio``): ``bench_live``.
+Part 3 (``playback_fps_cached``): ``bench_playback``, the timeline playing with the camera at
+rest: the time to fill the frame cache (each frame drawn once at full quality) and the frame
+rate of playback from it.
+
+Part 4 (``live_vs_pipeline_ratio``): ``bench_live``.
 
 Prints a table and writes JSON (default benchmarks/results/viewer.json) with the load average,
 since the machine may be shared. On this machine the GL is Mesa llvmpipe (software rasterizer
@@ -113,8 +117,9 @@ def bench_live(iterations: int, steps: int, warmup: int, scene_name: str = "demo
 
     import moderngl
 
-    from app.main import initial_state, pace_frame
+    from app.main import pace_frame
     from app.session import TrainingSession, live_stage1_trainer
+    from app.sources import app_services, initial_state
     from app.viewer import Viewer, ViewerSource
     from fixer4d.scene import load_scene
 
@@ -127,7 +132,7 @@ def bench_live(iterations: int, steps: int, warmup: int, scene_name: str = "demo
     ctx = moderngl.create_standalone_context(backend="egl", require=330)
     training = TrainingSession(setup)
     src = ViewerSource(scene=scene, label="bench", training=training)
-    viewer = Viewer(ctx, initial_state(src, None), src)
+    viewer = Viewer(ctx, initial_state(src, None), src, services=app_services())
     fbo = ctx.simple_framebuffer((1440, 900))
     plain_s = viewer_s = 0.0
     plain_steps = viewer_steps = ui_frames = 0
@@ -224,8 +229,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--live-iterations", type=int, default=500, help="stage-1 iterations of the live-training config")
     p.add_argument("--live-steps", type=int, default=60, help="steps timed in each live-training run (after 10)")
     p.add_argument("--live-runs", type=int, default=1, help="live-training measurements (each reported)")
-    p.add_argument("--parts", default="splats,orbit,live", help="which parts to run (comma-separated; a part "
-                                                                "left out is null in the JSON)")
+    p.add_argument("--parts", default="splats,orbit,playback,live",
+                   help="which parts to run (comma-separated; a part left out is null in the JSON)")
     p.add_argument("--out", default="benchmarks/results/viewer.json")
     args = p.parse_args(argv)
     parts = {x.strip() for x in args.parts.split(",") if x.strip()}
@@ -240,6 +245,7 @@ def main(argv: list[str] | None = None) -> int:
     splats = bench_splats(ctx, [int(c) for c in args.counts.split(",")], width, height, args.repeats) \
         if "splats" in parts else None
     orbit = bench_orbit(ctx, args.model, args.orbit_frames, (1440, 900)) if "orbit" in parts else None
+    playback = bench_playback(ctx, args.model, (width, height)) if "playback" in parts else None
     lives = [bench_live(args.live_iterations, args.live_steps, LIVE_WARMUP_STEPS) for _ in range(args.live_runs)] \
         if "live" in parts else []
     for run in lives:
@@ -248,6 +254,7 @@ def main(argv: list[str] | None = None) -> int:
     ratios = [run["live_vs_pipeline_ratio"] for run in lives]
     result = {"benchmark": "viewer", "renderer": renderer, "LP_NUM_THREADS": os.environ.get("LP_NUM_THREADS"), "size": [width, height], "machine": platform.machine(),
               "cpu_count": os.cpu_count(), "load_average_1_5_15": list(load), "splats": splats, "orbit": orbit,
+              "playback": playback, "playback_fps_cached": None if playback is None else playback["fps_cached"],
               "live": lives[0] if len(lives) == 1 else lives or None,
               "orbit_fps": None if orbit is None else orbit["orbit_fps"],
               # several runs: the median, each run's own in "live"
@@ -303,7 +310,7 @@ def bench_orbit(ctx, model: str | None, frames: int, window: tuple[int, int], ro
     (the first 3 frames of each turn, the budget's warm-up, are not timed)."""
     from imgui_bundle import imgui
 
-    from app.main import initial_state, open_source
+    from app.sources import app_services, initial_state, open_source
     from app.viewer import Viewer, ViewerSource
     from fixer4d.scene import load_scene
 
@@ -324,7 +331,7 @@ def bench_orbit(ctx, model: str | None, frames: int, window: tuple[int, int], ro
         for name, adaptive, lod in ORBIT_MODES:
             state = initial_state(src, g)
             state.show_frusta = state.show_trajectories = False
-            viewer = Viewer(ctx, state, src)
+            viewer = Viewer(ctx, state, src, services=app_services())
             viewer.adaptive.enabled, viewer.adaptive.lod = adaptive, lod
             try:
                 for _ in range(3):  # layout, first sort, shader warm-up
@@ -360,4 +367,82 @@ def bench_orbit(ctx, model: str | None, frames: int, window: tuple[int, int], ro
           f"{out['orbit_fps_lod']:.1f} fps with level of detail (median scale {out['orbit_render_scale_median']:.2f}, "
           f"{100 * out['orbit_lod_fraction_median']:.0f}% of the splats), {out['orbit_fps_adaptive']:.1f} fps with "
           f"adaptive resolution only, {out['orbit_fps_full_resolution']:.1f} fps at full resolution", flush=True)
+    return out
+
+
+def bench_playback(ctx, model: str | None, window: tuple[int, int], loops: int = 2) -> dict:
+    """The whole viewer (panels + 3D view, ``window`` pixels) playing the demo's timeline with
+    the camera at rest, one clip frame per UI frame: the first pass draws each frame at full
+    quality into the frame cache (``fill_s``: its wall time, ``fill_ms_per_frame``), the later
+    ``loops - 1`` passes show the cached frames (``fps_cached``); then one pass with the cache
+    off (level of detail while the time moves) for comparison (``fps_uncached``)."""
+    from app.sources import app_services, initial_state, open_source
+    from app.viewer import Viewer, ViewerSource
+    from fixer4d.scene import load_scene
+
+    if model:
+        src, g, _ = open_source(model)
+        label = model
+    else:
+        scene = load_scene("demo")
+        g = demo_surface_gaussians(scene)
+        src = ViewerSource(scene=scene, label="demo (surface model)")
+        label = f"demo scene surfaces, {g.n} static Gaussians (no run folder given)"
+    fbo = ctx.simple_framebuffer(window)
+    state = initial_state(src, g)
+    state.show_frusta = state.show_trajectories = False
+    viewer = Viewer(ctx, state, src, services=app_services())
+    out = {"model": label, "gaussians": int(g.n), "window": list(window), "frames": int(state.num_frames)}
+    try:
+        for _ in range(4):  # layout, first sort, shader warm-up, the resting full-size frame
+            viewer.frame(1 / 60, fbo)
+        out["viewport"] = [viewer.display_camera.width, viewer.display_camera.height]
+        n = state.num_frames
+        dt = 1.0001 / state.fps  # one clip frame per UI frame (a hair over: float rounding)
+
+        def one_pass() -> list[float]:
+            times = []
+            for _ in range(n):
+                tic = time.perf_counter()
+                viewer.frame(dt, fbo)
+                gl_finish(ctx)
+                times.append(time.perf_counter() - tic)
+            return times
+
+        state.playing = True
+        fill = one_pass()
+        out["cached_frames_after_fill"] = len(viewer.frame_cache)
+        cached = [t for _ in range(loops - 1) for t in one_pass()]
+        out["mode_while_cached"] = viewer.view_mode
+        viewer.use_frame_cache = False
+        viewer.frame_cache.clear()
+        uncached = one_pass()
+        out["mode_while_uncached"] = viewer.view_mode
+        # the 3D view alone at the window's size (no panels): what one full-quality frame costs
+        state.playing = False
+        viewer.use_frame_cache = True
+        viewer.frame_cache.clear()
+        viewer.render_view(*window)
+        view_fill = []
+        for f in range(n):
+            state.set_frame(f)
+            tic = time.perf_counter()
+            viewer.render_view(*window)
+            gl_finish(ctx)
+            view_fill.append(time.perf_counter() - tic)
+        out["view_only_size"] = list(window)
+        out["view_only_fill_ms_per_frame"] = 1e3 * sum(view_fill) / len(view_fill)
+        out["view_only_cached_frames"] = len(viewer.frame_cache)
+    finally:
+        viewer.close()
+    out["fill_s"] = sum(fill)
+    out["fill_ms_per_frame"] = 1e3 * sum(fill) / len(fill)
+    out["fps_cached"] = len(cached) / sum(cached)
+    out["fps_uncached"] = len(uncached) / sum(uncached)
+    out["load_average_1_5_15"] = list(os.getloadavg())
+    print(f"  playback ({label}, {window[0]}x{window[1]} window, 3D view {out['viewport'][0]}x{out['viewport'][1]}, "
+          f"{n} frames, load {out['load_average_1_5_15'][0]:.1f}): filling the frame cache took {out['fill_s']:.1f} s "
+          f"({out['fill_ms_per_frame']:.0f} ms a frame), then {out['fps_cached']:.1f} fps from the cache "
+          f"({out['fps_uncached']:.1f} fps without it, level of detail); the 3D view alone at {window[0]}x{window[1]}: "
+          f"{out['view_only_fill_ms_per_frame']:.0f} ms per full-quality frame", flush=True)
     return out

@@ -1,8 +1,8 @@
 """Raw spacetime-Gaussian parameters as numpy arrays: what the GL renderer uploads and what the
 editor selects, deletes and saves.
 
-The field names and meanings follow ``fixer4d.model.spacetime.SpacetimeGaussians`` (DESIGN.md
-§4): at time t with dt = t - t_center,
+The field names and meanings follow ``fixer4d.model.spacetime.SpacetimeGaussians`` (docs/design.md
+§9): at time t with dt = t - t_center,
   mean(t)    = means + m1*dt + m2*dt^2 + m3*dt^3
   quat(t)    = normalize(quats + omega*dt)
   opacity(t) = sigmoid(opacity_logits) * exp(-(dt / exp(t_log_scale))^2)

@@ -10,6 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+# Accumulated opacity below which the hole map tints a pixel (app.gl.splats.resolve's default
+# hole_alpha, the value shaders/heatmap.frag receives).
+HOLE_ALPHA = 0.5
 # shaders/colormap.glsl's polynomial fit of turbo, coefficients per channel (x^0..x^5).
 _TURBO = np.array([[0.13572138, 4.61539260, -42.66032258, 132.13108234, -152.94239396, 59.28637943],
                    [0.09140261, 2.19418839, 4.84296658, -14.18503333, 4.27729857, 2.82956604],
@@ -26,8 +29,9 @@ def turbo(x: np.ndarray | float) -> np.ndarray:
 @dataclass(frozen=True)
 class Legend:
     """A colour bar: ``title`` with its unit, values ``lo`` .. ``hi`` left to right, ``reverse``
-    when the map runs high-to-low (depth: near is red), ``kind`` "turbo" | "grey" | "swatch"
-    (a single colour with a meaning, e.g. holes), ``note`` an extra line (e.g. a stale map)."""
+    when the map runs high-to-low (depth: near is red), ``kind`` "turbo" | "grey" | "holes"
+    (the red tint of the hole map over accumulated opacity lo..hi) | "swatch" (one colour with
+    a meaning: the mask), ``note`` an extra line (e.g. a stale map, the masked frames)."""
 
     title: str
     lo: float = 0.0
@@ -44,7 +48,17 @@ class Legend:
             return np.repeat(x[:, None], 3, 1)
         if self.kind == "swatch":
             return np.tile(np.asarray(self.color, float), (n, 1))
+        if self.kind == "holes":  # shaders/heatmap.frag over a mid-grey pixel: 0.35 + 0.65 (1 - a / 0.5)
+            a = self.lo + x * (self.hi - self.lo)
+            w = np.where(a < HOLE_ALPHA, 0.35 + 0.65 * np.clip((HOLE_ALPHA - a) / HOLE_ALPHA, 0, 1), 0.0)
+            return (1.0 - w)[:, None] * 0.5 + w[:, None] * np.asarray([1.0, 0.0, 0.0])
         return turbo(1.0 - x if self.reverse else x)
+
+    def ticks(self, count: int = 3) -> list[tuple[float, str]]:
+        """(position 0..1 along the bar, label) of the numbers under it; none for a swatch."""
+        if self.kind == "swatch":
+            return []
+        return [(k / (count - 1), f"{self.lo + (self.hi - self.lo) * k / (count - 1):.3g}") for k in range(count)]
 
 
 def legend(viewer) -> Legend | None:
@@ -58,13 +72,14 @@ def legend(viewer) -> Legend | None:
     if mode == "alpha":
         return Legend("accumulated opacity", 0.0, 1.0, kind="grey")
     if mode == "holes":
-        return Legend("holes: accumulated opacity below 0.5 (red, stronger = emptier)", kind="swatch")
+        return Legend(f"holes: accumulated opacity (red below {HOLE_ALPHA:g}, stronger = emptier)", 0.0, 1.0,
+                      kind="holes")
     if mode == "blur":
         note = "" if not viewer.blur_stale else "stale: the view changed; recomputed when it rests"
         return Legend("missing detail vs the nearest real view (|Laplacian|, intensity/px^2)", 0.0, viewer.blur_max,
                       note=note)
     if mode == "moving":
-        return Legend("moving content (init masks) in magenta", kind="swatch", color=(1.0, 0.2, 0.9),
+        return Legend("moving content (init masks) in magenta; masked:", kind="swatch", color=(1.0, 0.2, 0.9),
                       note=viewer.mask_note)
     if st.splat_mode == "speed":
         return Legend("Gaussian speed |dmu/dt| (scene units per second)", 0.0, viewer.heat_scale / seconds_per_clip)

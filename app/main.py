@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import sys
 import threading
 import time
@@ -21,28 +20,17 @@ from typing import Any, Callable
 
 import numpy as np
 
-from app.camera_control import ViewCamera, rig_up
 from app.files import remember_recent
 from app.notifications import LOG
-from app.session import RestoreQueue, TrainingSession, live_stage1_trainer
-from app.state import AppState
-from app.viewer import INTERACTION_S, Viewer, ViewerSource
+from app.sources import LIVE_INIT_FRAMES, LIVE_INIT_METHOD, app_services, config_dir, initial_state, open_source
+from app.viewer import INTERACTION_S, Viewer
+from app.viewer_source import ViewerSource
 from fixer4d.errors import Fixer4DError, InputError
 
 DEFAULT_SIZE = (1440, 900)
-# First view of a scene: from the rig, pulled back by this factor of its distance to the scene
-# centre and lifted by this fraction of the scene radius.
-START_PULLBACK = 1.15
-START_LIFT = 0.05
 # Longest a --screenshot run waits for the first model (live init + model build) before it
 # gives up with an error.
 SCREENSHOT_MODEL_TIMEOUT_S = 900.0
-# Live training from a scene: the default init method (dense MVS, the paper's) and how many
-# evenly spaced frames get an init cloud. Plane-sweep MVS costs ~25 s per frame of the demo on
-# 2 CPU cores, so a live preview starts from a few keyframes; the temporal opacity of the
-# Gaussians spans the gaps and training fills in the rest.
-LIVE_INIT_METHOD = "mvs"
-LIVE_INIT_FRAMES = 3
 # While live training runs the UI draws at most this many frames per second: on a CPU the
 # window's drawing (software GL) competes with the trainer for the same cores, and 10 frames a
 # second keeps orbiting usable while leaving the cores to training ...
@@ -86,146 +74,41 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--init-frames", type=int, default=LIVE_INIT_FRAMES,
                    help=f"live training: evenly spaced frames with an init cloud (default {LIVE_INIT_FRAMES})")
     p.add_argument("--no-session", action="store_true", help="neither restore nor save the viewer session")
+    p.add_argument("--verbose", action="store_true", help="errors with their traceback on stderr")
     return p
 
 
-def _config_dir() -> Path:
-    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
-    return Path(base) / "fixer4d" / "view"
+# The window's keys that have shortcuts (app.viewer.SHORTCUTS), by glfw key code name.
+SHORTCUT_KEYS = {"KEY_Z": "z", "KEY_Y": "y", "KEY_O": "o", "KEY_S": "s", "KEY_Q": "q", "KEY_SPACE": "space"}
+# Marker in the config folder: the first-launch hint was shown once.
+HINT_MARKER = "first_launch_hint_shown"
 
 
-def _slug(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_")[-80:] or "default"
-
-
-def open_source(source: str, *, scale: float = 1.0, iterations: int | None = None, init: str = LIVE_INIT_METHOD,
-                init_frames: int = LIVE_INIT_FRAMES) -> tuple[ViewerSource, Any, Path]:
-    """Resolve the command-line source. Returns (ViewerSource, initial GaussianArrays or None,
-    folder for the viewer's session files)."""
-    from fixer4d.scene import load_scene
-
-    from app.files import is_model_file, is_run_folder
-
-    path = Path(source).expanduser()
-    if is_run_folder(path):
-        return open_run(path.resolve())
-    if path.is_file() and is_model_file(path):
-        return open_model(path.resolve())
-    scene = load_scene(source, scale=scale)
-    training = TrainingSession(lambda report: live_stage1_trainer(scene, iterations, init, init_frames, report))
-    session_dir = _config_dir() / _slug(str(path.resolve()) if path.exists() else source)
-    cache, restore = make_restore(session_dir / "cache")
-    src = ViewerSource(scene=scene, label=f"{scene.name} (live training)", training=training, cache=cache,
-                       restore=restore)
-    return src, None, session_dir
-
-
-def open_model(path: Path) -> tuple[ViewerSource, Any, Path]:
-    """A model file (.ply / .npz): inside a run folder, that run with this model version; else
-    the model alone (no scene), its session under the user's config folder."""
-    from app.files import is_run_folder
-    from app.gaussians import GaussianArrays
-    from fixer4d.model.io import load_model
-
-    if is_run_folder(path.parent):
-        return open_run(path.parent, model=path)
-    g = GaussianArrays.from_model(load_model(path))
-    src = ViewerSource(label=str(path), model_path=path)
-    return src, g, _config_dir() / _slug(str(path))
-
-
-def open_run(run: Path, model: Path | None = None) -> tuple[ViewerSource, Any, Path]:
-    """A run folder: its scene, a model version (``model``, else the one the session remembers,
-    else model_final / model_stage1; a segmented run without a top-level model: its segments'
-    models on the clip's timeline, ``app.segments``), its restoration cache and a restorer for
-    new jobs."""
-    from app.files import choose_model, model_versions, remembered_version
-    from app.gaussians import GaussianArrays
-    from app.segments import SegmentTimeline, segment_models
-    from fixer4d.model.io import load_model
-    from fixer4d.pipeline.run_folder import load_scene_for, read_run_config
-
-    scene = load_scene_for(read_run_config(run))  # read only: the viewer never rewrites config.json
-    if model is None and not model_versions(run) and segment_models(run):
-        timeline = SegmentTimeline.load(run, scene.num_frames)
-        cache, restore = make_restore(run / "cache", run)
-        src = ViewerSource(scene=scene, run_dir=run, label=f"{run} ({len(timeline.ranges)} segments)", cache=cache,
-                           restore=restore, segments=timeline)
-        return src, timeline.arrays[timeline.segment_of(0.0)], run / "viewer"
-    model_path = model if model is not None else choose_model(run, remembered_version(run / "viewer" / "session.json"))
-    g = GaussianArrays.from_model(load_model(model_path))
-    cache, restore = make_restore(run / "cache", run)
-    src = ViewerSource(scene=scene, run_dir=run, label=str(model_path), cache=cache, restore=restore,
-                       model_path=model_path)
-    return src, g, run / "viewer"
-
-
-def make_restore(cache_dir: Path, run_dir: Path | None = None) -> tuple[Any, RestoreQueue]:
-    """The on-disk cache and a queue feeding the restorer: the run's own kind when its
-    config.json names one that can be built here (e.g. learned with RUN/restorer weights), else
-    the geometric warp restorer (CPU, no weights)."""
-    from fixer4d.restore.cache import RestoreCache
-
-    cache = RestoreCache(cache_dir)
-    kind = "warp"
-    if run_dir is not None:
-        from fixer4d.pipeline.run_folder import read_run_config
-
-        try:
-            kind = read_run_config(run_dir).restorer.kind
-        except InputError:
-            kind = "warp"
+def first_launch(folder: Path) -> bool:
+    """True once per user: the first launch shows a hint line (a marker file remembers it)."""
+    marker = Path(folder) / HINT_MARKER
+    if marker.exists():
+        return False
     try:
-        jobs = make_jobs(kind, cache, run_dir)
-    except Fixer4DError:  # e.g. no learned weights yet: start with the warp restorer
-        kind, jobs = "warp", make_jobs("warp", cache, run_dir)
-    return cache, RestoreQueue(jobs, lambda: cache.latest_round() or 0, kind=kind)
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        marker.write_text("the viewer showed its first-launch hint\n")
+    except OSError:
+        pass
+    return True
 
 
-def make_jobs(kind: str, cache: Any, run_dir: Path | None) -> Any:
-    """``RestoreJobs`` around the restorer of ``kind`` (fixer4d.restore.build_restorer;
-    the learned restorer's weights come from RUN/restorer)."""
-    from fixer4d.restore import RestoreConfig, build_restorer
-    from fixer4d.restore.jobs import RestoreJobs
+def install_key_callback(glfw: Any, window: Any, viewer_ref: list) -> None:
+    """Route the window's key presses to ``viewer.key_event`` (set before imgui's backend
+    installs its callbacks, which then chain to this one): a shortcut runs on the press event
+    itself, however short the press."""
+    codes = {getattr(glfw, name): key for name, key in SHORTCUT_KEYS.items()}
 
-    restorer = build_restorer(RestoreConfig(kind=kind), None if run_dir is None else run_dir / "restorer")
-    return RestoreJobs(restorer, cache)
+    def on_key(win: Any, key: int, scancode: int, action: int, mods: int) -> None:
+        name = codes.get(key)
+        if name is not None and viewer_ref and action in (glfw.PRESS, glfw.RELEASE):
+            viewer_ref[0].key_event(name, action == glfw.PRESS, ctrl=bool(mods & glfw.MOD_CONTROL))
 
-
-def initial_state(src: ViewerSource, gaussians: Any) -> AppState:
-    """State for a fresh session: the scene's timeline, a view from the first train camera's
-    side at the rig, the default trajectories."""
-    from app.trajectories import default_specs
-
-    st = AppState()
-    scene = src.scene
-    if scene is not None:
-        st.num_frames, st.fps = scene.num_frames, float(scene.fps)
-        cams = scene.train_cameras or scene.cameras
-        from fixer4d.geometry.rig import rig_focus
-
-        bounds = scene.bounds()
-        center = rig_focus(cams, None if bounds is None else
-                           (np.asarray(bounds.bbox_min, float) + np.asarray(bounds.bbox_max, float)) / 2.0)
-        radius = float(np.max(np.linalg.norm(np.stack([c.center for c in scene.cameras]) - center, axis=1)))
-        st.view = ViewCamera(up=rig_up(scene.cameras), fov_y=cams[0].fov_y)
-        rig = np.mean([c.center for c in cams], axis=0)
-        # from behind the rig, a little above it: the rig's frusta and the scene both in view
-        eye = center + START_PULLBACK * (rig - center) + START_LIFT * radius * st.view.up
-        st.view.look_from(eye, center, scene_radius=radius)
-        if len(scene.train_ids) >= 2:
-            st.trajectories = default_specs(scene.train_cameras, max(2, min(scene.num_frames, 16)))
-            st.selected_trajectory = 0
-        if src.run_dir is not None:  # a finished run: the model first, the rig on demand
-            st.show_frusta = st.show_trajectories = False
-    elif gaussians is not None and gaussians.n:  # a bare model: orbit its bulk from outside
-        lo, hi = np.percentile(gaussians.means, [5, 95], axis=0)
-        center, radius = (lo + hi) / 2.0, float(np.linalg.norm(hi - lo) / 2.0) or 1.0
-        st.view.look_from(center - 2.5 * radius * st.view.forward(), center, scene_radius=radius)
-    if src.model_path is not None:
-        st.model_version = src.model_path.name
-    st.set_gaussians(gaussians)
-    return st
+    glfw.set_key_callback(window, on_key)
 
 
 def run_window(args: argparse.Namespace) -> int:
@@ -237,17 +120,18 @@ def run_window(args: argparse.Namespace) -> int:
 
     startup_error: Exception | None = None
     source = args.source if args.source is not None or not args.screenshot else "demo"
+    services = app_services()
     if source is None:  # the desktop entry: open the window with the chooser
-        src, gaussians, session_dir = ViewerSource(label="nothing open: File > Open"), None, _config_dir() / "start"
+        src, gaussians, session_dir = ViewerSource(label="nothing open: File > Open"), None, config_dir() / "start"
     else:
         try:
             src, gaussians, session_dir = open_source(source, scale=args.scale, iterations=args.iterations,
                                                       init=args.init, init_frames=args.init_frames)
-            remember_recent(_config_dir(), str(Path(source).resolve()) if Path(source).exists() else source)
+            remember_recent(config_dir(), str(Path(source).resolve()) if Path(source).exists() else source)
         except Exception as exc:  # started without a terminal: say it in the window, not only on stderr
-            LOG.exception("could not open %s", source)
+            report_startup_error(source, exc, args.verbose)
             startup_error = exc
-            src, gaussians, session_dir = ViewerSource(label=f"could not open {source}"), None, _config_dir() / "start"
+            src, gaussians, session_dir = ViewerSource(label=f"could not open {source}"), None, config_dir() / "start"
     state = initial_state(src, gaussians)
     w, h = (int(v) for v in args.size.lower().split("x"))
     if not glfw.init():
@@ -266,9 +150,14 @@ def run_window(args: argparse.Namespace) -> int:
     if not args.no_session:  # --no-session writes nothing into a run folder (read-only or shared runs)
         session_dir.mkdir(parents=True, exist_ok=True)
     address = ctypes.cast(window, ctypes.c_void_p).value
-    viewer = Viewer(ctx, state, src, ini_path=None if args.no_session else session_dir / "imgui.ini",
+    viewer_ref: list = []
+    install_key_callback(glfw, window, viewer_ref)
+    viewer = Viewer(ctx, state, src, services=services,
+                    ini_path=None if args.no_session else session_dir / "imgui.ini",
                     session_path=None if args.no_session else session_dir / "session.json",
-                    platform_init=lambda: imgui.backends.glfw_init_for_opengl(address, True))
+                    platform_init=lambda: imgui.backends.glfw_init_for_opengl(address, True),
+                    first_launch=not args.screenshot and first_launch(config_dir()))
+    viewer_ref.append(viewer)
     if startup_error is not None:
         viewer.report_error("open", startup_error)
     if src.scene is None and gaussians is None:
@@ -282,7 +171,11 @@ def run_window(args: argparse.Namespace) -> int:
     started = time.monotonic()
     last = time.perf_counter()
     try:
-        while not glfw.window_should_close(window):
+        while not viewer.quit_confirmed:
+            if glfw.window_should_close(window):  # the close button: unsaved edits ask first
+                glfw.set_window_should_close(window, False)
+                if args.screenshot or viewer.request_close():
+                    break
             if viewer.is_idle() and not args.screenshot:
                 glfw.wait_events_timeout(IDLE_WAIT_S)  # no busy loop: wake on input
             else:
@@ -357,13 +250,31 @@ def save_png(path: str | Path, image: np.ndarray) -> None:
         Image.fromarray(image).save(tmp)
 
 
-def setup_logging() -> Path:
+class OneLineFormatter:
+    """A log formatter that leaves out tracebacks (stderr without --verbose: the user reads one
+    line; the log file keeps the traceback)."""
+
+    def __init__(self, fmt: str) -> None:
+        import logging
+
+        self._inner = logging.Formatter(fmt)
+
+    def format(self, record: Any) -> str:
+        saved = record.exc_info, record.exc_text, record.stack_info
+        record.exc_info = record.exc_text = record.stack_info = None
+        try:
+            return self._inner.format(record).splitlines()[0] if record.getMessage() else ""
+        finally:
+            record.exc_info, record.exc_text, record.stack_info = saved
+
+
+def setup_logging(verbose: bool = False) -> Path:
     """Log the viewer's messages (notifications, errors with tracebacks) to
     ~/.config/fixer4d/view/viewer.log (everything: a viewer started from the desktop has no
     terminal) and its warnings and errors to stderr as well. Returns the log file's path."""
     import logging
 
-    path = _config_dir() / "viewer.log"
+    path = config_dir() / "viewer.log"
     path.parent.mkdir(parents=True, exist_ok=True)
     log = logging.getLogger("fixer4d.view")
     if not log.handlers:
@@ -371,8 +282,9 @@ def setup_logging() -> Path:
         to_file = logging.FileHandler(path, encoding="utf-8")
         to_stderr = logging.StreamHandler()  # sys.stderr
         to_stderr.setLevel(logging.WARNING)
+        to_file.setFormatter(form)
+        to_stderr.setFormatter(form if verbose else OneLineFormatter("fixer4d-view: %(message)s"))
         for handler in (to_file, to_stderr):
-            handler.setFormatter(form)
             log.addHandler(handler)
         log.setLevel(logging.INFO)
     return path
@@ -395,9 +307,19 @@ def configure_software_gl() -> None:
     os.environ.setdefault("LP_NUM_THREADS", SOFTWARE_GL_THREADS)
 
 
+def report_startup_error(source: str, exc: BaseException, verbose: bool) -> None:
+    """A source that did not open: one line on stderr (the traceback with --verbose, and always
+    in the log file); the window shows it too."""
+    LOG.info("could not open %s (traceback)", source, exc_info=exc)  # the log file keeps the traceback
+    if verbose:
+        import traceback
+
+        traceback.print_exception(type(exc), exc, exc.__traceback__, file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    setup_logging()
+    setup_logging(verbose=args.verbose)
     configure_software_gl()
     try:
         status = run_window(args)

@@ -1,5 +1,5 @@
 """Background work for the viewer: live training and restoration jobs, talking to the UI
-through mailboxes so the UI thread never blocks on them (DESIGN.md §5).
+through mailboxes so the UI thread never blocks on them (docs/design.md §16).
 
 - ``Mailbox``: a single-slot, latest-value-wins handoff (a newer model replaces an unread one).
 - ``TrainingSession``: runs ``Trainer.step()`` in a thread (after a setup function, e.g. init +

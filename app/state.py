@@ -91,6 +91,13 @@ class AppState:
     redo_stack: list[Edit] = field(default_factory=list)
     status: str = ""
     model_version: str | None = None  # file name of the model shown, within its run folder
+    # Where the shown Gaussians come from: their indices (N,) in the model file ``origin_base``
+    # (a path, or None for a model without a file) of ``origin_count`` Gaussians. Edits only
+    # remove Gaussians, so these indices are the whole edit stack's effect (the autosave).
+    origin: np.ndarray | None = None
+    origin_base: str | None = None
+    origin_count: int = 0
+    saved_gaussians: Any = None  # the set last loaded or saved: anything else is unsaved
 
     # ---- time -------------------------------------------------------------------------------
     @property
@@ -181,11 +188,49 @@ class AppState:
         self.update_trajectory(index, f"add keyframe to {spec.name}", keyframes=spec.keyframes + (camera.to_dict(),))
 
     # ---- Gaussians ----------------------------------------------------------------------------
-    def set_gaussians(self, g: GaussianArrays | None) -> None:
-        """Show a new Gaussian set (not an edit: a model loaded or published by training)."""
+    def set_gaussians(self, g: GaussianArrays | None, base: str | Path | None = None) -> None:
+        """Show a new Gaussian set (not an edit: a model loaded from the file ``base`` or
+        published by training)."""
         self.gaussians = g
         self.selection = None if g is None else np.zeros(g.n, bool)
         self.gaussians_version += 1
+        self.mark_saved(base)
+
+    def mark_saved(self, base: str | Path | None) -> None:
+        """The shown set is what the file ``base`` holds (just loaded or saved)."""
+        g = self.gaussians
+        self.saved_gaussians = g
+        self.origin = None if g is None else np.arange(g.n)
+        self.origin_base = None if base is None else str(base)
+        self.origin_count = 0 if g is None else g.n
+
+    @property
+    def unsaved(self) -> bool:
+        """Whether the shown Gaussians differ from the last loaded or saved set."""
+        return self.gaussians is not None and self.gaussians is not self.saved_gaussians
+
+    def autosave_dict(self) -> dict[str, Any] | None:
+        """The edits since the model file was loaded, as the indices kept of it (None when the
+        shown set has no file behind it)."""
+        if self.origin is None or self.origin_base is None:
+            return None
+        return {"version": SESSION_VERSION, "base": self.origin_base, "base_count": self.origin_count,
+                "keep": [int(i) for i in self.origin], "edits": [e.label for e in self.undo_stack]}
+
+    def restore_autosave(self, d: dict[str, Any]) -> int:
+        """Apply an ``autosave_dict`` made on the file shown now, unedited, as one undoable
+        edit. Returns the Gaussians removed; InputError when it belongs to another model."""
+        if d.get("base") != self.origin_base or int(d.get("base_count", -1)) != self.origin_count \
+                or self.gaussians is None or self.origin is None or self.origin.size != self.origin_count:
+            raise InputError(f"the autosaved edits are for {d.get('base')} ({d.get('base_count')} Gaussians), "
+                             f"not the model shown; open that model to restore them")
+        keep = np.zeros(self.origin_count, bool)
+        keep[np.asarray(d.get("keep", []), int)] = True
+        removed = int((~keep).sum())
+        if removed:
+            self._replace_gaussians(f"restore autosaved edits ({removed} Gaussians removed)", keep,
+                                    np.zeros(self.origin_count, bool))
+        return removed
 
     def set_selection(self, mask: np.ndarray | None) -> None:
         if self.gaussians is None:
@@ -200,16 +245,22 @@ class AppState:
         keep = np.asarray(keep, bool)
         if keep.shape != (g.n,):
             raise InputError(f"selection mask has shape {keep.shape}, expected ({g.n},)")
-        full = g
+        full, origin = g, (self.origin, self.origin_base, self.origin_count)
+        edited: list = []  # the subset, made once: a redo shows the same set again
 
         def do(s: AppState) -> None:
-            s.gaussians = full.subset(keep)
+            if not edited:
+                edited.append(full.subset(keep))
+            s.gaussians = edited[0]
             s.selection = np.zeros(s.gaussians.n, bool)
+            s.origin = None if origin[0] is None else origin[0][keep]
+            s.origin_base, s.origin_count = origin[1], origin[2]
             s.gaussians_version += 1
 
         def undo(s: AppState) -> None:
             s.gaussians = full
             s.selection = selection_after_undo.copy()
+            s.origin, s.origin_base, s.origin_count = origin
             s.gaussians_version += 1
 
         self.apply(Edit(label, do, undo))

@@ -64,14 +64,21 @@ def build_cameras(spec: TrajectorySpec, train_cameras: list[Camera]) -> list[Cam
     return cams[::-1] if spec.reverse else cams
 
 
-def default_specs(train_cameras: list[Camera], n_frames: int, amplitude: float | None = None) -> list[TrajectorySpec]:
-    """The 6 pair trajectories (A = 0) and the diagonal arcs, as the library proposes them."""
+def default_specs(train_cameras: list[Camera], n_frames: int, amplitude: float | None = None,
+                  camera_ids: list[int] | None = None) -> list[TrajectorySpec]:
+    """The 6 pair trajectories (A = 0) and the diagonal arcs, as the library proposes them.
+    ``camera_ids``: the scene's id of each train camera; the names then use them ("0-15",
+    "0-15_arc0"), as the restoration cache's clip keys do, so one pair has one name everywhere."""
     from fixer4d.geometry.trajectory import scene_trajectories
 
     specs = []
     for tr in scene_trajectories(train_cameras, n_frames, amplitude=amplitude, arcs=True):
         pair = None if tr.pair is None else (int(tr.pair[0]), int(tr.pair[1]))
-        specs.append(TrajectorySpec(name=tr.name, pair=pair, amplitude=float(tr.amplitude), n_frames=int(n_frames),
+        name = tr.name
+        if camera_ids is not None and pair is not None:
+            name = f"{camera_ids[pair[0]]}-{camera_ids[pair[1]]}" + \
+                ("" if tr.arc_index is None else f"_arc{tr.arc_index}")
+        specs.append(TrajectorySpec(name=name, pair=pair, amplitude=float(tr.amplitude), n_frames=int(n_frames),
                                     arc_index=tr.arc_index))
     return specs
 

@@ -1,11 +1,18 @@
-"""No import cycles in fixer4d/ (DESIGN.md §2: imports only run downward).
+"""No import cycles in fixer4d/ or app/, and imports only run downward (docs/design.md §3).
+
+* fixer4d/ and app/ (the viewer) have no import cycle, each alone and together.
+* fixer4d's packages sit in layers (``LAYERS``, geometry at the bottom): a module imports only
+  its own layer and the ones below it; command-line modules (``cli``, ``*_cli``) are the top.
+* fixer4d never imports app: no import statement (``test_the_library_has_no_gui_import``) and
+  no dynamic load either (importlib / ``__import__`` naming ``app``: ``dynamic_app_loads``); a
+  package above the library registers itself through an entry point instead.
 
 The graph is built statically from every module's AST, so it sees every import the code can
 execute, not only those one test run happens to trigger:
 
 * Module-level AND function-level (lazy) imports both count. A lazy import only postpones
-  when an edge is followed; the dependency is the same, and DESIGN's "imports only run
-  downward" is about the dependency. Lazy imports remain the way to keep optional backends
+  when an edge is followed; the dependency is the same, and "imports only run downward"
+  (docs/design.md §3) is about the dependency. Lazy imports remain the way to keep optional backends
   (gsplat, diffusers, ...) and heavy libraries off ``import fixer4d``, never a way around a cycle.
 * Imports under ``if TYPE_CHECKING:`` do not count: they never execute.
 * ``from fixer4d.a import b`` is an edge to the module ``fixer4d.a.b`` when that is a module,
@@ -20,6 +27,7 @@ from pathlib import Path
 
 PACKAGE = "fixer4d"
 ROOT = Path(__file__).resolve().parents[1] / PACKAGE
+APP_ROOT = ROOT.parent / "app"
 
 
 def module_names(root: Path = ROOT) -> dict[str, Path]:
@@ -52,7 +60,7 @@ def _imports(tree: ast.AST):
 
 
 def import_graph(modules: dict[str, Path]) -> dict[str, set[str]]:
-    """module -> the fixer4d modules it imports (see the module doc for what counts)."""
+    """module -> the modules of ``modules`` it imports (see the module doc for what counts)."""
     graph: dict[str, set[str]] = {m: set() for m in modules}
     for name, path in modules.items():
         is_pkg = path.name == "__init__.py"
@@ -70,7 +78,7 @@ def import_graph(modules: dict[str, Path]) -> dict[str, set[str]]:
             for t in targets:
                 while t and t not in modules and "." in t:  # import fixer4d.a.b.Name -> fixer4d.a.b
                     t = t.rsplit(".", 1)[0]
-                if t in modules and t != name and t.split(".")[0] == PACKAGE:
+                if t in modules and t != name:
                     graph[name].add(t)
     return graph
 
@@ -147,6 +155,7 @@ def test_the_walker_sees_lazy_imports_and_finds_a_known_cycle(tmp_path):
     assert graph["fixer4d.sub"] == {"fixer4d.sub.a"}
     assert cycles(graph) == [["fixer4d.c", "fixer4d.sub.a", "fixer4d.sub.b", "fixer4d.c"]]
     (pkg / "c.py").write_text("def show():\n    import glfw.library\n    from app.viewer import Viewer\n")
+    # app is not among the modules walked here: an import of it is no edge (but see external_imports)
     assert cycles(import_graph(module_names(pkg))) == []
     assert external_imports(module_names(pkg))["fixer4d.c"] == {"glfw", "app"}
 
@@ -158,7 +167,7 @@ def test_fixer4d_has_no_import_cycles():
     assert not found, "import cycles in fixer4d/:\n" + "\n".join(" -> ".join(c) for c in found)
 
 
-# DESIGN.md §2: "the library has no GUI import" and "fixer4d never imports app".
+# docs/design.md §3: "the library has no GUI import" and "fixer4d never imports app".
 GUI_MODULES = ("app", "glfw", "moderngl", "imgui", "imgui_bundle", "OpenGL")
 
 
@@ -179,3 +188,108 @@ def external_imports(modules: dict[str, Path]) -> dict[str, set[str]]:
 def test_the_library_has_no_gui_import():
     bad = {m: sorted(e & set(GUI_MODULES)) for m, e in external_imports(module_names()).items() if e & set(GUI_MODULES)}
     assert not bad, f"GUI imports in the library: {bad}"
+
+
+# fixer4d's packages from the bottom layer up; a module may import its own layer and lower ones.
+# Command-line modules (``cli``, ``cli_*``, ``*_cli``, ``__main__``) are the top layer; the package
+# root (``fixer4d/__init__.py``: process settings, no fixer4d imports) is the bottom.
+LAYERS = (("errors", "atomic", "signals"), ("geometry",), ("scene", "model", "restore"), ("render", "jit"),
+          ("init", "eval"), ("train",), ("pipeline",), ("bench", "study"))
+
+
+def layer_of(module: str) -> int:
+    """The layer index of a fixer4d module (KeyError for a package missing from LAYERS)."""
+    parts = module.split(".")
+    if len(parts) == 1:
+        return 0
+    last = parts[-1]
+    if last in ("cli", "__main__") or last.startswith("cli_") or last.endswith("_cli"):
+        return len(LAYERS)
+    for k, names in enumerate(LAYERS):
+        if parts[1] in names:
+            return k
+    raise KeyError(f"{module}: its package {parts[1]!r} has no layer; add it to LAYERS in tests/test_import_graph.py")
+
+
+def upward_imports(graph: dict[str, set[str]]) -> list[str]:
+    """'a -> b' for every fixer4d import of a higher layer than the importer's."""
+    return sorted(f"{a} (layer {layer_of(a)}) -> {b} (layer {layer_of(b)})" for a, targets in graph.items()
+                  if a.split(".")[0] == PACKAGE for b in targets
+                  if b.split(".")[0] == PACKAGE and layer_of(b) > layer_of(a))
+
+
+# Calls that load a module named by a value (importlib.import_module, __import__, runpy, ...).
+DYNAMIC_LOADERS = ("import_module", "__import__", "find_spec", "spec_from_file_location", "load_module",
+                   "run_module", "run_path", "SourceFileLoader")
+
+
+def _names_app(text: str) -> bool:
+    """A string naming the app package: "app", "app.bench", "app.bench:main", "app/bench.py"."""
+    head = text.split(":")[0].replace("/", ".").removesuffix(".py")
+    return head == "app" or head.startswith("app.")
+
+
+def dynamic_app_loads(modules: dict[str, Path]) -> dict[str, list[str]]:
+    """module -> the strings naming ``app`` in a module that loads modules dynamically (a
+    constant passed to a loader, or any such constant elsewhere in the module, e.g. a table of
+    module names the loader reads)."""
+    out: dict[str, list[str]] = {}
+    for name, path in modules.items():
+        tree = ast.parse(path.read_text(), str(path))
+        loads = any(isinstance(n, ast.Call) and ((isinstance(n.func, ast.Name) and n.func.id in DYNAMIC_LOADERS) or
+                                                 (isinstance(n.func, ast.Attribute) and n.func.attr in DYNAMIC_LOADERS))
+                    for n in ast.walk(tree))
+        if not loads:
+            continue
+        found = [n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)
+                 and _names_app(n.value)]
+        if found:
+            out[name] = found
+    return out
+
+
+def test_app_and_fixer4d_have_no_import_cycles():
+    modules = {**module_names(ROOT), **module_names(APP_ROOT)}
+    assert "app.viewer" in modules and "app.main" in modules
+    found = cycles(import_graph(modules))
+    assert not found, "import cycles:\n" + "\n".join(" -> ".join(c) for c in found)
+
+
+def test_fixer4d_imports_only_run_downward():
+    found = upward_imports(import_graph(module_names()))
+    assert not found, "imports of a higher layer (see LAYERS):\n" + "\n".join(found)
+
+
+def test_fixer4d_never_loads_app_dynamically():
+    found = dynamic_app_loads(module_names())
+    assert not found, f"fixer4d loads app by name (register an entry point instead): {found}"
+
+
+def test_the_checks_catch_a_broken_tree(tmp_path):
+    """A deliberately broken pair of packages: each rule above reports its violation."""
+    lib, app = tmp_path / PACKAGE, tmp_path / "app"
+    for d in (lib / "geometry", lib / "train", lib / "bench", app / "panels"):
+        d.mkdir(parents=True)
+        (d / "__init__.py").write_text("")
+    (lib / "__init__.py").write_text("")
+    (app / "__init__.py").write_text("")
+    (lib / "geometry" / "camera.py").write_text("def fit():\n    from fixer4d.train import loop\n")  # upward
+    (lib / "train" / "loop.py").write_text("from fixer4d.geometry import camera\n")
+    (lib / "bench" / "cli.py").write_text("import importlib\nBENCHES = {'viewer': 'app.bench'}\n"
+                                           "def run(n):\n    return importlib.import_module(BENCHES[n])\n")
+    (lib / "bench" / "raw.py").write_text("def run():\n    return __import__('app.bench')\n")
+    (lib / "bench" / "fine.py").write_text("import importlib\ndef run():\n    return importlib.import_module('fixer4d.train')\n")
+    (app / "main.py").write_text("from app.viewer import Viewer\n")
+    (app / "viewer.py").write_text("def open_():\n    from app.panels.files import ask\n")
+    (app / "panels" / "files.py").write_text("def ask():\n    from app.main import open_source\n")  # lazy, still a cycle
+    lib_modules = module_names(lib)
+    graph = import_graph({**lib_modules, **module_names(app)})
+    assert cycles(graph) == [["app.main", "app.viewer", "app.panels.files", "app.main"],
+                             ["fixer4d.geometry.camera", "fixer4d.train.loop", "fixer4d.geometry.camera"]]
+    # the geometry <-> train cycle is caught as a cycle; its upward edge by the layer rule too
+    assert upward_imports(graph) == ["fixer4d.geometry.camera (layer 1) -> fixer4d.train.loop (layer 5)"]
+    assert dynamic_app_loads(lib_modules) == {"fixer4d.bench.cli": ["app.bench"], "fixer4d.bench.raw": ["app.bench"]}
+    (lib / "geometry" / "camera.py").write_text("")
+    (app / "panels" / "files.py").write_text("def ask(services):\n    return services.open_source\n")
+    fixed = import_graph({**module_names(lib), **module_names(app)})
+    assert cycles(fixed) == [] and upward_imports(fixed) == []

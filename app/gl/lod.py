@@ -1,53 +1,38 @@
 """Level of detail for moving frames: which splats to draw when only a fraction fits the budget.
 
 On a software GL (Mesa llvmpipe) a splat frame at reduced resolution costs about 3 us per splat
-(triangle setup and binning run on one thread; measured on the demo's 30k-splat surfaces at
-196x108: 30k -> 180 ms, 8k -> 60 ms, 4k -> 19 ms, load ~4), so while the camera moves or time
-plays the view draws a subset and the full set once the view rests.
+(triangle setup and binning run on one thread: on the demo's 30k-splat surfaces at 196x108,
+30k -> 180 ms, 8k -> 60 ms, 4k -> 19 ms, load ~4), so while the camera moves the view draws the
+most important splats and the full set once it rests (playback with a resting camera always
+draws every splat: ``app.frame_cache``).
 
-The subset is deterministic and nested: every Gaussian gets a rank once per Gaussian set
-(weighted random sampling without replacement, Efraimidis-Spirakis keys u^(1/w) with u a stable
-hash of the Gaussian's index and w its peak opacity), and a fraction f draws the Gaussians of
-rank < f N. Ranks by a hash spread the subset evenly over the scene (a surface thins out instead
-of losing whole regions), the opacity weight drops faint Gaussians first, and a larger fraction
-only adds splats, so the image does not flicker as the fraction changes. The projected area is
-left out of the weight: it depends on the view, and world area alone favours far splats over
-near ones of the same screen size (a back-projected surface's splats grow with depth).
+Importance is what a splat contributes on screen for this view: its projected area (the
+largest world std over its depth, times the focal length, squared) times its opacity at the
+current time. The subset is the ``count`` most important splats, kept in depth order; it is
+computed with the depth order on the sorter thread, so a moving frame pays nothing for it. No
+random sampling: the same view always draws the same splats, and a large near splat is never
+dropped for a faint far one.
 
-The kept splats stand in for the dropped ones around them: their 2D covariance is scaled by
-1/f (``area_factor``), so the drawn surface keeps its coverage (in expectation) at a coarser
-grain.
+The kept splats stand in for the dropped ones: their 2D covariance is scaled so the total
+screen area of the kept set equals that of the whole set (``area_factor``), capped at n / count.
 """
 from __future__ import annotations
 
 import numpy as np
 
-# Weight floor: a Gaussian of (near) zero peak opacity still gets a finite key (it goes last).
-_WEIGHT_MIN = 1e-6
+# Smallest depth (scene units) used to size a splat on screen: a splat at the near plane would
+# otherwise get an unbounded area.
+_Z_MIN = 1e-3
 
 
-def stable_uniform(n: int) -> np.ndarray:
-    """(n,) float64 in (0, 1): a fixed hash (splitmix64 finaliser) of each index 0..n-1, so a
-    Gaussian keeps its draw across frames, runs and edits that keep its index."""
-    with np.errstate(over="ignore"):
-        z = np.arange(n, dtype=np.uint64) + np.uint64(0x9E3779B97F4A7C15)
-        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-        z = z ^ (z >> np.uint64(31))
-    return ((z >> np.uint64(11)).astype(np.float64) + 0.5) / float(1 << 53)
-
-
-def importance_rank(opacity_logits: np.ndarray) -> np.ndarray:
-    """(N,) int64 rank of each Gaussian in the level-of-detail order (0 = drawn first), from the
-    (N,) opacity logits (peak opacity sigmoid(logit) is the sampling weight)."""
-    logits = np.asarray(opacity_logits, np.float64).reshape(-1)
-    n = logits.size
-    w = np.maximum(1.0 / (1.0 + np.exp(-logits)), _WEIGHT_MIN)
-    key = np.log(stable_uniform(n)) / w  # = log(u^(1/w)): larger keys go first
-    order = np.argsort(-key, kind="stable")
-    rank = np.empty(n, np.int64)
-    rank[order] = np.arange(n)
-    return rank
+def screen_importance(means_cam_z: np.ndarray, log_scales: np.ndarray, opacity: np.ndarray,
+                      focal: float) -> tuple[np.ndarray, np.ndarray]:
+    """(area, importance), each (N,) float32: the projected area of each splat in px^2 (largest
+    std (N,3) ``exp(log_scales)`` at camera depth ``means_cam_z`` (N,) with ``focal`` px) and area
+    x ``opacity`` (N,) at the current time."""
+    size = np.exp(np.max(np.asarray(log_scales, np.float32), axis=1)) * np.float32(focal)
+    area = (size / np.maximum(np.asarray(means_cam_z, np.float32), _Z_MIN)) ** 2
+    return area.astype(np.float32), (area * np.asarray(opacity, np.float32)).astype(np.float32)
 
 
 def lod_count(n: int, fraction: float) -> int:
@@ -57,13 +42,23 @@ def lod_count(n: int, fraction: float) -> int:
     return int(min(n, max(1, int(np.ceil(float(fraction) * n)))))
 
 
-def lod_subset(order: np.ndarray, rank: np.ndarray, count: int) -> np.ndarray:
-    """The entries of a depth ``order`` (indices, front to back) whose rank is below ``count``,
-    still front to back."""
+def lod_subset(order: np.ndarray, importance: np.ndarray, count: int) -> np.ndarray:
+    """The ``count`` entries of a depth ``order`` (indices, front to back) with the highest
+    ``importance`` (indexed like the Gaussians), still front to back; ties broken by depth."""
     order = np.asarray(order)
-    return order[rank[order] < count]
+    if count >= order.size:
+        return order
+    if count <= 0:
+        return order[:0]
+    imp = np.asarray(importance)[order]
+    keep = np.argpartition(-imp, count - 1)[:count]
+    keep.sort()  # positions in the depth order: front to back
+    return order[keep]
 
 
-def area_factor(n: int, count: int) -> float:
-    """Scale of the 2D covariance of each kept splat: n / count (1 when all are drawn)."""
-    return 1.0 if count <= 0 or count >= n else float(n) / float(count)
+def area_factor(area_all: float, area_kept: float, n: int, count: int) -> float:
+    """Scale of each kept splat's 2D covariance: the whole set's screen area over the kept
+    set's (1 when all are drawn), at most n / count."""
+    if count <= 0 or count >= n or area_kept <= 0.0:
+        return 1.0
+    return float(np.clip(area_all / area_kept, 1.0, float(n) / float(count)))

@@ -1,4 +1,4 @@
-"""The moderngl spacetime-Gaussian splat renderer (DESIGN.md §5).
+"""The moderngl spacetime-Gaussian splat renderer (docs/design.md §16).
 
 Instanced screen-space quads, one per Gaussian, drawn front to back; a transform-feedback pass
 first evaluates and projects each Gaussian once (splat_prep.vert), the quads only place corners. Raw parameters sit in an
@@ -21,7 +21,7 @@ import moderngl
 import numpy as np
 
 from app.gaussians import GaussianArrays
-from app.gl.lod import area_factor, importance_rank, lod_count, lod_subset
+from app.gl.lod import area_factor, lod_count, lod_subset, screen_importance
 from app.gl.programs import load_program, shader_source
 from app.gl.sync import finish
 from fixer4d.geometry.camera import Camera
@@ -91,20 +91,28 @@ def pack_params(g: GaussianArrays) -> np.ndarray:
     return out.reshape(rows, TEXTURE_WIDTH, 4)
 
 
-def depth_order(g: GaussianArrays, w2c: np.ndarray, t: float) -> np.ndarray:
+def depth_order(g: GaussianArrays, w2c: np.ndarray, t: float, focal: float | None = None):
     """Indices (uint32) of the Gaussians visible at time t, sorted front to back by camera z.
 
     Gaussians whose opacity at t is below ALPHA_MIN or whose centre is behind the near plane are
-    left out (the shader would cull them anyway; leaving them out saves instances).
+    left out (the shader would cull them anyway; leaving them out saves instances). With
+    ``focal`` (px) also returns (area, importance) per Gaussian for level of detail
+    (``app.gl.lod.screen_importance``; zero for the ones left out).
     """
     if g.n == 0:
-        return np.zeros(0, np.uint32)
+        empty = np.zeros(0, np.uint32)
+        return empty if focal is None else (empty, np.zeros(0, np.float32), np.zeros(0, np.float32))
     mu = g.means_at(t)
     r = np.asarray(w2c, np.float32)
     z = mu @ r[2, :3] + r[2, 3]
-    live = (z > NEAR_PLANE) & (g.opacity_at(t) >= ALPHA_MIN)
+    opacity = g.opacity_at(t)
+    live = (z > NEAR_PLANE) & (opacity >= ALPHA_MIN)
     idx = np.flatnonzero(live)
-    return idx[np.argsort(z[idx], kind="stable")].astype(np.uint32)
+    order = idx[np.argsort(z[idx], kind="stable")].astype(np.uint32)
+    if focal is None:
+        return order
+    area, importance = screen_importance(z, g.log_scales, opacity, focal)
+    return order, area, importance
 
 
 class DepthSorter:
@@ -120,9 +128,9 @@ class DepthSorter:
         self._thread = threading.Thread(target=self._loop, name="splat-sort", daemon=True)
         self._thread.start()
 
-    def request(self, key: tuple, g: GaussianArrays, w2c: np.ndarray, t: float) -> None:
+    def request(self, key: tuple, g: GaussianArrays, w2c: np.ndarray, t: float, focal: float = 1.0) -> None:
         with self._cond:
-            self._job = (key, g, w2c, t)
+            self._job = (key, g, w2c, t, focal)
             self._cond.notify_all()
 
     def result(self) -> tuple | None:
@@ -153,13 +161,13 @@ class DepthSorter:
                     self._cond.wait()
                 if self._closed:
                     return
-                key, g, w2c, t = self._job
+                key, g, w2c, t, focal = self._job
                 self._job = None
             t0 = time.perf_counter()
-            order = depth_order(g, w2c, t)
+            order, area, importance = depth_order(g, w2c, t, focal)
             ms = 1e3 * (time.perf_counter() - t0)
             with self._cond:
-                self._result = (key, order)
+                self._result = (key, order, area, importance)
                 self.last_sort_ms = ms
                 self._cond.notify_all()
 
@@ -201,7 +209,8 @@ class SplatRenderer:
         self._order_key: tuple | None = None
         self._full_order: np.ndarray | None = None  # the installed depth order (all live Gaussians)
         self._drawn: tuple | None = None  # (order key, count) of the index buffer's contents
-        self._rank: np.ndarray | None = None  # level-of-detail rank per Gaussian (lazy)
+        self._area: np.ndarray | None = None  # per Gaussian, for the installed order (app.gl.lod)
+        self._importance: np.ndarray | None = None
         self._instances = 0
         self._vao: moderngl.VertexArray | None = None
         self._targets: tuple | None = None
@@ -224,7 +233,7 @@ class SplatRenderer:
         self._order_key = None
         self._full_order = None
         self._drawn = None
-        self._rank = None
+        self._area = self._importance = None
         self._instances = 0
         self.set_selection(selection)
         self.stats.upload_ms = 1e3 * (time.perf_counter() - t0)
@@ -266,7 +275,8 @@ class SplatRenderer:
 
     # ---- drawing ------------------------------------------------------------------------------
     def _sort_key(self, camera: Camera, t: float) -> tuple:
-        return (self.version, np.round(camera.w2c[:3], 9).tobytes(), round(float(t), 9))
+        # the focal length sizes the splats for level of detail (a zoom changes the importance)
+        return (self.version, np.round(camera.w2c[:3], 9).tobytes(), round(float(t), 9), round(float(camera.fx), 6))
 
     def render(self, camera: Camera, t: float, *, mode: str = "color", heat_scale: float = 1.0,
                show_selection: bool = True, wait_sort: bool = False, fraction: float = 1.0) -> FrameStats:
@@ -289,14 +299,14 @@ class SplatRenderer:
             return stats
         key = self._sort_key(camera, t)
         if key != self._order_key:
-            self.sorter.request(key, g, camera.w2c, t)
+            self.sorter.request(key, g, camera.w2c, t, camera.fx)
             res = self.sorter.wait(key) if (wait_sort or self._instances == 0) else self.sorter.result()
             if res is not None and res[0][0] == self.version and res[0] != self._order_key:
-                self._full_order = res[1]
+                self._full_order, self._area, self._importance = res[1], res[2], res[3]
                 self._order_key = res[0]
                 stats.sort_ms = self.sorter.last_sort_ms
         t0 = time.perf_counter()
-        count = self._install(fraction)
+        count, lod_area = self._install(fraction)
         stats.upload_ms = 1e3 * (time.perf_counter() - t0)
         stats.fraction = count / g.n if self._full_order is not None and self._full_order.size else 1.0
         t0 = time.perf_counter()
@@ -311,7 +321,7 @@ class SplatRenderer:
             "u_det_min": DET_MIN, "u_min_alpha": ALPHA_MIN, "u_sigma_extent": SIGMA_EXTENT,
             "u_fov_clamp": TAN_FOV_MARGIN, "u_mode": SPLAT_MODES[mode], "u_heat_scale": float(heat_scale),
             "u_show_selection": int(show_selection), "u_max_alpha": ALPHA_MAX, "u_power_max": POWER_MAX,
-            "u_lod_area": area_factor(g.n, count)}
+            "u_lod_area": lod_area}
         for prog in (self.prep_prog, self.prog):
             for name, value in uniforms.items():
                 member = prog.get(name, None)  # each stage declares only what it uses
@@ -341,26 +351,28 @@ class SplatRenderer:
         """Install a depth order computed elsewhere (``depth_order``) for ``camera`` at ``t``, so
         the next ``render`` of that view draws it without sorting (benchmarks, scripts)."""
         self._full_order = np.asarray(order, np.uint32)
+        self._area = self._importance = None
         self._order_key = self._sort_key(camera, t)
         self._install(1.0)
 
-    def _install(self, fraction: float) -> int:
-        """Put the installed order (or its level-of-detail subset at ``fraction``) into the index
-        buffer unless it is there already. Returns the number of Gaussians the subset stands
-        for (rank bound: all N when drawing everything)."""
+    def _install(self, fraction: float) -> tuple[int, float]:
+        """Put the installed order (or its level-of-detail subset at ``fraction``: the most
+        important splats for this view, ``app.gl.lod``) into the index buffer unless it is there
+        already. Returns (Gaussians drawn or N when drawing everything, the kept splats' area
+        factor)."""
         g = self.gaussians
         if self._full_order is None or g is None:
-            return 0 if g is None else g.n
-        count = g.n if fraction >= 1.0 else lod_count(g.n, fraction)
-        if self._drawn != (self._order_key, count):
-            order = self._full_order
-            if count < g.n:
-                if self._rank is None:
-                    self._rank = importance_rank(g.opacity_logits)
-                order = lod_subset(order, self._rank, count)
+            return (0 if g is None else g.n), 1.0
+        count = g.n if fraction >= 1.0 or self._importance is None else lod_count(g.n, fraction)
+        if self._drawn is None or self._drawn[:2] != (self._order_key, count):
+            order, factor = self._full_order, 1.0
+            if count < order.size:
+                order = lod_subset(order, self._importance, count)
+                factor = area_factor(float(self._area[self._full_order].sum()), float(self._area[order].sum()),
+                                     self._full_order.size, order.size)
             self._upload_order(order)
-            self._drawn = (self._order_key, count)
-        return count
+            self._drawn = (self._order_key, count, factor)
+        return count, self._drawn[2]
 
     def _upload_order(self, order: np.ndarray) -> None:
         data = np.ascontiguousarray(order, np.uint32)

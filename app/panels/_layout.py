@@ -101,11 +101,40 @@ def panel(viewer, name: str, title: str, x: float, y: float, w: float, h: float)
         viewer.panel_errors.pop(name, None)
 
 
+def tip(text: str, viewer=None) -> None:
+    """A tooltip for the widget just submitted, shown while the mouse rests on it (``viewer``:
+    also noted as ``viewer.tooltip_shown``, which tests read)."""
+    if imgui.is_item_hovered(imgui.HoveredFlags_.for_tooltip.value):
+        imgui.set_tooltip(text)
+        if viewer is not None:
+            viewer.tooltip_shown = text
+
+
 def error_text(text: str) -> None:
     """A line of error-coloured wrapped text."""
     imgui.push_style_color(imgui.Col_.text.value, imgui.ImVec4(1.0, 0.4, 0.35, 1.0))
     imgui.text_wrapped(text)
     imgui.pop_style_color()
+
+
+def button_width(label: str) -> float:
+    """Width of a button labelled ``label``."""
+    style = imgui.get_style()
+    return imgui.calc_text_size(label.split("##")[0]).x + 2.0 * style.frame_padding.x
+
+
+def toggle_width(label: str) -> float:
+    """Width of a radio button or checkbox labelled ``label``."""
+    style = imgui.get_style()
+    return imgui.get_frame_height() + style.item_inner_spacing.x + imgui.calc_text_size(label.split("##")[0]).x
+
+
+def same_line_if_fits(width: float) -> None:
+    """Put the next item (``width`` pixels) on the current line when it fits before the panel's
+    edge, else on a new line: rows of buttons wrap in a narrow window instead of being cut."""
+    imgui.same_line()
+    if width > imgui.get_content_region_avail().x:
+        imgui.new_line()
 
 
 def radio_row(items: tuple[str, ...] | list[str], current: str, id_suffix: str = "") -> str:

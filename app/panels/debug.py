@@ -6,9 +6,11 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
-from app.panels._layout import panel, radio_row
+from app.panels._layout import panel, radio_row, tip
 
 RESOLVE = ("color", "holes", "depth", "alpha", "blur")
+# Image modes whose pixels do not show the splat colours (the Gaussian colour modes are greyed out).
+SPLAT_COLOUR_REPLACED = ("depth", "holes", "alpha")
 SPLAT = ("color", "speed", "temporal_opacity")
 
 
@@ -19,6 +21,8 @@ def draw(viewer) -> None:
         if not expanded:
             return
         imgui.text("image")
+        tip("what each pixel shows: colour, holes (low opacity), depth, accumulated opacity, blur (missing "
+            "detail vs the nearest real view), moving content (init masks)", viewer)
         modes = RESOLVE + (("moving",) if viewer.masks() is not None else ())
         mode = radio_row(modes, st.debug_mode, "image")
         if mode != st.debug_mode:
@@ -32,7 +36,15 @@ def draw(viewer) -> None:
                 imgui.same_line()
                 imgui.text(f"vs {ui['ref']}")
         imgui.text("Gaussians")
+        tip("colour each Gaussian by its colour, speed or temporal opacity", viewer)
+        # depth and holes replace the splats' colours: a Gaussian colour mode would change nothing
+        replaced = st.debug_mode in SPLAT_COLOUR_REPLACED
+        imgui.begin_disabled(replaced)
         st.splat_mode = radio_row(SPLAT, st.splat_mode, "splat")
+        imgui.end_disabled()
+        viewer.record_item("splat_modes")
+        if replaced:
+            tip(f"the image mode '{st.debug_mode}' does not show the Gaussians' colours", viewer)
         s = viewer.splats.stats
         imgui.text(f"frame {viewer.frame_ms:.1f} ms   draw {s.draw_ms:.1f} ms   sort {s.sort_ms:.1f} ms")
         imgui.text(f"upload {s.upload_ms:.1f} ms   instances {s.instances}")

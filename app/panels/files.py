@@ -7,11 +7,12 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from app.panels._layout import error_text
+from app.panels._layout import error_text, tip
 
 # Dialog actions: title, button label, whether the path must exist (read) or is written.
 ACTIONS = {
-    "open": ("Open a run folder, a model file (.ply / .npz) or a scene (trained live)", "open", True),
+    "open": ("Open a run folder, a model file (.ply / .npz), a scene or a folder of videos (trained live)",
+             "open", True),
     "import_preset": ("Import trajectories from a fixer4d preset JSON", "import", True),
     "export_preset": ("Export the trajectories as a fixer4d preset JSON", "export", False),
     "import_camera_path": ("Import a nerfstudio camera_path JSON as a custom trajectory", "import", True),
@@ -70,6 +71,10 @@ def draw_menu(viewer) -> None:
         if imgui.menu_item(label, "", False)[0]:
             ask(viewer, action)
         viewer.record_item(f"menu_{action}")
+    imgui.separator()
+    if imgui.menu_item("Quit", "Ctrl+Q", False)[0]:
+        viewer.request_close()
+    viewer.record_item("menu_quit")
     imgui.end_menu()
 
 
@@ -87,13 +92,14 @@ def draw_dialog(viewer) -> None:
     imgui.set_next_item_width(PATH_FIELD_WIDTH)
     _, ui["path"] = imgui.input_text("##path", ui["path"])
     viewer.record_item("dialog_path")
+    tip("a full path, or one relative to the folder below; for Open: a run folder, a model file, a scene "
+        "folder or spec, a folder of videos (a capture), or 'demo'", viewer)
     imgui.text_disabled(f"relative paths are under {viewer.output_dir}")
     if ui["action"] == "open":
         from app.files import recent
-        from app.main import _config_dir
 
         shortcuts = [str(p) for p in viewer.model_versions()]
-        shortcuts += [r for r in recent(_config_dir()) if r not in shortcuts]
+        shortcuts += [r for r in recent(viewer.services.config_dir) if r not in shortcuts]
         if shortcuts:
             imgui.text("model versions of this run, recently opened:")
         for text in shortcuts:

@@ -7,7 +7,7 @@ import re
 
 from imgui_bundle import imgui
 
-from app.panels._layout import panel
+from app.panels._layout import panel, tip
 
 
 def draw(viewer) -> None:
@@ -24,12 +24,17 @@ def draw(viewer) -> None:
             k = st.selected_trajectory
             name = st.trajectories[k].name if 0 <= k < len(st.trajectories) else "(select a trajectory)"
             imgui.text(f"trajectory: {name}")
+            tip("the trajectory selected in the Trajectories panel; pair names are the scene's camera ids, as "
+                "in the clip names below", viewer)
             imgui.text("frames: every n-th (0 = the current one)")
             imgui.set_next_item_width(120)
             _, ui["every"] = imgui.input_int("n", ui["every"])
+            tip("0: restore the current frame only; n > 0: frames 0, n, 2n, ... of the clip", viewer)
             ui["every"] = max(0, ui["every"])
             queue = 0 <= k < len(st.trajectories) and imgui.button("queue")
             viewer.record_item("queue")
+            tip("render the trajectory at those frames and restore them in the background; finished clips go "
+                "to the cache (Compare shows them)", viewer)
             if queue:
                 frames = [st.frame] if ui["every"] == 0 else list(range(0, st.num_frames, ui["every"]))
                 for f in frames:
@@ -37,11 +42,13 @@ def draw(viewer) -> None:
             imgui.separator()
             for n, item in enumerate(reversed(src.restore.items)):
                 imgui.push_id(str(n))
-                imgui.text(f"{item.key}  {item.status}")
                 if item.status in ("rendering", "queued", "running", "submitted"):
-                    imgui.same_line()
+                    # the button first: a long clip name wraps instead of pushing it out of the panel
                     if imgui.small_button("cancel"):
                         item.cancel()
+                    viewer.record_item(f"restore_cancel_{n}")
+                    imgui.same_line()
+                imgui.text_wrapped(f"{item.key}  {item.status}")
                 imgui.progress_bar(item.progress, imgui.ImVec2(-1, 0))
                 err = item.error or (getattr(item.job, "error", None) if item.job is not None else None)
                 if err:
@@ -97,8 +104,8 @@ def restorer_choice(viewer, src) -> None:
     imgui.set_next_item_width(140)
     changed, idx = imgui.combo("restorer", KINDS.index(current) if current in KINDS else 0, list(KINDS))
     viewer.record_item("restorer_kind")
+    tip("learned: the trained restorer (RUN/restorer); warp: geometric warp of the reference views (CPU, no "
+        "weights); cogvideo: the video diffusion restorer (GPU)", viewer)
     if changed and KINDS[idx] != current:
-        from app.main import make_jobs
-
-        src.restore.set_jobs(make_jobs(KINDS[idx], src.cache, src.run_dir), KINDS[idx])
+        src.restore.set_jobs(viewer.services.make_jobs(KINDS[idx], src.cache, src.run_dir), KINDS[idx])
         viewer.state.status = f"restorer: {KINDS[idx]} for new jobs"

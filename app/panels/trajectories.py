@@ -7,7 +7,7 @@ from __future__ import annotations
 from imgui_bundle import imgui
 
 from app import trajectories as traj
-from app.panels._layout import panel
+from app.panels._layout import button_width, panel, same_line_if_fits, tip
 from app.state import TrajectorySpec
 
 # Slider ranges: A in units of the rig radius, frame counts per clip.
@@ -21,24 +21,30 @@ def draw(viewer) -> None:
     ui = viewer.__dict__.setdefault("_traj_ui", {"preset": "viewer/trajectories.json",
                                                  "camera_path": "viewer/camera_path.json",
                                                  "pending": {}})
-    with panel(viewer, "trajectories", "Trajectories", 5, 300, 290, 595) as expanded:
+    with panel(viewer, "trajectories", "Trajectories", 5, 365, 290, 530) as expanded:
         if not expanded:
             return
         if scene is not None:
             clicked = imgui.button("add the 6 pairs + arcs")
             viewer.record_item("add_default_trajectories")
+            tip("the 6 camera pairs' paths (A = 0) and the arcs on the diagonal pairs, named by scene camera ids",
+                viewer)
             if clicked:
                 # only those not in the list yet (by name): a second click does not duplicate them
                 have = {spec.name for spec in st.trajectories}
-                new = [spec for spec in traj.default_specs(scene.train_cameras, max(2, scene.num_frames))
+                new = [spec for spec in traj.default_specs(scene.train_cameras, max(2, scene.num_frames),
+                                                            camera_ids=scene.train_ids)
                        if spec.name not in have]
                 if new:
                     st.set_trajectories(st.trajectories + new, "add default trajectories",
                                         selected=len(st.trajectories))
                 else:
                     st.status = "the pairs and arcs are in the list already"
-        imgui.same_line()
-        if imgui.button("new from view"):
+        if scene is not None:
+            same_line_if_fits(button_width("new from view"))
+        new_view = imgui.button("new from view")
+        tip("a custom trajectory whose first keyframe is the current view", viewer)
+        if new_view:
             cam = viewer.render_camera or st.view.camera(640, 480)
             st.add_trajectory(TrajectorySpec(name=f"custom{len(st.trajectories)}", keyframes=(cam.to_dict(),)))
         imgui.begin_child("list", imgui.ImVec2(0, 110), imgui.ChildFlags_.borders.value)
@@ -83,9 +89,13 @@ def _selected(viewer, k: int, pending: dict) -> None:
     st = viewer.state
     spec = st.trajectories[k]
     if spec.pair is not None:
-        imgui.text(f"pair {spec.pair[0]} - {spec.pair[1]}" + (f", arc {spec.arc_index}" if spec.arc_index is not None else ""))
+        ids = viewer.source.scene.train_ids if viewer.source.scene is not None else list(range(max(spec.pair) + 1))
+        imgui.text(f"cameras {ids[spec.pair[0]]}-{ids[spec.pair[1]]}" +
+                   (f", arc {spec.arc_index}" if spec.arc_index is not None else ""))
+        tip("the scene's camera ids of the pair (as in the restore panel's clip names)", viewer)
         value = pending.get(("A", k), spec.amplitude)
         changed, value = imgui.slider_float("A", value, *AMPLITUDE_RANGE)
+        tip("arc amplitude A, in units of the rig radius: 0 is the straight path between the pair", viewer)
         if changed:
             pending[("A", k)] = value
         if imgui.is_item_deactivated_after_edit():
@@ -108,8 +118,67 @@ def _selected(viewer, k: int, pending: dict) -> None:
     if changed:
         st.update_trajectory(k, f"{'show' if vis else 'hide'} {spec.name}", visible=vis)
     _, st.previewing = imgui.checkbox("preview", st.previewing)
+    tip("show the 3D view from the trajectory's camera at alpha (0 = first camera, 1 = last)", viewer)
     imgui.same_line()
     imgui.set_next_item_width(-1)
     _, st.preview_alpha = imgui.slider_float("##alpha", st.preview_alpha, 0.0, 1.0, "alpha %.3f")
     if imgui.button("delete trajectory"):
         st.delete_trajectory(k)
+    video_row(viewer, k)
+
+
+def video_row(viewer, k: int) -> None:
+    """"Render video": the selected trajectory from the current frame, as a background job with
+    progress, cancel and the path of the result (with a button that opens it)."""
+    from app.video_job import VideoJob, trajectory_times
+
+    st = viewer.state
+    ui = viewer.__dict__.setdefault("_video_ui", {"job": None})
+    job = ui["job"]
+    if job is not None and job.running:
+        imgui.progress_bar(job.progress, imgui.ImVec2(-80, 0), f"video {100 * job.progress:.0f}%")
+        imgui.same_line()
+        if imgui.small_button("cancel##video"):
+            job.cancel()
+        viewer.record_item("video_cancel")
+        return
+    start = imgui.button("render video")
+    viewer.record_item("render_video")
+    tip("render the selected trajectory from the current frame to RUN/viewer/videos/<name>.mp4 in the "
+        "background (torch renders of the shown model, edits included)", viewer)
+    if start:
+        spec = st.trajectories[k]
+        cams = viewer.trajectory_cameras(spec)
+        out = viewer.output_path(f"viewer/videos/{spec.name}_f{st.frame:04d}.mp4")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        ui["job"] = VideoJob(viewer.services.render_video, viewer.model_render_fn(), cams,
+                             trajectory_times(st.frame, len(cams), st.num_frames), out, st.fps)
+        return
+    if job is None:
+        return
+    if job.error:
+        imgui.text_colored(imgui.ImVec4(1.0, 0.35, 0.3, 1.0), f"video failed: {job.error}")
+        if ui.get("reported") is not job:
+            ui["reported"] = job
+            viewer.report_error("video", job.error)
+    elif job.cancelled:
+        imgui.text_disabled("video cancelled")
+    elif job.result is not None:
+        imgui.text_wrapped(f"video: {job.result}")
+        if imgui.small_button("open video"):
+            open_file(job.result)
+        viewer.record_item("video_open")
+        tip("open the video with the desktop's default player", viewer)
+
+
+def open_file(path) -> None:
+    """Open a file with the desktop's default application (xdg-open / open / startfile)."""
+    import os
+    import subprocess
+    import sys
+
+    if sys.platform.startswith("win"):
+        os.startfile(str(path))  # noqa: S606 (a local file the viewer wrote)
+    else:
+        subprocess.Popen(["open" if sys.platform == "darwin" else "xdg-open", str(path)],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

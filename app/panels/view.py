@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
-from app.panels._layout import panel
+from app.panels._layout import button_width, panel, same_line_if_fits, tip, toggle_width
 
 TOOLS = ("navigate", "box", "brush")
 
@@ -14,17 +14,20 @@ TOOLS = ("navigate", "box", "brush")
 def draw(viewer) -> None:
     st = viewer.state
     scene = viewer.source.scene
-    with panel(viewer, "view", "View & edit", 5, 30, 290, 265) as expanded:
+    with panel(viewer, "view", "View & edit", 5, 30, 290, 330) as expanded:
         if not expanded:
             return
         imgui.text("camera")
-        imgui.same_line()
         for mode in ("orbit", "fly"):
+            same_line_if_fits(toggle_width(mode))
             if imgui.radio_button(mode, st.view.mode == mode):
                 st.view.mode = mode
-            imgui.same_line()
+            tip("orbit: drag turns around the target; fly: drag looks around, W/A/S/D/Q/E move (mouse over "
+                "the view)" if mode == "orbit" else "fly: drag looks around, W/A/S/D/Q/E move", viewer)
+        same_line_if_fits(button_width("reset view"))
         reset = imgui.button("reset view")
         viewer.record_item("reset_view")
+        tip("back to the first view of this scene", viewer)
         if reset:
             from app.camera_control import ViewCamera
 
@@ -38,42 +41,58 @@ def draw(viewer) -> None:
                             and np.allclose(c.c2w, snapped.c2w)), -1)
             imgui.set_next_item_width(-60)
             changed, idx = combo_with_preview("snap to", current, names, "(free camera)")
+            tip("show exactly what a scene camera saw: its pose and intrinsics (letterboxed)", viewer)
             if changed and idx >= 0:
                 st.view.snap_to(scene.cameras[idx])
                 st.previewing = False
         _, st.show_frusta = imgui.checkbox("frusta", st.show_frusta)
-        imgui.same_line()
+        tip("the scene's cameras: train in green, held-out in orange", viewer)
+        same_line_if_fits(toggle_width("trajectories"))
         _, st.show_trajectories = imgui.checkbox("trajectories", st.show_trajectories)
+        tip("the novel-view trajectories' paths (the selected one in magenta)", viewer)
         imgui.separator()
-        imgui.text("select Gaussians (at the current time)")
-        for tool in TOOLS:
+        imgui.text("select Gaussians (now)")
+        tip("selection works on the Gaussians as they are at the current time", viewer)
+        for k, tool in enumerate(TOOLS):
+            if k:
+                same_line_if_fits(toggle_width(tool))
             if imgui.radio_button(tool, viewer.tool == tool):
                 viewer.tool = tool
             viewer.record_item(f"tool_{tool}")
-            imgui.same_line()
-        imgui.new_line()
+            tip({"navigate": "mouse steers the camera", "box": "drag a box: select the Gaussians in it (Shift adds)",
+                 "brush": "drag: add the Gaussians under the brush"}[tool], viewer)
+        same_line_if_fits(toggle_width("through"))
+        _, viewer.select_through = imgui.checkbox("through", viewer.select_through)
+        viewer.record_item("select_through")
+        tip("off: the box takes only the front surface (what you see); on: everything in the box, hidden "
+            "Gaussians behind it included", viewer)
         n_sel = 0 if st.selection is None else int(st.selection.sum())
         n = 0 if st.gaussians is None else st.gaussians.n
         imgui.text(f"{n_sel} of {n} selected")
         if imgui.button("clear selection"):
             st.set_selection(None)
-        imgui.same_line()
+        tip("select nothing", viewer)
+        same_line_if_fits(button_width("delete"))
         delete = imgui.button("delete")
         viewer.record_item("delete")
+        tip("remove the selected Gaussians (Ctrl+Z undoes)", viewer)
         if delete:
             st.delete_selected()
-        imgui.same_line()
+        same_line_if_fits(button_width("isolate"))
         if imgui.button("isolate"):
             st.isolate_selected()
-        if imgui.button("save as new model version"):
+        tip("keep only the selected Gaussians (Ctrl+Z undoes)", viewer)
+        if imgui.button("save as new version"):
             viewer.save_edited_model()
+        tip("write RUN/model_edit_<k>.ply (Ctrl+S); the run reopens with it", viewer)
+        same_line_if_fits(button_width("undo"))
         imgui.begin_disabled(not st.undo_stack)
         undo = imgui.button("undo")
         viewer.record_item("undo")
         if undo:
             st.undo()
         imgui.end_disabled()
-        imgui.same_line()
+        same_line_if_fits(button_width("redo"))
         imgui.begin_disabled(not st.redo_stack)
         if imgui.button("redo"):
             st.redo()

@@ -8,7 +8,9 @@ import shutil
 import numpy as np
 import pytest
 
-from app.main import open_source
+from app.sources import app_services
+
+from app.sources import open_source
 from app.viewer import Viewer
 from fixer4d.model.io import load_model, save_ply
 from fixer4d.scene import load_scene
@@ -30,9 +32,9 @@ def run(tmp_path):
 
 def _open(gl_ctx, source):
     src, g, session_dir = open_source(str(source))
-    from app.main import initial_state
+    from app.sources import initial_state
 
-    v = Viewer(gl_ctx, initial_state(src, g), src, session_path=session_dir / "session.json")
+    v = Viewer(gl_ctx, initial_state(src, g), src, services=app_services(), session_path=session_dir / "session.json")
     d = Driver(v, gl_ctx, DEFAULT_WINDOW)
     d.frame(2)
     return d
@@ -129,7 +131,7 @@ def imgui_escape(d) -> None:
 
 
 def test_run_restorer_kind_and_fallback(run, tmp_path):
-    from app.main import make_jobs, make_restore
+    from app.sources import make_jobs, make_restore
     from fixer4d.errors import InputError
 
     cfg = json.loads((run / "config.json").read_text())

@@ -1,41 +1,45 @@
-"""Level of detail while the view moves: a fixed, nested, opacity-weighted subset of the splats,
-enlarged to keep the coverage; the resting frame draws every splat exactly."""
+"""Level of detail while the view moves: the most important splats for the view (projected
+area x opacity, never a random subset), enlarged to keep the screen coverage; the resting frame
+draws every splat exactly."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from app.adaptive import LOD_MIN_SPLATS, MIN_SCALE, REFINE_AFTER_FRAMES, AdaptiveResolution
-from app.gl.lod import area_factor, importance_rank, lod_count, lod_subset, stable_uniform
-from app.main import initial_state
+from app.gl.lod import area_factor, lod_count, lod_subset, screen_importance
+from app.sources import initial_state
 from app.viewer import ViewerSource
 from fixer4d.scene import load_scene
 from viewer_helpers import gl_ctx, make_viewer, scene_gaussians  # noqa: F401 (fixtures)
 
 
-def test_rank_is_a_fixed_permutation_weighted_by_opacity():
-    logits = np.concatenate([np.full(5000, 4.0), np.full(5000, -4.0)])  # opaque, then faint
-    rank = importance_rank(logits)
-    assert np.array_equal(np.sort(rank), np.arange(10000))
-    assert np.array_equal(rank, importance_rank(logits.copy()))  # deterministic
-    first = rank < 1000  # a 10% level of detail
-    assert first[:5000].sum() > 20 * max(first[5000:].sum(), 1)  # faint splats go last
-    u = stable_uniform(100000)
-    assert 0.0 < u.min() and u.max() < 1.0 and abs(u.mean() - 0.5) < 0.01
-    # equal weights: the subset is spread evenly over the indices (hence over a scanned surface)
-    flat = importance_rank(np.zeros(10000))
-    assert np.histogram(np.flatnonzero(flat < 1000), bins=10, range=(0, 10000))[0].min() > 70
+def test_importance_is_screen_area_times_opacity():
+    z = np.array([1.0, 1.9, 1.0, 1.0])
+    log_scales = np.log(np.array([[0.1, 0.01, 0.01], [0.1, 0.1, 0.1], [0.05, 0.05, 0.05], [0.1, 0.1, 0.1]]))
+    opacity = np.array([1.0, 1.0, 1.0, 0.1])
+    area, imp = screen_importance(z, log_scales, opacity, focal=100.0)
+    np.testing.assert_allclose(area, [100.0, 100 / 1.9 ** 2, 25.0, 100.0], rtol=1e-5)  # (0.1 * 100 / 1)^2, ...
+    np.testing.assert_allclose(imp, [100.0, 100 / 1.9 ** 2, 25.0, 10.0], rtol=1e-5)
+    # deterministic: the same inputs choose the same splats; a near large opaque one always stays
+    order = np.array([0, 2, 3, 1])  # a depth order
+    assert list(lod_subset(order, imp, 2)) == [0, 1]  # the two largest, still in depth order
+    assert list(lod_subset(order, imp, 2)) == list(lod_subset(order.copy(), imp.copy(), 2))
 
 
-def test_subset_keeps_depth_order_and_is_nested():
-    rank = importance_rank(np.zeros(500))
-    order = np.random.default_rng(1).permutation(500)  # a depth order
-    small, large = lod_subset(order, rank, 50), lod_subset(order, rank, 200)
+def test_subset_keeps_depth_order_and_is_the_top_importance():
+    rng = np.random.default_rng(1)
+    imp = rng.uniform(size=500)
+    order = rng.permutation(500)  # a depth order
+    small, large = lod_subset(order, imp, 50), lod_subset(order, imp, 200)
     assert len(small) == 50 and len(large) == 200 and set(small) <= set(large)
+    assert set(small) == set(np.argsort(-imp)[:50])
     pos = {g: k for k, g in enumerate(order)}
     assert all(pos[a] < pos[b] for a, b in zip(large[:-1], large[1:]))  # still front to back
     assert lod_count(500, 1.0) == 500 and lod_count(500, 1e-9) == 1 and lod_count(0, 0.5) == 0
-    assert area_factor(500, 50) == 10.0 and area_factor(500, 500) == 1.0
+    assert area_factor(100.0, 50.0, 500, 50) == 2.0  # the kept half of the area doubles
+    assert area_factor(100.0, 1.0, 500, 50) == 10.0  # capped at n / count
+    assert area_factor(100.0, 100.0, 500, 500) == 1.0
 
 
 def test_moving_plan_draws_fewer_splats_and_the_rest_frame_all():

@@ -8,8 +8,10 @@ import json
 import numpy as np
 import pytest
 
+from app.sources import app_services
+
 from app.legends import legend, turbo
-from app.main import initial_state, open_source
+from app.sources import initial_state, open_source
 from app.viewer import Viewer, ViewerSource
 from fixer4d.init.masks import save_masks
 from fixer4d.model.io import save_ply
@@ -101,11 +103,11 @@ def test_moving_mask_overlay_from_the_run(gl_ctx, tiny, tmp_path, monkeypatch):
     st = initial_state(src, g)
     st.view.snap_to(cam)
     st.debug_mode = "moving"
-    v = Viewer(gl_ctx, st, src)
+    v = Viewer(gl_ctx, st, src, services=app_services())
     d = Driver(v, gl_ctx, DEFAULT_WINDOW)
     try:
         d.settle()
-        assert v.mask_note == ""
+        assert v.mask_note.startswith("camera ") and "frames 0" in v.mask_note  # which frames carry masks
         x0, y0, w, h = v.viewport_rect
         shot = v.screenshot(d.fbo).astype(float)
         row = int(y0 + h * 0.3)
@@ -114,6 +116,10 @@ def test_moving_mask_overlay_from_the_run(gl_ctx, tiny, tmp_path, monkeypatch):
         assert np.abs(left - magenta).sum() < np.abs(right - magenta).sum() - 60
         st.set_frame(1)  # a frame without a mask: nothing drawn, the note says why
         d.settle()
-        assert "masked frame" in v.mask_note
+        assert v.mask_note.startswith("masks on cameras") and "frames 0" in v.mask_note
+        lx0, ly0, lx1, ly1 = v.item_rects["legend_box"]  # the legend's box holds its note
+        from imgui_bundle import imgui
+
+        assert imgui.calc_text_size(v.mask_note).x <= lx1 - lx0
     finally:
         v.close()

@@ -9,8 +9,8 @@ from types import SimpleNamespace
 import pytest
 
 import app.main as main
-from app.main import (TRAINING_UI_FPS, TRAINING_UI_MAX_PAUSE_S, TRAINING_UI_SHARE_UNATTENDED, initial_state,
-                      pace_frame)
+from app.main import TRAINING_UI_FPS, TRAINING_UI_MAX_PAUSE_S, TRAINING_UI_SHARE_UNATTENDED, pace_frame
+from app.sources import initial_state
 from app.session import TrainingSession
 from app.viewer import INTERACTION_S, MODEL_REFRESH_UNATTENDED_S, ViewerSource
 from viewer_helpers import gl_ctx, make_gaussians, make_viewer  # noqa: F401 (fixtures)

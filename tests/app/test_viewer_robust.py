@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from imgui_bundle import imgui
 
-from app.main import initial_state
+from app.sources import initial_state
 from app.viewer import ViewerSource
 from fixer4d.scene import load_scene
 from viewer_helpers import DEFAULT_WINDOW, gl_ctx, make_viewer  # noqa: F401 (fixtures)

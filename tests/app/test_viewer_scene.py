@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 from app import trajectories as traj
-from app.main import initial_state
+from app.sources import initial_state
 from app.session import RestoreQueue
 from app.state import TrajectorySpec
-from app.viewer import COLOR_SELECTED, ViewerSource
+from app.view3d import COLOR_SELECTED
+from app.viewer import ViewerSource
 from fixer4d.scene import load_scene
 from viewer_helpers import DEFAULT_WINDOW, gl_ctx, make_viewer, scene_gaussians  # noqa: F401 (fixtures)
 

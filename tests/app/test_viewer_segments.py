@@ -8,10 +8,12 @@ import json
 
 import numpy as np
 import pytest
+
+from app.sources import app_services
 import torch
 
 from app.gl.splats import SplatRenderer
-from app.main import initial_state, open_source
+from app.sources import initial_state, open_source
 from app.segments import SegmentTimeline, segment_models
 from fixer4d.model.io import save_ply
 from fixer4d.pipeline.segments import owners, segment_dir, split_segments, to_local_time
@@ -53,8 +55,6 @@ def segmented_run(tmp_path):
 
 
 def test_segmented_run_plays_along_one_timeline(gl_ctx, segmented_run, tmp_path, monkeypatch):
-    from imgui_bundle import imgui
-
     from app.viewer import Viewer
 
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "cfg"))
@@ -64,7 +64,7 @@ def test_segmented_run_plays_along_one_timeline(gl_ctx, segmented_run, tmp_path,
     assert isinstance(src.segments, SegmentTimeline) and src.model_path is None
     st = initial_state(src, g)
     st.show_frusta = st.show_trajectories = False
-    v = Viewer(gl_ctx, st, src, session_path=session_dir / "session.json")
+    v = Viewer(gl_ctx, st, src, services=app_services(), session_path=session_dir / "session.json")
     reference = SplatRenderer(gl_ctx)
     try:
         d = Driver(v, gl_ctx, DEFAULT_WINDOW)
@@ -73,11 +73,7 @@ def test_segmented_run_plays_along_one_timeline(gl_ctx, segmented_run, tmp_path,
         own = owners(scene.num_frames, ranges)
         assert list(own) == [0, 0, 1, 1]  # the switch falls in the middle of the overlap
         st.fps, st.loop = 1.0, False
-        io = imgui.get_io()
-        io.add_key_event(imgui.Key.space, True)  # play, as a user would
-        d.frame(1, dt=0.0)
-        io.add_key_event(imgui.Key.space, False)
-        d.frame(1, dt=0.0)
+        d.press("space", frames_held=1, dt=0.0)  # play, as a user would
         assert st.playing
         seen = []
         for f in range(scene.num_frames):
@@ -143,7 +139,7 @@ def test_compare_lists_the_segments_clips_on_the_clip_timeline(gl_ctx, segmented
     entries = src.segments.cache_entries()
     assert [(e.key, e.frame) for e in entries] == [(f"{seg1.name}/t0001_0-2", ranges[1][0] + 1)]
     assert entries[0].time == pytest.approx((ranges[1][0] + 1) / scene.num_frames)
-    v = Viewer(gl_ctx, initial_state(src, g), src, session_path=session_dir / "session.json")
+    v = Viewer(gl_ctx, initial_state(src, g), src, services=app_services(), session_path=session_dir / "session.json")
     d = Driver(v, gl_ctx, DEFAULT_WINDOW)
     d.frame(2)
     ui = v._compare_ui

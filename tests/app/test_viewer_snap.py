@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from app.main import initial_state
+from app.sources import initial_state
 from app.viewer import ViewerSource
 from fixer4d.render.api import render
 from fixer4d.scene import load_scene

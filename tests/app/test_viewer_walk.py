@@ -1,4 +1,4 @@
-"""What a scripted walk through the viewer (stop 24, xdotool on Xvfb) found, fixed and kept fixed:
+"""What a scripted walk through the viewer (xdotool on Xvfb) found, fixed and kept fixed:
 resizing the app window left the panels at their old positions (cut off when it shrank, the new
 area empty when it grew): now the layout scales with it, a panel hidden during the resize
 included; "add the 6 pairs + arcs" appended duplicates on every click; fly keys moved the camera
@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 
-from app.main import initial_state
+from app.sources import initial_state
 from app.viewer import ViewerSource
 from fixer4d.scene import load_scene
 from viewer_helpers import DEFAULT_WINDOW, gl_ctx, make_viewer  # noqa: F401 (fixtures)

@@ -83,3 +83,53 @@ def test_a_source_that_fails_to_open_is_shown_in_the_window(xvfb_display, tmp_pa
     assert red[int(0.6 * img.shape[0]):].sum() > 200
     log = (tmp_path / "cfg" / "fixer4d" / "view" / "viewer.log").read_text()
     assert "no_such_run" in log and "ERROR" in log
+
+
+def _xdotool(display: str, *args: str) -> str:
+    out = subprocess.run(["xdotool", *args], env=dict(os.environ, DISPLAY=display), capture_output=True, text=True,
+                         timeout=30)
+    return out.stdout.strip()
+
+
+def test_1ms_key_presses_reach_the_viewer_in_a_real_window(xvfb_display, tmp_path):
+    """xdotool on Xvfb: Ctrl+S and Ctrl+Q pressed for 1 ms each (down, 1 ms, up) save a new model
+    version and quit: the glfw key callback hands every press to the viewer, however short."""
+    import time
+
+    if shutil.which("xdotool") is None:
+        pytest.skip("xdotool is not installed (apt-get install xdotool)")
+    from fixer4d.model.io import save_ply
+    from viewer_helpers import make_gaussians
+
+    model = tmp_path / "m.ply"
+    save_ply(make_gaussians(n_static=100, n_moving=20).to_model(), model)
+    env = dict(os.environ, DISPLAY=xvfb_display, XDG_CONFIG_HOME=str(tmp_path / "cfg"),
+               PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    proc = subprocess.Popen([sys.executable, "-m", "app.main", "--size", "800x560", str(model)], env=env, cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        window = ""
+        deadline = time.monotonic() + 120
+        while not window and time.monotonic() < deadline and proc.poll() is None:
+            window = _xdotool(xvfb_display, "search", "--name", "fixer4d-view").split("\n")[0]
+            time.sleep(0.5)
+        assert window, "the viewer window did not appear"
+        time.sleep(2.0)  # the first frames
+        _xdotool(xvfb_display, "windowfocus", "--sync", window)
+
+        def press(chord: str) -> None:
+            _xdotool(xvfb_display, "keydown", chord)
+            time.sleep(0.001)
+            _xdotool(xvfb_display, "keyup", chord)
+
+        press("ctrl+s")
+        edit = tmp_path / "model_edit_1.ply"
+        while not edit.exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert edit.is_file(), "Ctrl+S (1 ms) did not save a model version"
+        press("ctrl+q")
+        assert proc.wait(60) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)

@@ -84,6 +84,25 @@ class Driver:
         x0, y0, x1, y1 = self.viewer.item_rects[name]
         self.click(x0 + fx * (x1 - x0), (y0 + y1) / 2.0)
 
+    def press(self, key: str, ctrl: bool = False, frames_held: int = 0, dt: float = 1.0 / 30.0) -> None:
+        """A key press as the window delivers it (app.main's key callback calls
+        ``viewer.key_event``; imgui's backend queues io events): down, ``frames_held`` frames,
+        up, one frame. ``frames_held=0``: down and up arrive in one poll, as a 1 ms press does."""
+        from imgui_bundle import imgui
+
+        io = self._io()
+        code = imgui.Key.space if key == "space" else getattr(imgui.Key, key)
+        if ctrl:
+            io.add_key_event(imgui.Key.mod_ctrl, True)
+        io.add_key_event(code, True)
+        self.viewer.key_event(key, True, ctrl=ctrl)
+        self.frame(frames_held, dt)
+        io.add_key_event(code, False)
+        self.viewer.key_event(key, False, ctrl=ctrl)
+        if ctrl:
+            io.add_key_event(imgui.Key.mod_ctrl, False)
+        self.frame(1, dt)
+
     def drag(self, x0: float, y0: float, x1: float, y1: float, steps: int = 4) -> None:
         self.move(x0, y0)
         self.button(True)
@@ -100,6 +119,9 @@ def make_viewer(gl_ctx, tmp_path):
     made = []
 
     def make(state, source, size=WINDOW, **kw):
+        from app.sources import app_services
+
+        kw.setdefault("services", app_services(config_dir=tmp_path / "config"))
         viewer = Viewer(gl_ctx, state, source, **kw)
         made.append(viewer)
         driver = Driver(viewer, gl_ctx, size)

@@ -1,0 +1,246 @@
+"""Opening what the viewer shows and building the work it delegates: run folders, model files,
+scenes trained live, restorers for new jobs, torch renders of the shown Gaussians, videos.
+
+``app_services()`` bundles these as the ``ViewerServices`` that ``app.main`` hands the viewer;
+this module never imports the viewer, its panels or ``app.main``.
+"""
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from app.camera_control import ViewCamera, rig_up
+from app.session import RestoreQueue, TrainingSession, live_stage1_trainer
+from app.state import AppState
+from app.viewer_source import RenderFn, ViewerServices, ViewerSource
+from fixer4d.errors import Fixer4DError, InputError
+
+# First view of a scene: from the rig, pulled back by this factor of its distance to the scene
+# centre and lifted by this fraction of the scene radius.
+START_PULLBACK = 1.15
+START_LIFT = 0.05
+# Live training from a scene: the default init method (dense MVS, the paper's) and how many
+# evenly spaced frames get an init cloud. Plane-sweep MVS costs ~25 s per frame of the demo on
+# 2 CPU cores, so a live preview starts from a few keyframes; the temporal opacity of the
+# Gaussians spans the gaps and training fills in the rest.
+LIVE_INIT_METHOD = "mvs"
+LIVE_INIT_FRAMES = 3
+
+
+def config_dir() -> Path:
+    """The user's viewer folder: $XDG_CONFIG_HOME/fixer4d/view (default ~/.config)."""
+    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+    return Path(base) / "fixer4d" / "view"
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_")[-80:] or "default"
+
+
+def open_source(source: str, *, scale: float = 1.0, iterations: int | None = None, init: str = LIVE_INIT_METHOD,
+                init_frames: int = LIVE_INIT_FRAMES) -> tuple[ViewerSource, Any, Path]:
+    """Resolve a source the user named. Returns (ViewerSource, initial GaussianArrays or None,
+    folder for the viewer's session files). A folder of videos (a capture) or any scene
+    ``load_scene`` opens is trained live."""
+    from fixer4d.scene import load_scene
+
+    from app.files import is_model_file, is_run_folder
+
+    path = Path(source).expanduser()
+    if is_run_folder(path):
+        return open_run(path.resolve())
+    if path.is_file() and is_model_file(path):
+        return open_model(path.resolve())
+    scene = load_scene(source, scale=scale)
+    training = TrainingSession(lambda report: live_stage1_trainer(scene, iterations, init, init_frames, report))
+    session_dir = config_dir() / _slug(str(path.resolve()) if path.exists() else source)
+    cache, restore = make_restore(session_dir / "cache")
+    src = ViewerSource(scene=scene, label=f"{scene.name} (live training)", training=training, cache=cache,
+                       restore=restore)
+    return src, None, session_dir
+
+
+def open_model(path: Path) -> tuple[ViewerSource, Any, Path]:
+    """A model file (.ply / .npz): inside a run folder, that run with this model version; else
+    the model alone (no scene), its session under the user's config folder."""
+    from app.files import is_run_folder
+    from app.gaussians import GaussianArrays
+    from fixer4d.model.io import load_model
+
+    if is_run_folder(path.parent):
+        return open_run(path.parent, model=path)
+    g = GaussianArrays.from_model(load_model(path))
+    src = ViewerSource(label=str(path), model_path=path)
+    return src, g, config_dir() / _slug(str(path))
+
+
+def open_run(run: Path, model: Path | None = None) -> tuple[ViewerSource, Any, Path]:
+    """A run folder: its scene, a model version (``model``, else the one the session remembers,
+    else model_final / model_stage1; a segmented run without a top-level model: its segments'
+    models on the clip's timeline, ``app.segments``), its restoration cache and a restorer for
+    new jobs."""
+    from app.files import choose_model, model_versions, remembered_version
+    from app.gaussians import GaussianArrays
+    from app.segments import SegmentTimeline, segment_models
+    from fixer4d.model.io import load_model
+    from fixer4d.pipeline.run_folder import load_scene_for, read_run_config
+
+    scene = load_scene_for(read_run_config(run))  # read only: the viewer never rewrites config.json
+    if model is None and not model_versions(run) and segment_models(run):
+        timeline = SegmentTimeline.load(run, scene.num_frames)
+        cache, restore = make_restore(run / "cache", run)
+        src = ViewerSource(scene=scene, run_dir=run, label=f"{run} ({len(timeline.ranges)} segments)", cache=cache,
+                           restore=restore, segments=timeline)
+        return src, timeline.arrays[timeline.segment_of(0.0)], run / "viewer"
+    model_path = model if model is not None else choose_model(run, remembered_version(run / "viewer" / "session.json"))
+    g = GaussianArrays.from_model(load_model(model_path))
+    cache, restore = make_restore(run / "cache", run)
+    src = ViewerSource(scene=scene, run_dir=run, label=str(model_path), cache=cache, restore=restore,
+                       model_path=model_path)
+    return src, g, run / "viewer"
+
+
+def make_restore(cache_dir: Path, run_dir: Path | None = None) -> tuple[Any, RestoreQueue]:
+    """The on-disk cache and a queue feeding the restorer: the run's own kind when its
+    config.json names one that can be built here (e.g. learned with RUN/restorer weights), else
+    the geometric warp restorer (CPU, no weights)."""
+    from fixer4d.restore.cache import RestoreCache
+
+    cache = RestoreCache(cache_dir)
+    kind = "warp"
+    if run_dir is not None:
+        from fixer4d.pipeline.run_folder import read_run_config
+
+        try:
+            kind = read_run_config(run_dir).restorer.kind
+        except InputError:
+            kind = "warp"
+    try:
+        jobs = make_jobs(kind, cache, run_dir)
+    except Fixer4DError:  # e.g. no learned weights yet: start with the warp restorer
+        kind, jobs = "warp", make_jobs("warp", cache, run_dir)
+    return cache, RestoreQueue(jobs, lambda: cache.latest_round() or 0, kind=kind)
+
+
+def make_jobs(kind: str, cache: Any, run_dir: Path | None) -> Any:
+    """``RestoreJobs`` around the restorer of ``kind`` (fixer4d.restore.build_restorer;
+    the learned restorer's weights come from RUN/restorer)."""
+    from fixer4d.restore import RestoreConfig, build_restorer
+    from fixer4d.restore.jobs import RestoreJobs
+
+    restorer = build_restorer(RestoreConfig(kind=kind), None if run_dir is None else run_dir / "restorer")
+    return RestoreJobs(restorer, cache)
+
+
+def initial_state(src: ViewerSource, gaussians: Any) -> AppState:
+    """State for a fresh session: the scene's timeline, a view from the first train camera's
+    side at the rig, the default trajectories. The rig's frusta and paths start hidden for a
+    finished run and for live training (the model first, the rig on demand)."""
+    from app.trajectories import default_specs
+
+    st = AppState()
+    scene = src.scene
+    if scene is not None:
+        st.num_frames, st.fps = scene.num_frames, float(scene.fps)
+        cams = scene.train_cameras or scene.cameras
+        from fixer4d.geometry.rig import rig_focus
+
+        bounds = scene.bounds()
+        center = rig_focus(cams, None if bounds is None else
+                           (np.asarray(bounds.bbox_min, float) + np.asarray(bounds.bbox_max, float)) / 2.0)
+        radius = float(np.max(np.linalg.norm(np.stack([c.center for c in scene.cameras]) - center, axis=1)))
+        st.view = ViewCamera(up=rig_up(scene.cameras), fov_y=cams[0].fov_y)
+        rig = np.mean([c.center for c in cams], axis=0)
+        # from behind the rig, a little above it: the rig's frusta and the scene both in view
+        eye = center + START_PULLBACK * (rig - center) + START_LIFT * radius * st.view.up
+        st.view.look_from(eye, center, scene_radius=radius)
+        if len(scene.train_ids) >= 2:
+            st.trajectories = default_specs(scene.train_cameras, max(2, min(scene.num_frames, 16)),
+                                            camera_ids=scene.train_ids)
+            st.selected_trajectory = 0
+        if src.run_dir is not None or src.training is not None:
+            st.show_frusta = st.show_trajectories = False
+    elif gaussians is not None and gaussians.n:  # a bare model: orbit its bulk from outside
+        lo, hi = np.percentile(gaussians.means, [5, 95], axis=0)
+        center, radius = (lo + hi) / 2.0, float(np.linalg.norm(hi - lo) / 2.0) or 1.0
+        st.view.look_from(center - 2.5 * radius * st.view.forward(), center, scene_radius=radius)
+    if src.model_path is not None:
+        st.model_version = src.model_path.name
+    st.set_gaussians(gaussians, base=src.model_path)
+    return st
+
+
+class TorchRenders:
+    """Torch renders of the Gaussians the viewer shows (compare, restore, videos): the model is
+    converted once per ``key`` (the viewer's edit version and shown segment)."""
+
+    def __init__(self) -> None:
+        self._key: Any = None
+        self._model: Any = None
+
+    def model(self, key: Any, gaussians: Any, segments: Any, segment: int | None) -> Any:
+        """A ``SpacetimeGaussians`` of ``gaussians``, or for a segmented run the stitched
+        ``SegmentedModel`` of every segment (the shown one, ``segment``, with its edits)."""
+        if self._key != key or self._model is None:
+            if segments is not None:
+                arrays = [gaussians if k == segment and gaussians is not None else g
+                          for k, g in enumerate(segments.arrays)]
+                self._model = segments.stitched([g.to_model() for g in arrays])
+            else:
+                self._model = None if gaussians is None else gaussians.to_model()
+            self._key = key
+        return self._model
+
+    def __call__(self, key: Any, gaussians: Any, segments: Any, segment: int | None,
+                 background: tuple[float, float, float], backend: str) -> RenderFn:
+        """``fn(camera, t) -> {"rgb", "depth", "alpha"}`` with the torch rasterizer at clip time t
+        (a segmented run: the segment that owns t, at its local time)."""
+        import torch
+
+        from fixer4d.render.api import render
+
+        model = self.model(key, gaussians, segments, segment)
+        if model is None:
+            raise InputError("no model loaded: nothing to render")
+        if segments is not None:
+            snap = lambda t, center: model.at(t, camera_center=center)  # noqa: E731
+        else:
+            snap = model.snapshot
+
+        def fn(camera: Any, t: float) -> dict[str, np.ndarray]:
+            with torch.no_grad():
+                out = render(snap(t, camera.center), camera, background=tuple(background), backend=backend)
+            return {"rgb": out.rgb.clamp(0, 1).numpy().astype(np.float32),
+                    "depth": out.depth.numpy().astype(np.float32), "alpha": out.alpha.numpy().astype(np.float32)}
+        return fn
+
+
+def render_video(render_fn: RenderFn, cameras: list, times: list[float], out: Path, *, fps: float = 30.0,
+                 progress: Callable[[float], None] | None = None,
+                 should_stop: Callable[[], bool] | None = None) -> Path:
+    """A video of ``render_fn`` along ``cameras`` at clip ``times`` written to ``out``, through
+    ``fixer4d.render.video.render_video`` (its render_fn hook: the viewer's renders include
+    its edits and segments)."""
+    try:
+        from fixer4d.render.video import render_video as library_render_video
+    except ImportError as exc:
+        raise InputError(f"this fixer4d has no video writer (fixer4d.render.video): {exc}") from exc
+
+    def hook(*args: Any) -> np.ndarray:  # the library's render_fn(camera, t) -> (H, W, 3) float RGB
+        camera, t = args[-2], args[-1]
+        return render_fn(camera, t)["rgb"]
+    return library_render_video(None, cameras, times, out, fps=fps, render_fn=hook, progress=progress,
+                                should_stop=should_stop)
+
+
+def app_services(**overrides: Any) -> ViewerServices:
+    """The services of the desktop app (``overrides``: replace some, e.g. in tests)."""
+    services = ViewerServices(open_source=open_source, initial_state=initial_state, render=TorchRenders(),
+                              make_jobs=make_jobs, render_video=render_video, config_dir=config_dir())
+    for name, value in overrides.items():
+        setattr(services, name, value)
+    return services
