@@ -7,7 +7,7 @@ are used as they are). Stage 2 is run again into DIR with the pipeline's own sta
 refresh callback, but the restorer is replaced by an oracle that returns the scene's ground-truth
 render of every trajectory camera at the clip's time, with confidence 1. Whatever this run gains
 over RUN's matched-iterations control is the most any restorer could give with these
-trajectories, iterations and loss weights: the ceiling of issue 12's "Full - matched" figure.
+trajectories, iterations and loss weights: the ceiling of the report's "Full - matched" figure.
 
 This is a diagnostic that reads ground truth, so it lives here and never in the method: the
 oracle is not a restorer choice, and nothing it produces feeds another run.

@@ -1,7 +1,7 @@
 """Atomic file output: write to a temporary sibling, fsync, then rename.
 
 A run killed mid-write leaves either the previous file or the new one, never half of either,
-which is what lets every stage resume (DESIGN.md §3, run folder).
+which is what lets every stage resume (docs/design.md §6).
 """
 from __future__ import annotations
 

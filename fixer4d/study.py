@@ -64,7 +64,7 @@ RELATIVE_KNOBS = {"scene.scale", "stage1.iterations", "stage1.max_gaussians", "i
 
 # The metrics a study draws fronts for and can rank by: name -> (higher is better, label). The
 # dynamic / static PSNRs are over the held-out moving-content mask and the rest of the image
-# (issue 11; None where a run has no moving pixels).
+# (None where a run has no moving pixels).
 METRICS: dict[str, tuple[bool, str]] = {"psnr": (True, "PSNR"), "psnr_dynamic": (True, "PSNR dyn."),
                                         "psnr_static": (True, "PSNR static"), "lpips": (False, "LPIPS")}
 # the dB metrics "fastest within X dB of the best" can rank by

@@ -1,4 +1,4 @@
-"""Fault injection (issue 13): the tiny pipeline SIGKILLed in its training stages and resumed
+"""Fault injection: the tiny pipeline SIGKILLed in its training stages and resumed
 ends with the uninterrupted run's report, byte-identical artifacts, no temporary files left,
 and no stale cache entry served after a config change. ``benchmarks/fault_injection.py`` is
 the full version (>= 10 kills spread over every stage); this test uses 2 kills and the

@@ -39,7 +39,7 @@ import numpy as np
 from fixer4d.errors import InputError
 
 # The last side-by-side measurement (docs/render.md, "OpenSplat side by side, measured"):
-# 2026-11-24 (stop 21: fused loss, parallel binning, fused Adam), `fixer4d bench train-step
+# 2026-11-24 (with the fused loss, parallel binning and fused Adam), `fixer4d bench train-step
 # --opensplat ... --repeats 3` (10 timed iterations of fixer4d, 60 of OpenSplat) on the idle
 # 2-core machine (nothing else running; the 1-minute load 0.6-1.9 is the benchmark's own two
 # busy cores), the two programs taking turns, medians of 3 runs each; same 5 Panoptic cameras,
@@ -49,7 +49,7 @@ from fixer4d.errors import InputError
 # iteration, keyed by (Gaussians, width, height). Cited in tables when no binary is given, never
 # used as a divisor. (Earlier side-by-side figures are kept in docs/render.md.)
 OPENSPLAT_CITED = {
-    "source": "2026-11-24 (stop 21), idle 2-core machine, alternating, medians of 3; "
+    "source": "2026-11-24, idle 2-core machine, alternating, medians of 3; "
               "OpenSplat 1.2.0 (WebODM/OpenSplat bd0400d) CPU build",
     "opensplat_s_per_iter": {(30_000, 320, 180): 0.323, (100_000, 320, 180): 0.470,
                              (30_000, 640, 360): 1.185, (100_000, 640, 360): 1.513},

@@ -3,7 +3,7 @@ rasterizers (oracle vs numba kernel) for N in {10k, 50k, 200k} at 320x240 and 64
 
 Scene: N Gaussians uniform in the cube [-1, 1]^3 seen from 4 units away (50 degree vertical
 fov), opacity 0.1 and isotropic scales from the mean 3-nearest-neighbour distance, the way a
-random initialisation starts (OpenSplat, 3DGS). Output contract (issue 3):
+random initialisation starts (OpenSplat, 3DGS). Output contract:
 {"rows": [{"backend", "n_gaussians", "width", "height", "pass", "ms", "peak_mb",
 "fragments_per_pixel", "ns_per_fragment", "base_mb", "load_avg"}], "skipped": [...], "scaling": {...},
 "machine": {...}}.

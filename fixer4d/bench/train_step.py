@@ -1,7 +1,7 @@
 """`fixer4d bench train-step`: seconds per full training iteration (render, loss, backward,
 Adam step) on the real Panoptic basketball frame 0, to set beside OpenSplat's CPU backend.
 
-Conditions (issue 3, the same as OpenSplat's measurement): one image per iteration, cycling over
+Conditions (the same as OpenSplat's measurement): one image per iteration, cycling over
 the scene's cameras at frame 0; N random points uniform in a box; scales from the 3-NN distance;
 opacity 0.1; 30k and 100k Gaussians at 320x180 and 640x360. The repository has no triangulation
 of this scene yet, so the box is where the given cameras' views overlap: points of a grid over
@@ -50,7 +50,7 @@ def common_view_box(cameras) -> tuple[np.ndarray, np.ndarray]:
     The grid spans the camera centres and their mirror images through the point nearest to all
     optical axes (where the rig looks), so it covers the observed volume of an inward-facing rig.
     """
-    # One rig-focus implementation (issue 13.4): fixer4d.geometry.rig.
+    # One rig-focus implementation: fixer4d.geometry.rig.
     from fixer4d.geometry.rig import rig_focus
     centres = np.stack([c.center for c in cameras])
     focus = rig_focus(cameras)

@@ -4,7 +4,7 @@
 
 - ``metrics.json``: ``{"method", "mean": {psnr, dssim1, dssim2, lpips|null}, "per_view": {camera:
   {...}}, "seconds": {"prep", "train", "eval"}, "lpips_unavailable_reason": str|null}`` (the
-  issue-5 contract) plus ``per_frame`` (one entry per rendered image), ``protocol`` (frames,
+  metrics.json contract) plus ``per_frame`` (one entry per rendered image), ``protocol`` (frames,
   cameras, resolution, metric settings), ``timing`` and ``examples``;
 - ``metrics.md``: the paper's table layout (Method | PSNR | DSSIM1 | DSSIM2 | LPIPS | Prep. time),
   plus PSNR over the moving / static pixels;

@@ -1,4 +1,4 @@
-"""Pinhole cameras in OpenCV axes (x right, y down, z forward), float64 (DESIGN.md §3).
+"""Pinhole cameras in OpenCV axes (x right, y down, z forward), float64 (docs/design.md §4).
 
 Pixel convention: the pixel with integer index (u, v) covers [u, u+1) x [v, v+1) in the
 K-projection, so its centre is at (u + 0.5, v + 0.5). Under this convention resizing an image

@@ -1,4 +1,4 @@
-"""Unit quaternions in (w, x, y, z) order, float64 numpy (DESIGN.md §3), plus the one torch
+"""Unit quaternions in (w, x, y, z) order, float64 numpy (docs/design.md §4), plus the one torch
 quaternion->matrix that the renderer and densification share (``to_matrix_torch``).
 
 Every function that consumes a quaternion normalizes it first; a zero (or non-finite-norm)

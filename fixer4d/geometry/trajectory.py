@@ -1,4 +1,4 @@
-"""Novel-view trajectories between pairs of train cameras (DESIGN.md §4, Eq. 3) and their presets.
+"""Novel-view trajectories between pairs of train cameras (docs/design.md §10, Eq. 3) and their presets.
 
 For a pair (i, j) and alpha in [0, 1]:
 

@@ -149,7 +149,7 @@ def run_init(scene, method: str, out_dir: str | Path, frames: list[int] | None =
     if method == "mvs":
         t0 = time.perf_counter()
         estimator = make_estimator(config.estimator, config.mvs, config.mvsanywhere)
-        # SfM points, else the train cameras' common view; never scene ground truth (issue 11).
+        # SfM points, else the train cameras' common view; never scene ground truth.
         ranges, report["depth_range_source"] = scene_depth_ranges(cams, sfm_points)
         report["depth_ranges"] = [list(r) for r in ranges]
         timer.add("depth_range", t0)

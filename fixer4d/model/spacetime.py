@@ -1,4 +1,4 @@
-"""Spacetime Gaussians, STGS "lite" parameterization with switchable effects (DESIGN.md §4).
+"""Spacetime Gaussians, STGS "lite" parameterization with switchable effects (docs/design.md §9).
 
 At time t, with dt = t - t_center (per Gaussian):
 
@@ -75,7 +75,7 @@ _ALL_PARAMS = ("means", "log_scales", "quats", "opacity_logits", "colors", "sh_r
 
 @dataclass
 class ModelConfig:
-    """Which spacetime effects a model has (one per scene; DESIGN.md §4).
+    """Which spacetime effects a model has (one per scene; docs/design.md §9).
 
     motion_degree: 0..3, polynomial degree of the mean's motion (0 = no motion Parameter).
     rotation_velocity: angular velocity omega (q + omega dt).

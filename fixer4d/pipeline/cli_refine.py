@@ -1,7 +1,7 @@
 """`fixer4d refine RUN`: stage 2 (restoration-guided refinement) of a run, with the run's own config.
 
 Opens RUN (made by `fixer4d run` or `fixer4d reconstruct`), applies the stage-2 options given here
-to its config (stage2.*, restorer.*, trajectories.*, eval.*; everything else is the run's), and
+to its config (stage2.*, restorer.*, trajectories.*, eval.*, self_check.*; everything else is the run's), and
 runs the pipeline's stages: finished ones are reused, stage 2 runs (or resumes), and the rows that
 depend on it are evaluated. Changing a stage-2 setting recomputes stage 2 and its pseudo-targets
 (the old cache is moved to RUN/stale/).
@@ -14,7 +14,7 @@ from fixer4d.errors import InputError
 from fixer4d.pipeline.cli_common import maybe_print_config
 
 # Sections refine may change: anything else would make the stage-1 model stale.
-REFINABLE = ("stage2.", "restorer.", "trajectories.", "eval.")
+REFINABLE = ("stage2.", "restorer.", "trajectories.", "eval.", "self_check.")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

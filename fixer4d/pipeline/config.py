@@ -59,7 +59,7 @@ class SceneConfig:
 
 @dataclass
 class TrajectoryConfig:
-    """The novel trajectories rendered and restored in stage 2 (DESIGN.md §4, Eq. 3)."""
+    """The novel trajectories rendered and restored in stage 2 (docs/design.md §10, Eq. 3)."""
 
     frames: int = 6                  # cameras per trajectory clip
     amplitude: float | None = None   # arc amplitude A; None = drawn from the seeded range

@@ -86,6 +86,12 @@ def write_report(run_dir: Path, scene_text: str, rows: list[dict[str, Any]], sta
         lines += [restorer_line(report["restorer"]), ""]
     if report.get("self_check"):
         lines += [self_check_line(report["self_check"]), ""]
+    for r, summary in (report.get("pseudo_views") or {}).items():
+        frac = summary.get("unobserved_fraction")
+        if frac:
+            lines += [f"Pseudo-views, round {r}: {summary['clips']} clips; the pseudo-loss acts on "
+                      f"{100 * frac['mean']:.1f} % of their pixels on average ({100 * frac['min']:.1f}-"
+                      f"{100 * frac['max']:.1f} % per clip): the rest is observed by the train cameras.", ""]
     lines += ["| Method | PSNR | PSNR dynamic | PSNR static | PSNR unobserved | PSNR exposure-aligned | DSSIM1 | DSSIM2 "
               "| LPIPS | Time (s) |",
               "|---|---|---|---|---|---|---|---|---|---|"]

@@ -1,6 +1,6 @@
 """Everything between a model and its restored pseudo-targets: renders, restore requests, the
 stage-2 cache refresh and the "restoration" evaluation rows. Restorers never render: the request
-built here carries every render they need (DESIGN.md §2).
+built here carries every render they need (docs/design.md §11).
 
 Clips are named by scene camera ids everywhere (``RestoreCache.key(frame, cam_i, cam_j, arc)``).
 """
@@ -242,3 +242,19 @@ class UnobservedMasks:
             views = [TrainView(c, d, a) for c, d, a in zip(train, depth[1:], alpha[1:])]
             self._memo[key] = unobserved_weight(cam, depth[0], alpha[0], views, self.visibility) > 0.5
         return self._memo[key]
+
+
+def pseudo_view_summary(cache_dir: str | Path) -> dict[str, Any] | None:
+    """What stage 2 supervised, per cache round: clips, and the share of their pixels left to the
+    pseudo-loss (``unobserved_fraction``: mean, min, max over clips). None without a cache."""
+    from fixer4d.restore.cache import RestoreCache
+
+    cache = RestoreCache(cache_dir)
+    rounds = {}
+    for r in cache.rounds():
+        fractions = [e.meta.get("scores", {}).get("unobserved_fraction") for e in cache.entries(r)]
+        known = [float(f) for f in fractions if f is not None]
+        rounds[str(r)] = {"clips": len(fractions),
+                          "unobserved_fraction": None if not known else
+                          {"mean": float(np.mean(known)), "min": float(np.min(known)), "max": float(np.max(known))}}
+    return rounds or None

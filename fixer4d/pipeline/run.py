@@ -21,7 +21,7 @@ from fixer4d.pipeline import report as R
 from fixer4d.pipeline import stages as S
 from fixer4d.pipeline.config import RunConfig
 from fixer4d.pipeline.restoration import (UnobservedMasks, blur_render_fn, build_restorer, model_render_fn,
-                                          restoration_render_fn)
+                                          pseudo_view_summary, restoration_render_fn)
 from fixer4d.pipeline.run_folder import RunFolder, load_scene_for, stage_key
 from fixer4d.pipeline.shared_static import SHARED_DIR, export_shared_static
 from fixer4d.pipeline.stage_cache import StageCache
@@ -142,6 +142,8 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
         check = S.self_check_stage(ctx, restorer)
         checks["self_check"] = check
         model = S.final_stage(ctx, model, check["decision"])
+        if check["decision"] == "refine":
+            checks["pseudo_views"] = pseudo_view_summary(ctx.path / "cache")
         full_secs = rec.seconds(f"init_{method}", "stage1", "restorer", "self_check", "matched", "stage2")
         s2_key = stage_key(S.stage2_key(config), check["decision"])
         m = S.evaluate_stage(ctx, R.ROW_FULL, model_render_fn(model, ctx.backend, config.stage1.background), s2_key,

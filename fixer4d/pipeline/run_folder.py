@@ -1,4 +1,4 @@
-"""A run folder: its versioned config, its stage records, its scene (DESIGN.md §3).
+"""A run folder: its versioned config, its stage records, its scene (docs/design.md §6).
 
     RUN/config.json   {"format_version": FORMAT_VERSION, "fixer4d": version, "config": RunConfig}
     RUN/stages.json   {stage: {"key": inputs key, "seconds": s, "done": bool}}

@@ -7,7 +7,7 @@ checkpoints, restoration cache) moved out of the way and is recomputed, and a st
 ``StageCache`` serves finished outputs between runs. `fixer4d run`, `reconstruct`, `refine`, `eval`,
 `study` and the viewer's live training all go through these functions.
 
-Layout of the outputs in RUN/ (DESIGN.md §3):
+Layout of the outputs in RUN/ (docs/design.md §6 has every file):
 
     init_<method>/            clouds + init_report.json
     model_stage1.ply          stage 1 from the main init ("STGS w/ MVS")
@@ -270,6 +270,8 @@ def matched_stage1(ctx: StageContext, model):
         return load_ply(path)
     if ctx.run.records.begin("matched", key):
         _drop_checkpoints(out, 1)
+    from fixer4d.train.config import matched_config
+
     cfg = matched_config(ctx.stage1_config(), ctx.config.stage2)
     t0 = time.perf_counter()
     # a copy: the Trainer updates its model in place, and stage 2 must start from the stage-1 model
@@ -282,26 +284,18 @@ def matched_stage1(ctx: StageContext, model):
     return trainer.model
 
 
-def matched_config(stage1, s2):
-    """The Stage1Config of the matched-iterations control: ``stage1`` continued for stage 2's
-    length with stage 2's learning rates, densification window and seed, no opacity reset."""
-    n = s2.total_iterations
-    until = int(s2.densify_until_fraction * n)
-    return dataclasses.replace(stage1, iterations=n, lr_means_init=s2.lr_means_init, lr_means_final=s2.lr_means_final,
-                               densify_from=min(stage1.densify_every, until), densify_until=until,
-                               opacity_reset_every=n + 1, seed=s2.seed)
-
-
 def self_check_stage(ctx: StageContext, restorer) -> dict[str, Any]:
     """The stage-2 self-check (``pipeline.self_check``) -> RUN/self_check/decision.json; its
     ``decision`` (skip | continue | refine) chooses the run's final model. Disabled: refine."""
     import json
 
-    from fixer4d.pipeline.self_check import DECISION_FILE, run_self_check
+    from fixer4d.pipeline.self_check import DECISION_FILE
+    from fixer4d.pipeline.self_check_run import run_self_check
 
     sc = ctx.config.self_check
     if not sc.enabled:
-        return {"decision": "refine", "reason": "self-check off (self_check.enabled=false): stage 2 as configured"}
+        return {"decision": "refine", "enabled": False,
+                "reason": "self-check off (self_check.enabled=false): stage 2 as configured"}
     out = ctx.path / "self_check"
     key = self_check_key(ctx.config)
     if ctx.run.records.done("self_check", key) and (out / DECISION_FILE).is_file():

@@ -2,7 +2,7 @@
 
 It lives in its own module so that ``render/api.py`` (the dispatcher) and the backends
 (``render/gsplat_backend.py``, ...) both import it from below, and no backend has to import the
-dispatcher that imports it (DESIGN.md §2: imports only run downward).
+dispatcher that imports it (docs/design.md §3: imports only run downward).
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""fixer4d.restore: reference-guided restoration of rendered clips (DESIGN.md §4).
+"""fixer4d.restore: reference-guided restoration of rendered clips (docs/design.md §11).
 
 Restorers never render: a RestoreRequest carries every render they need. Built in:
 ReferenceWarpRestorer (CPU, deterministic) and LearnedRestorer (a per-scene CNN trained

@@ -1,6 +1,6 @@
 """The restorer protocol: a rendered clip along a trajectory in, a restored clip out.
 
-Restorers never render (DESIGN.md §2): the request carries the rendered clip (rgb, depth,
+Restorers never render (docs/design.md §11): the request carries the rendered clip (rgb, depth,
 alpha) at every trajectory camera, the timestamp, the two real endpoint frames with their
 cameras, and the model's depth and alpha rendered at those reference cameras. Optionally it also
 carries the other real views of the same timestamp ("extra" views).

@@ -1,6 +1,6 @@
 """The on-disk restoration cache: restored clips that stage 2 uses as pseudo-targets.
 
-Layout under the run folder (DESIGN.md §4)::
+Layout under the run folder (docs/design.md §11)::
 
     cache/round_<r>/t<frame:04d>_<i>-<j>[_arc<k>]/
         frame_0000.png ...   restored frames, 8-bit RGB

@@ -4,7 +4,7 @@ builds it).
     config = RestoreConfig.from_dict({"kind": "learned"})
     restorer = build_restorer(config, weights_dir=run_dir / "restorer")
 
-Kinds (DESIGN.md §4): ``learned`` (a small per-scene CNN trained leave-one-camera-out on the
+Kinds (docs/design.md §11): ``learned`` (a small per-scene CNN trained leave-one-camera-out on the
 scene's own train cameras, ``restore/learned.py``; needs its weights), ``warp`` (the geometric
 ``ReferenceWarpRestorer``) and ``cogvideo`` (CogVideoX video-to-video, GPU + local weights).
 ``settings_key()`` is exactly what changes a pseudo-target, for cache keys and reports.

@@ -1,4 +1,4 @@
-"""Every threshold the restorers use, with the reason next to it (DESIGN.md §2).
+"""Every threshold the restorers use, with the reason next to it (docs/design.md §3).
 
 The ``ReferenceWarpConfig`` defaults point at these, so a study can sweep them without
 editing code.

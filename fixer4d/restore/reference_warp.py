@@ -1,6 +1,6 @@
 """ReferenceWarpRestorer: the built-in, CPU, deterministic reference-guided restorer.
 
-For every novel frame of a clip (DESIGN.md §4, Restoration):
+For every novel frame of a clip (docs/design.md §11):
 
 1. Geometry. The novel view's depth is the rendered depth where the render is opaque enough;
    elsewhere (holes) it is the references' model depth forward-splatted into the novel view

@@ -1,7 +1,7 @@
 """The multi-view video interface every scene source implements.
 
 A scene is a fixed rig of synchronized cameras, T frames each. Frame f has time t = f / T
-(DESIGN.md §3). Frames are produced lazily and cached in a bounded LRU, so a scene never holds
+(docs/design.md §4). Frames are produced lazily and cached in a bounded LRU, so a scene never holds
 every frame in memory.
 """
 from __future__ import annotations

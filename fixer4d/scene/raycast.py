@@ -1,7 +1,7 @@
 """An analytic numpy ray-caster: the independent ground truth of the synthetic scenes.
 
 Geometry is exact (ray/plane, ray/sphere, ray/oriented-box slabs, ray/capped-cylinder), never
-Gaussians, so images and z-depth from it are an oracle for every later stage (DESIGN.md §6).
+Gaussians, so images and z-depth from it are an oracle for every later stage (docs/design.md §17).
 
 World: any right-handed frame (the bundled specs use y up). Each object lives in its own local
 frame (centre ``center``, rotation ``rotation``: local -> world); textures are solid procedural

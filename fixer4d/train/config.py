@@ -266,6 +266,17 @@ class Stage2Config:
         return cls(**_known(cls, d))
 
 
+def matched_config(stage1: Stage1Config, stage2: Stage2Config) -> Stage1Config:
+    """The Stage1Config of the matched-iterations control: ``stage1`` continued for stage 2's
+    length with stage 2's learning rates, densification window and seed, and no opacity reset
+    (stage 2 without pseudo-views)."""
+    n = stage2.total_iterations
+    until = int(stage2.densify_until_fraction * n)
+    return dataclasses.replace(stage1, iterations=n, lr_means_init=stage2.lr_means_init,
+                               lr_means_final=stage2.lr_means_final, densify_from=min(stage1.densify_every, until),
+                               densify_until=until, opacity_reset_every=n + 1, seed=stage2.seed)
+
+
 def _known(cls: type, d: dict[str, Any]) -> dict[str, Any]:
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(d) - names)
@@ -277,4 +288,4 @@ def _known(cls: type, d: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-__all__ = ["Stage1Config", "Stage2Config"]
+__all__ = ["Stage1Config", "Stage2Config", "matched_config"]

@@ -2,7 +2,7 @@
 
     restorer = train_scene_restorer(scene, clouds, stage1_config, run_dir / "restorer", RestoreConfig(kind="learned"))
 
-Pairs (issue 12, in the spirit of Difix3D+ / 3DGS-Enhancer and of FVS / Deep Blending): for each
+Pairs (in the spirit of Difix3D+ / 3DGS-Enhancer and of FVS / Deep Blending): for each
 train camera c, a short stage 1 (``loo_iterations`` at ``loo_scale`` of the resolution) on the
 *other* train cameras. At ``pair_frames`` timestamps:
 

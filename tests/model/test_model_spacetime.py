@@ -29,7 +29,7 @@ def random_model(n: int = 64, config: ModelConfig | None = None, seed: int = 0,
 
 
 def numpy_at(m: SpacetimeGaussians, t: float) -> dict[str, np.ndarray]:
-    """DESIGN.md §4 written out independently in float64 numpy, every Gaussian dynamic."""
+    """docs/design.md §9 written out independently in float64 numpy, every Gaussian dynamic."""
     p = {k: v.detach().double().numpy() for k, v in m.tensors().items()}
     cfg = m.config
     dt = t - p["t_center"] if cfg.has_time_terms else np.zeros(len(p["means"]))

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from fixer4d.pipeline.run_folder import load_scene_for
-from fixer4d.pipeline.self_check import decide, run_self_check
+from fixer4d.pipeline.self_check import decide
+from fixer4d.pipeline.self_check_run import run_self_check
 from fixer4d.restore.base import RestoreResult
 
 from pipeline_tiny import tiny_config

@@ -122,7 +122,7 @@ def test_plot_labels_of_close_points_do_not_overlap():
 
 
 def test_the_study_ranks_by_the_moving_pixels(tmp_path):
-    """Issue 11: dynamic / static PSNR in the table, their own fronts, and --rank psnr_dynamic
+    """Dynamic / static PSNR in the table, their own fronts, and --rank psnr_dynamic
     picks a different variant than PSNR when the moving pixels disagree with the mean."""
     table = {"cheap": (10.0, 24.0, 18.0, 24.2), "moving": (20.0, 23.9, 23.0, 23.9), "slow": (40.0, 24.1, 18.5, 24.3)}
 

@@ -1,0 +1,22 @@
+"""Published result tables are generated from the committed result files (docs/results/*.json)."""
+from __future__ import annotations
+
+import json
+
+from conftest import REPO_ROOT
+
+
+def test_published_tables_match_the_committed_result_files(benchmark_script):
+    tables = benchmark_script("results_table")
+    for page in ("README.md", "docs/results.md"):
+        text = (REPO_ROOT / page).read_text()
+        assert tables.block() in text, f"{page}: run `python benchmarks/results_table.py write`"
+
+
+def test_every_result_file_says_how_it_was_made():
+    files = sorted((REPO_ROOT / "docs" / "results").glob("*.json"))
+    assert files
+    for path in files:
+        data = json.loads(path.read_text())
+        assert data["command"] and data["commit"] and data["date"] and data["rows"], path.name
+        assert data["machine"]["cores"] >= 1 and len(data["machine"]["load_average_at_record"]) == 3
