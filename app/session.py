@@ -341,9 +341,11 @@ def restore_request(model_render: Callable[[Camera, float], dict[str, np.ndarray
 
     model_render(camera, t) -> {"rgb" (H,W,3), "depth" (H,W), "alpha" (H,W)} renders the current
     model; ref_ids are the scene camera indices of the two endpoint (real) views; the other
-    train views of that frame go in as extra references.
+    train views of that frame go in as extra references. The request carries the clip's
+    unobserved-pixel map (``fixer4d.restore.visibility``, default thresholds), as the pipeline's do.
     """
     from fixer4d.restore.base import RestoreRequest
+    from fixer4d.restore.visibility import TrainView, unobserved_clip
 
     t = scene.time(frame)
     clip = [model_render(c, t) for c in cameras]
@@ -351,10 +353,13 @@ def restore_request(model_render: Callable[[Camera, float], dict[str, np.ndarray
     ref_renders = [model_render(c, t) for c in refs]
     extra_ids = [i for i in scene.train_ids if i not in ref_ids]
     extra_cams = [scene.cameras[i] for i in extra_ids]
+    extra_renders = [model_render(c, t) for c in extra_cams]
+    train = [TrainView(c, r["depth"], r["alpha"]) for c, r in zip(refs + extra_cams, ref_renders + extra_renders)]
+    unobserved = unobserved_clip(cameras, [c["depth"] for c in clip], [c["alpha"] for c in clip], train)
     return RestoreRequest(
         rgb=np.stack([c["rgb"] for c in clip]), depth=np.stack([c["depth"] for c in clip]),
         alpha=np.stack([c["alpha"] for c in clip]), cameras=list(cameras), time=t, frame=int(frame),
         ref_images=[scene.frame(frame, i) for i in ref_ids], ref_cameras=refs,
         ref_depths=[r["depth"] for r in ref_renders], ref_alphas=[r["alpha"] for r in ref_renders],
         extra_images=[scene.frame(frame, i) for i in extra_ids], extra_cameras=extra_cams,
-        extra_depths=[model_render(c, t)["depth"] for c in extra_cams], trajectory=dict(trajectory_meta))
+        extra_depths=[r["depth"] for r in extra_renders], trajectory=dict(trajectory_meta), unobserved=unobserved)

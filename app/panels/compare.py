@@ -1,6 +1,8 @@
 """Compare: for a trajectory frame of a cached restoration, the current render vs the cached
 pseudo-target (and the ground truth where the scene has one: a real camera, or any camera of a
-synthetic scene): side by side, split slider, A/B toggle, labels and per-frame PSNR."""
+synthetic scene): side by side, split slider, A/B toggle, labels and per-frame PSNR. Where the
+clip carries its unobserved-pixel map (``restore.visibility``), a fourth pane shows where the
+pseudo-loss acts (magenta: pixels no train camera explains) with its share of the frame."""
 from __future__ import annotations
 
 import time
@@ -47,12 +49,24 @@ def frame_images(viewer, ui: dict, entry, k: int) -> dict[str, np.ndarray]:
     if key not in cache:
         cam = entry.cameras[k]
         out = {"render": viewer.model_render_fn()(cam, entry.time)["rgb"], "target": entry.rgb()[k]}
+        hidden = entry.unobserved() if hasattr(entry, "unobserved") else None
+        if hidden is not None:
+            out["supervised"] = supervised_overlay(out["target"], hidden[k])
+            out["supervised_fraction"] = float(hidden[k].mean())
         truth = ground_truth(viewer.source.scene, entry, cam)
         if truth is not None:
             out["truth"] = truth
         cache.clear()
         cache[key] = out
     return cache[key]
+
+
+def supervised_overlay(target: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """(H, W, 3): the pseudo-target dimmed, magenta in proportion to the pseudo-loss weight
+    (``weight`` (H, W) in [0, 1], 1 = no train camera explains the pixel)."""
+    w = np.clip(np.asarray(weight, np.float32), 0.0, 1.0)[..., None]
+    magenta = np.array([1.0, 0.0, 1.0], np.float32)
+    return (0.35 * target * (1.0 - w) + w * (0.4 * target + 0.6 * magenta)).astype(np.float32)
 
 
 def ground_truth(scene, entry, cam) -> np.ndarray | None:
@@ -99,12 +113,19 @@ def body(viewer, ui: dict) -> None:
     imgui.set_next_item_width(120)
     _, ui["mode"] = imgui.combo("mode", ui["mode"], list(MODES))
     imgs = frame_images(viewer, ui, entry, ui["k"])
-    labels = [("render", "render (current model)"), ("target", "pseudo-target (cache)"), ("truth", "ground truth")]
+    labels = [("render", "render (current model)"), ("target", "pseudo-target (cache)"), ("truth", "ground truth"),
+              ("supervised", "where the pseudo-loss acts (magenta)")]
     scores = [f"PSNR render vs target {psnr(imgs['render'], imgs['target']):.2f} dB"]
     if "truth" in imgs:
         scores.append(f"render vs truth {psnr(imgs['render'], imgs['truth']):.2f} dB")
         scores.append(f"target vs truth {psnr(imgs['target'], imgs['truth']):.2f} dB")
+    if "supervised_fraction" in imgs:
+        scores.append(f"pseudo-loss on {100 * imgs['supervised_fraction']:.1f} % of the frame")
     imgui.text("   ".join(scores))
+    if "supervised" in imgs and imgui.is_item_hovered():
+        imgui.set_tooltip("The pseudo-loss acts only where no train camera sees the rendered surface from near this "
+                          "view (holes, occluded or unseen surfaces); elsewhere the real frames already constrain "
+                          "the model (stage2.pseudo_mask=all supervises every pixel, as the paper)")
     avail = imgui.get_content_region_avail()
     h, w = imgs["render"].shape[:2]
     mode = MODES[ui["mode"]]

@@ -114,4 +114,8 @@ def test_queued_restoration_lands_in_cache_and_compare_shows_it(make_viewer, tin
     shown = np.frombuffer(tex.read(alignment=1), np.uint8).reshape(h, w, 3)
     expected = (np.clip(entries[0].rgb()[0], 0, 1) * 255 + 0.5).astype(np.uint8)
     np.testing.assert_array_equal(shown, expected)
+    # the clip carries where the pseudo-loss acts, and Compare shows it as a fourth pane
+    hidden = entries[0].unobserved()
+    assert hidden is not None and hidden.shape == entries[0].rgb().shape[:3]
+    assert "compare_supervised" in d.viewer.images
     assert "compare" not in d.viewer.panel_errors
