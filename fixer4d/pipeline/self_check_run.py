@@ -84,7 +84,7 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
     psnr["refine"] = _held_back_psnr(refine.model, views, held, eval_frames, backend, background)
     seconds["refine"] = time.perf_counter() - t0
 
-    decision = decide(psnr, sc.tie_db)
+    decision = decide(psnr, sc.tie_db, sc.allow_skip)
     record = {
         "decision": decision,
         "held_back_camera": int(held),
@@ -96,7 +96,7 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
         "gain_continue_db": psnr["continue"] - psnr["skip"],
         "settings": {"lambda_gen": config.stage2.lambda_gen, "pseudo_mask": config.stage2.pseudo_mask,
                      "stage2_iterations": config.stage2.total_iterations, "restorer": config.restorer.kind,
-                     "tie_db": sc.tie_db},
+                     "tie_db": sc.tie_db, "allow_skip": sc.allow_skip},
         "seconds": seconds,
         "reason": _reason(decision, psnr),
     }
@@ -109,7 +109,8 @@ def _reason(decision: str, psnr: dict[str, float]) -> str:
     figures = ", ".join(f"{k} {v:.2f} dB" for k, v in psnr.items())
     what = {"skip": "no more training: stage 2 and the longer control both lowered the held-back camera",
             "continue": "more training on the observed views, without pseudo-views: the pseudo-loss did not pay",
-            "refine": "stage 2 with pseudo-views: it raised the held-back camera most"}[decision]
+            "refine": "stage 2 with pseudo-views: it beat the same amount of plain training on the held-back "
+                      "camera"}[decision]
     return f"{decision} ({what}; held-back train camera: {figures})"
 
 

@@ -59,6 +59,9 @@ def test_decide_prefers_the_simpler_choice_within_the_tie():
     assert decide({"skip": 20.0, "continue": 20.5, "refine": 20.51}, 0.02) == "continue"
     assert decide({"skip": 20.0, "continue": 20.5, "refine": 20.6}, 0.02) == "refine"
     assert decide({"skip": 21.0, "continue": 20.5, "refine": 20.6}, 0.02) == "skip"
+    # by default the check only asks whether pseudo-views pay against the same plain training
+    assert decide({"skip": 21.0, "continue": 20.5, "refine": 20.6}, 0.02, allow_skip=False) == "refine"
+    assert decide({"skip": 21.0, "continue": 20.5, "refine": 20.51}, 0.02, allow_skip=False) == "continue"
 
 
 def test_noise_pseudo_targets_are_caught_without_held_out_cameras(tmp_path):
@@ -70,7 +73,7 @@ def test_noise_pseudo_targets_are_caught_without_held_out_cameras(tmp_path):
     record = run_self_check(scene, config, tmp_path, NoiseRestorer())
     psnr = record["psnr"]
     assert psnr["refine"] < psnr["skip"] - 1.0 and psnr["refine"] < psnr["continue"] - 1.0
-    assert record["decision"] in ("skip", "continue")
+    assert record["decision"] == "continue"
     assert record["held_back_camera"] == scene.train_ids[3] and record["held_back_camera"] not in record["fold_cameras"]
     assert (tmp_path / "decision.json").is_file() and set(record["seconds"]) == {"init", "stage1", "continue", "refine"}
 
