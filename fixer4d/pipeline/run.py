@@ -144,7 +144,9 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
         model = S.final_stage(ctx, model, check["decision"])
         if check["decision"] == "refine":
             checks["pseudo_views"] = pseudo_view_summary(ctx.path / "cache")
-        full_secs = rec.seconds(f"init_{method}", "stage1", "restorer", "self_check", "matched", "stage2")
+        # what the final model cost: the continued model is the matched control's training
+        trained = ("matched",) if check["decision"] == "continue" else ()
+        full_secs = rec.seconds(f"init_{method}", "stage1", "restorer", "self_check", *trained, "stage2")
         s2_key = stage_key(S.stage2_key(config), check["decision"])
         m = S.evaluate_stage(ctx, R.ROW_FULL, model_render_fn(model, ctx.backend, config.stage1.background), s2_key,
                              seconds("stage1", "restorer", "self_check", "stage2"), unobserved)
