@@ -225,15 +225,16 @@ def render_video(render_fn: RenderFn, cameras: list, times: list[float], out: Pa
     """A video of ``render_fn`` along ``cameras`` at clip ``times`` written to ``out``, through
     ``fixer4d.render.video.render_video`` (its render_fn hook: the viewer's renders include
     its edits and segments)."""
-    try:
-        from fixer4d.render.video import render_video as library_render_video
-    except ImportError as exc:
-        raise InputError(f"this fixer4d has no video writer (fixer4d.render.video): {exc}") from exc
+    from fixer4d.render.video import render_video as library_render_video
 
-    def hook(*args: Any) -> np.ndarray:  # the library's render_fn(camera, t) -> (H, W, 3) float RGB
-        camera, t = args[-2], args[-1]
+    def hook(camera, t: float) -> np.ndarray:  # the library's render_fn(camera, t) -> (H, W, 3) float RGB
         return render_fn(camera, t)["rgb"]
-    return library_render_video(None, cameras, times, out, fps=fps, render_fn=hook, progress=progress,
+
+    def frames_done(done: int, total: int) -> None:  # the library counts frames, the job a fraction
+        if progress is not None:
+            progress(done / max(total, 1))
+
+    return library_render_video(None, cameras, times, out, fps=fps, render_fn=hook, progress=frames_done,
                                 should_stop=should_stop)
 
 

@@ -52,6 +52,8 @@ class VideoJob:
             if not self._stop.is_set():
                 self.progress = 1.0
         except Exception as exc:  # shown in the panel; the app goes on
+            if self._stop.is_set():  # cancelled: the writer removed its partial output
+                return
             self.error = f"{type(exc).__name__}: {exc}"
             self.detail = traceback.format_exc()
 

@@ -24,6 +24,7 @@ VERBS: dict[str, tuple[str, str]] = {
     "study": ("fixer4d.study_cli", "accuracy vs time: sweep the pipeline's knobs, draw the Pareto front"),
     "bench": ("fixer4d.bench.cli", "benchmarks that print and save their numbers (raycast, raster, train-step, ...)"),
     "export": ("fixer4d.model.cli", "convert a model (.ply/.npz) or a run's latest model"),
+    "render": ("fixer4d.render.cli", "a video or PNG frames of a model along a camera path, rig camera or trajectory"),
 }
 
 

@@ -6,9 +6,9 @@ scale_0..2, rot_0..3, a uint8 ``dynamic`` field and, when the model has frozen r
 segment's shared static Gaussians), a uint8 ``frozen`` field. Every STGS field is always written, so other
 STGS tools load any fixer4d model: effects the model does not have are written as their neutral
 values (zero motion/omega, t_center 0 and a temporal log-scale of ``NEUTRAL_TRBF_SCALE``). The
-model config travels in a ``comment fixer4d {...}`` header line; a PLY without it (another
-tool's) gets the effects its fields imply. f_rest is channel-major (f_rest_{c*K + k}) as 3DGS
-writes it.
+model config travels in a ``comment fixer4d {...}`` header line; a PLY without it is another
+tool's and is read by ``fixer4d.model.formats.foreign`` (STGS lite, 3DGS, or a refusal naming its
+fields). f_rest is channel-major (f_rest_{c*K + k}) as 3DGS writes it.
 
 npz: one array per Parameter (native dtype), ``dynamic``, ``frozen``, and the config as JSON.
 Loading validates: non-finite values raise NumericalError naming the file and the field.
@@ -98,7 +98,8 @@ def save_ply(model: SpacetimeGaussians, path: str | Path) -> Path:
     return Path(path)
 
 
-def _config_from_ply(names: set[str], comments: list[str], path: Path) -> ModelConfig:
+def _config_from_ply(comments: list[str], path: Path) -> ModelConfig | None:
+    """The config in a fixer4d header comment, or None when the PLY has none (another tool's)."""
     for c in comments:
         if c.startswith(_COMMENT_TAG):
             try:
@@ -106,19 +107,11 @@ def _config_from_ply(names: set[str], comments: list[str], path: Path) -> ModelC
             except json.JSONDecodeError as exc:
                 raise InputError(f"{path}: unreadable fixer4d header comment ({exc}); re-export the model") from exc
             return _config_from_header(meta, path)
-    # Another tool's PLY: enable the effects its fields carry.
-    n_rest = len([f for f in names if f.startswith("f_rest_")])
-    sh_degree = {0: 0, 9: 1, 24: 2, 45: 3}.get(n_rest)
-    if sh_degree is None:
-        raise InputError(f"{path}: {n_rest} f_rest fields is not 3*((d+1)^2-1) for a degree d <= 3")
-    motion_degree = max((d for d in range(1, MAX_MOTION_DEGREE + 1)
-                         if all(f"motion_{i}" in names for i in range(3 * d))), default=0)
-    return ModelConfig(motion_degree=motion_degree, rotation_velocity=all(f in names for f in _OMEGA_FIELDS),
-                       temporal_opacity="trbf_scale" in names and "trbf_center" in names, sh_degree=sh_degree)
+    return None
 
 
 def load_ply(path: str | Path) -> SpacetimeGaussians:
-    """Read a PLY written by ``save_ply`` (or an STGS/3DGS PLY) into a float32 model."""
+    """Read a PLY written by ``save_ply`` (or an STGS lite / 3DGS PLY, ``formats.foreign``) into a float32 model."""
     from plyfile import PlyData
 
     path = Path(path)
@@ -130,7 +123,11 @@ def load_ply(path: str | Path) -> SpacetimeGaussians:
     except Exception as exc:  # plyfile raises several types for truncated/corrupt files
         raise InputError(f"{path}: not a readable PLY with a 'vertex' element ({exc}); re-export the model") from exc
     names = set(v.dtype.names or ())
-    cfg = _config_from_ply(names, list(ply.comments), path)
+    cfg = _config_from_ply(list(ply.comments), path)
+    if cfg is None:
+        from fixer4d.model.formats.foreign import read_foreign_ply
+
+        return read_foreign_ply(v, path)
     required = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", *[f"scale_{i}" for i in range(3)],
                 *[f"rot_{i}" for i in range(4)]]
     if cfg.has_time_terms:

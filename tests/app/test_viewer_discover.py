@@ -112,3 +112,20 @@ def test_pair_names_use_scene_camera_ids(tiny):
     by_pair = {spec.pair: spec.name for spec in specs if spec.arc_index is None}
     assert by_pair[(0, 3)] == "0-15" and any(name.startswith("0-15_arc") or name.startswith("5-10_arc")
                                              for name in (s.name for s in specs if s.arc_index is not None))
+
+
+def test_render_video_writes_a_playable_mp4_through_the_library(make_viewer, tiny, tmp_path):
+    import av
+
+    src = ViewerSource(scene=tiny, label="tiny", run_dir=tmp_path)
+    st = initial_state(src, scene_gaussians(tiny, stride=8))
+    st.trajectories = st.trajectories[:1]
+    d = make_viewer(st, src, services=app_services())
+    d.click_item("render_video")
+    job = d.viewer.__dict__["_video_ui"]["job"]
+    job.wait(120)
+    assert job.error is None and job.progress == 1.0 and job.result.suffix == ".mp4"
+    with av.open(str(job.result)) as container:
+        frames = [f for f in container.decode(video=0)]
+    n = len(d.viewer.trajectory_cameras(st.trajectories[0]))
+    assert len(frames) == n and (frames[0].width, frames[0].height) == (tiny.cameras[0].width, tiny.cameras[0].height)
