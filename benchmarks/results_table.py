@@ -1,6 +1,6 @@
 """Published result tables from committed result files: record a finished run, regenerate the tables.
 
-    python benchmarks/results_table.py record RUN --name demo --command "make run" [--note "..."]
+    python benchmarks/results_table.py record RUN|RUN/heldout/FOLDER --name demo --command "make run" [--note "..."]
         -> docs/results/<name>.json: the run's report.json rows, its config, the commit, the date,
            the machine (cores, load average when recorded) and the command that produced it
     python benchmarks/results_table.py write
@@ -31,14 +31,20 @@ TABLE = (("demo", "demo (test: 12 held-out cameras)"),
          ("panoptic", "Panoptic (test camera 30)"),
          ("panoptic_paper", "Panoptic, paper's stage 2"),
          ("panoptic_c", "Panoptic split c (test camera 15)"),
-         ("panoptic_c_paper", "Panoptic split c, paper's stage 2"))
+         ("panoptic_c_paper", "Panoptic split c, paper's stage 2"),
+         ("panoptic_val", "*validation*: Panoptic cameras 4, 14"),
+         ("panoptic_paper_val", "*validation*: Panoptic cameras 4, 14, paper's stage 2"),
+         ("panoptic_c_val", "*validation*: split c cameras 2, 12"),
+         ("panoptic_c_paper_val", "*validation*: split c cameras 2, 12, paper's stage 2"))
 COLUMNS = (("STGS w/ COLMAP", "psnr"), ("STGS w/ MVS", "psnr"), ("STGS w/ MVS (matched iterations)", "psnr"),
            ("Restoration (init)", "psnr"), ("Full", "psnr"))
 
 
 def record(run: Path, name: str, command: str, note: str | None) -> Path:
     report = json.loads((run / "report.json").read_text())
-    config = json.loads((run / "config.json").read_text())
+    # a run scored on other cameras (RUN/heldout/<folder>/) keeps its config in the run's folder
+    config_file = run / "config.json" if (run / "config.json").is_file() else Path(report["run"]) / "config.json"
+    config = json.loads(config_file.read_text())
     commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip()
     dirty = bool(subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no"],
@@ -47,7 +53,7 @@ def record(run: Path, name: str, command: str, note: str | None) -> Path:
            "date": datetime.date.today().isoformat(),
            "machine": {"cores": os.cpu_count(), "load_average_at_record": list(os.getloadavg())},
            "rows": report["rows"], "self_check": report.get("self_check"), "stage_seconds": report.get("stage_seconds"),
-           "scene": report.get("scene"), "config": config}
+           "scene": report.get("scene"), "heldout_from": report.get("heldout_from"), "config": config}
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / f"{name}.json"
     path.write_text(json.dumps(out, indent=1) + "\n")

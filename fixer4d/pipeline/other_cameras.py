@@ -41,7 +41,8 @@ def check_same_train_cameras(a, b) -> None:
 
 
 def evaluate_on_other_cameras(run_dir: str | Path, other: str | Path, *, progress: bool = True) -> dict[str, Any]:
-    """Score the run's models on ``other``'s held-out cameras (module docstring); returns the report."""
+    """Score the run's models on the held-out cameras of scene ``other`` (a folder or any scene
+    source ``load_scene`` opens; module docstring) -> RUN/heldout/<its name>/; returns the report."""
     from fixer4d.eval.evaluate import evaluate
     from fixer4d.model.io import load_ply
     from fixer4d.pipeline import report as R
@@ -52,13 +53,12 @@ def evaluate_on_other_cameras(run_dir: str | Path, other: str | Path, *, progres
 
     folder = RunFolder.open(run_dir)
     config = folder.config
-    other = Path(other)
-    if not other.is_dir():
-        raise InputError(f"--cameras-from {other}: no such folder")
-    other_config = dataclasses.replace(config, scene=dataclasses.replace(config.scene, source=str(other.resolve())))
+    other_path = Path(other)
+    source = str(other_path.resolve()) if other_path.exists() else str(other)
+    other_config = dataclasses.replace(config, scene=dataclasses.replace(config.scene, source=source))
     scene = load_scene_for(other_config)
     check_same_train_cameras(folder.scene, scene)
-    out = folder.path / "heldout" / other.resolve().name
+    out = folder.path / "heldout" / Path(source).name
     ev = config.eval
     bg = config.stage1.background
     stage1_path = folder.path / "model_stage1.ply"
@@ -87,9 +87,11 @@ def evaluate_on_other_cameras(run_dir: str | Path, other: str | Path, *, progres
     for name, path in models:
         if path.is_file():
             score(name, model_render_fn(load_ply(path).eval(), "auto", bg))
-    extra: dict[str, Any] = {"heldout_from": str(other.resolve()), "run": str(folder.path)}
+    extra: dict[str, Any] = {"heldout_from": source, "run": str(folder.path)}
     decision = folder.path / "self_check" / DECISION_FILE
-    if decision.is_file():
+    if not config.self_check.enabled:
+        extra["self_check"] = {"decision": "refine", "enabled": False, "reason": "self-check off"}
+    elif decision.is_file():
         extra["self_check"] = json.loads(decision.read_text())
     return R.write_report(out, scene.describe(), rows, {}, extra)
 
