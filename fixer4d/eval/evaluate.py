@@ -225,17 +225,20 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
     save_examples: frames (evenly spaced among those evaluated) saved as PNGs per view.
     unobserved_fn(camera_index, frame) -> (H, W) bool: the pixels no train camera explains
     (scored as ``psnr_unobserved``; None: not scored).
-    Returns the metrics.json content. Raises InputError for a scene without held-out cameras
-    or a render of the wrong shape, NumericalError for a non-finite render.
+    A scene without held-out cameras is scored on its train cameras (the fit, not novel views;
+    ``held_out`` False in the result). Returns the metrics.json content. Raises InputError for a
+    render of the wrong shape, NumericalError for a non-finite render.
     """
     from tqdm.auto import tqdm
 
     t_start = time.perf_counter()
     out_dir = Path(out_dir)
     test_ids = [int(i) for i in scene.test_ids]
+    held_out = bool(test_ids)
+    if not held_out:  # a capture that trains on every camera: score the fit to the train views
+        test_ids = [int(i) for i in scene.train_ids]
     if not test_ids:
-        raise InputError(f"scene {scene.name!r} has no held-out cameras (test_ids is empty); "
-                         "load it with test_ids=[...] to evaluate")
+        raise InputError(f"scene {scene.name!r} has no cameras to evaluate (no train or held-out cameras)")
     chosen = select_frames(scene.num_frames, frame_stride, frames)
     keys = _view_keys(scene, test_ids)
     n_examples = max(0, min(int(save_examples), len(chosen)))
@@ -310,6 +313,7 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
     cam0 = scene.cameras[test_ids[0]]
     result: dict[str, Any] = {
         "method": method_name,
+        "held_out": held_out,
         "mean": mean,
         "per_view": per_view,
         "seconds": {"prep": _finite_or_none(seconds.get("prep")), "train": _finite_or_none(seconds.get("train")),

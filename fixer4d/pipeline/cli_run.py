@@ -2,12 +2,14 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from fixer4d.pipeline.cli_common import add_config_arguments, frame_range_override, maybe_print_config, resolve_from_args
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scene", help="'demo', a spec .json, or a directory (Neural3DV / Panoptic layout)")
+    parser.add_argument("scene", help="'demo', a spec .json, or a directory (Neural3DV / Panoptic layout, or a capture: "
+                                      "one video or image folder per camera)")
     parser.add_argument("--out", help="run folder (created; an existing one with the same config resumes)")
     parser.add_argument("--scale", type=float, default=None, help="image scale, e.g. 0.5 for half resolution")
     parser.add_argument("--frames", default=None, help="frame range a:b of the scene (half-open)")
@@ -29,6 +31,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="where segments and restore jobs run: this process (local, default) or Ray")
     parser.add_argument("--ray-address", default=None,
                         help="join an existing Ray cluster (e.g. auto or ray://HEAD:10001); default: a local Ray")
+    parser.add_argument("--calibration", default=None, metavar="FILE",
+                        help="capture: rig.json, COLMAP sparse model, transforms.json or poses_bounds.npy (default: one "
+                             "beside the videos, else the rig is calibrated from the frames into RUN/rig.json)")
+    parser.add_argument("--offset", action="append", default=None, metavar="CAM=N",
+                        help="capture: camera CAM's frame N is the capture's frame 0 (repeatable)")
+    parser.add_argument("--holdout", action="append", default=None, metavar="CAM",
+                        help="capture: evaluate camera CAM held out (repeatable; default: every camera trains)")
     add_config_arguments(parser)
     parser.add_argument("--seed", type=int, default=None,
                         help="seed of the whole run: the run's torch seed and stage 1's and stage 2's "
@@ -37,8 +46,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fixer4d.calib.run import calibrate_into_run
     from fixer4d.errors import InputError
     from fixer4d.pipeline.run import run_pipeline
+    from fixer4d.scene.capture import parse_offsets
 
     flags = {"scene.scale": args.scale, "scene.frame_range": frame_range_override(args.frames),
              "stage1.iterations": args.iterations, "stage2.rounds": args.rounds,
@@ -48,12 +59,15 @@ def run(args: argparse.Namespace) -> int:
              "baseline_sparse": False if args.no_baseline else None,
              "segments.frames": args.segment_frames, "executor.kind": args.executor,
              "executor.ray_address": args.ray_address,
-             "seed": args.seed, "stage1.seed": args.seed, "stage2.seed": args.seed}
+             "seed": args.seed, "stage1.seed": args.seed, "stage2.seed": args.seed,
+             "scene.offsets": parse_offsets(args.offset) if args.offset else None, "scene.holdout": args.holdout,
+             "scene.calibration": str(Path(args.calibration).resolve()) if args.calibration else None}
     config = resolve_from_args(args, flags, source=args.scene)
     if maybe_print_config(args, config):
         return 0
     if not args.out:
         raise InputError("--out RUN is required (the run folder)")
+    config = calibrate_into_run(config, args.out, progress=not args.quiet)
     run_pipeline(config, args.out, progress=not args.quiet)
     print(open(f"{args.out}/report.md").read())
     return 0

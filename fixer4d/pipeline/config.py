@@ -49,6 +49,11 @@ class SceneConfig:
     source: str = "demo"
     scale: float = 1.0
     frame_range: tuple[int, int] | None = None  # half-open [a, b) of the source's frames
+    # capture folders only (fixer4d.scene.capture): a calibration file (default: one beside the
+    # videos, else the rig self-calibrated), per-camera start frames, cameras held out (default none)
+    calibration: str | None = None
+    offsets: dict[str, int] | None = None
+    holdout: list[str] | None = None
 
     def __post_init__(self) -> None:
         if not self.scale > 0:

@@ -20,9 +20,21 @@ def training_settings(stage1_dict: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in stage1_dict.items() if k not in ("progress", "checkpoint_every", "keep_checkpoints")}
 
 
+def scene_settings(scene: dict[str, Any]) -> dict[str, Any]:
+    """The scene section as it enters the keys: capture-only settings (calibration, offsets,
+    holdout) only where set, so adding such a setting to fixer4d leaves every earlier run's
+    keys, and its finished stages, as they were."""
+    return {k: v for k, v in scene.items() if not (k in CAPTURE_SETTINGS and v is None)}
+
+
+# SceneConfig fields that only a capture folder uses (None elsewhere)
+CAPTURE_SETTINGS = ("calibration", "offsets", "holdout")
+
+
 def init_key(config: RunConfig, method: str) -> str:
     d = config.to_dict()
-    return stage_key("init", method, d["scene"], {**d["init"], "method": method}, config.init_frame_stride)
+    return stage_key("init", method, scene_settings(d["scene"]), {**d["init"], "method": method},
+                     config.init_frame_stride)
 
 
 def stage1_key(config: RunConfig, method: str) -> str:

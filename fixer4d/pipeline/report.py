@@ -29,7 +29,10 @@ METRIC_KEYS = ("psnr", "dssim1", "dssim2", "lpips", "psnr_dynamic", "psnr_static
 def metrics_row(method: str, metrics: dict[str, Any], seconds: float | None) -> dict[str, Any]:
     """A finished row from an ``evaluate()`` result."""
     mean = metrics["mean"]
-    return {"method": method, "status": "ok", **{k: mean.get(k) for k in METRIC_KEYS}, "seconds": seconds}
+    row = {"method": method, "status": "ok", **{k: mean.get(k) for k in METRIC_KEYS}, "seconds": seconds}
+    if metrics.get("held_out") is False:  # scored on the train views: the scene has no held-out camera
+        row["held_out"] = False
+    return row
 
 
 def copied_row(method: str, metrics: dict[str, Any]) -> dict[str, Any]:
@@ -82,6 +85,9 @@ def write_report(run_dir: Path, scene_text: str, rows: list[dict[str, Any]], sta
     report = {"rows": rows, "stage_seconds": stage_seconds, "scene": scene_text, **(extra or {})}
     atomic.write_json(run_dir / "report.json", report)
     lines = [f"# fixer4d report: {run_dir.name}", "", f"Scene: {scene_text}", ""]
+    if any(r.get("held_out") is False for r in rows):
+        lines += ["No held-out camera: every camera trained, so the table shows the fit to the train views, not "
+                  "novel-view quality (`fixer4d run CAPTURE --holdout CAM` holds one camera out).", ""]
     if report.get("restorer"):
         lines += [restorer_line(report["restorer"]), ""]
     if report.get("self_check"):

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from fixer4d import atomic
+from fixer4d.calib.run import RUN_RIG_NAME
 from fixer4d.errors import InputError
 from fixer4d.pipeline import config_tree
 from fixer4d.pipeline.config import FORMAT_VERSION, RunConfig, migrate_v1
@@ -129,7 +130,8 @@ class RunFolder:
                 shown = "; ".join(changes[:4]) + (f"; and {len(changes) - 4} more" if len(changes) > 4 else "")
                 raise InputError(f"{path} holds a run with a different configuration ({shown}); use another --out, "
                                  f"`fixer4d refine {path}` to change stage-2 settings, or delete the folder")
-        elif path.is_dir() and any(p for p in path.iterdir() if not p.name.startswith(".")):
+        # a capture's rig.json is calibrated into the folder before the run starts
+        elif path.is_dir() and any(p for p in path.iterdir() if not p.name.startswith(".") and p.name != RUN_RIG_NAME):
             raise InputError(f"--out {path}: exists and is not a fixer4d run folder (no {CONFIG_NAME}); "
                              "choose an empty or new folder")
         path.mkdir(parents=True, exist_ok=True)
@@ -198,4 +200,5 @@ def load_scene_for(config: RunConfig):
     from fixer4d.scene import load_scene
 
     sc = config.scene
-    return load_scene(sc.source, scale=sc.scale, frame_range=None if sc.frame_range is None else tuple(sc.frame_range))
+    return load_scene(sc.source, scale=sc.scale, frame_range=None if sc.frame_range is None else tuple(sc.frame_range),
+                      calibration=sc.calibration, offsets=sc.offsets, holdout=sc.holdout)

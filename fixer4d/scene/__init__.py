@@ -37,23 +37,34 @@ def _no_such_scene(source: str | Path) -> InputError:
 
 
 def detect_layout(path: str | Path) -> str:
-    """"n3dv" (poses_bounds.npy + camXX.mp4) or "panoptic" (train_meta.json + ims/) for a
+    """"n3dv" (poses_bounds.npy + camXX.mp4), "panoptic" (train_meta.json + ims/) or "capture"
+    (one video or image folder per camera, any names: ``fixer4d.scene.capture``) for a
     directory; raises InputError naming the folder and the expected files otherwise."""
+    import re
+
+    from fixer4d.scene.capture import is_capture
+
     path = Path(path)
-    if (path / "poses_bounds.npy").is_file():
-        return "n3dv"
+    if (path / "poses_bounds.npy").is_file() and (any(re.match(r"^cam\d+\.mp4$", p.name) for p in path.iterdir())
+                                                   or not is_capture(path)):
+        return "n3dv"  # a capture with other video names reads poses_bounds.npy as its calibration
     if (path / "train_meta.json").is_file() and (path / "ims").is_dir():
         return "panoptic"
+    if is_capture(path):
+        return "capture"
     found = sorted(p.name for p in path.iterdir())[:8] if path.is_dir() else []
     raise InputError(
         f"{path}: unknown scene layout (found {found}). Expected a Neural3DV folder "
         f"(poses_bounds.npy + cam00.mp4, cam01.mp4, ...), a Dynamic3DGaussians/Panoptic folder "
-        f"(train_meta.json, test_meta.json, ims/<cam>/<frame>.jpg), a scene spec .json, or 'demo'; "
+        f"(train_meta.json, test_meta.json, ims/<cam>/<frame>.jpg), a capture (one video or image folder per "
+        f"camera), a scene spec .json, or 'demo'; "
         f"write a synthetic one with `fixer4d make-scene demo --out DIR`")
 
 
 def load_scene(source: str | Path, *, scale: float = 1.0, frame_range: tuple[int, int] | None = None,
-               train_ids: list[int] | None = None, test_ids: list[int] | None = None) -> MultiViewVideo:
+               train_ids: list[int] | None = None, test_ids: list[int] | None = None,
+               calibration: str | Path | None = None, offsets: dict[str, int] | None = None,
+               holdout: list[str] | None = None) -> MultiViewVideo:
     """Open a scene.
 
     source: "demo" (or another bundled spec name: "tiny", "static_matte"; a bare name always
@@ -65,10 +76,20 @@ def load_scene(source: str | Path, *, scale: float = 1.0, frame_range: tuple[int
     train_ids / test_ids: camera ids (the XX of camXX, the Panoptic cam_id, the synthetic
       camera index) overriding the layout's default split. A camera listed twice, or both train
       and held-out, is refused (InputError; ``validate.check_ids``).
+    calibration / offsets / holdout: for a capture folder only (``fixer4d.scene.capture``): a
+      calibration file (default: one beside the videos, else a cached self-calibration), the
+      per-camera start frames {name: N}, and camera names to hold out (default: none).
     """
     from fixer4d.scene.validate import check_ids
 
-    scene = _open_layout(source, scale, frame_range, train_ids, test_ids)
+    if calibration is not None or offsets or holdout:
+        src = Path(str(source))
+        if not (src.is_dir() and detect_layout(src) == "capture"):
+            raise InputError(f"{source}: --calibration, --offset and --holdout apply to a capture folder (one video "
+                             f"or image folder per camera), not to this scene")
+        scene = _open_capture(src, scale, frame_range, train_ids, test_ids, calibration, offsets, holdout)
+    else:
+        scene = _open_layout(source, scale, frame_range, train_ids, test_ids)
     check_ids(scene)
     return scene
 
@@ -86,6 +107,8 @@ def _open_layout(source: str | Path, scale: float, frame_range: tuple[int, int] 
         raise _no_such_scene(source)
     if src.is_dir():
         layout = detect_layout(src)
+        if layout == "capture":
+            return _open_capture(src, scale, frame_range, train_ids, test_ids, None, None, None)
         if layout == "n3dv":
             from fixer4d.scene.n3dv import Neural3DVScene
 
@@ -96,6 +119,20 @@ def _open_layout(source: str | Path, scale: float, frame_range: tuple[int, int] 
     if src.suffix == ".json":
         return SyntheticScene(src, scale=scale, frame_range=frame_range, train_ids=train_ids, test_ids=test_ids)
     raise InputError(f"scene {source!s}: not a directory or a .json spec; pass 'demo', a spec .json or a scene folder")
+
+
+def _open_capture(src: Path, scale: float, frame_range: tuple[int, int] | None, train_ids: list[int] | None,
+                  test_ids: list[int] | None, calibration: str | Path | None, offsets: dict[str, int] | None,
+                  holdout: list[str] | None) -> MultiViewVideo:
+    """A capture folder with its rig (``fixer4d.calib.resolve_rig``)."""
+    from fixer4d.calib import resolve_rig
+    from fixer4d.scene.capture import CaptureFiles, CaptureScene
+
+    if frame_range is not None:
+        frame_range = check_frame_range(frame_range)
+    files = CaptureFiles(src, offsets, frame_range)
+    rig, label = resolve_rig(files, calibration)
+    return CaptureScene(files, rig, label, scale=scale, holdout=holdout, train_ids=train_ids, test_ids=test_ids)
 
 
 def open_scene_checked(source: str | Path, *, scale: float = 1.0, frame_range: str | tuple[int, int] | list[int] | None = None,

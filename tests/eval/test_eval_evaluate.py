@@ -53,7 +53,7 @@ def test_evaluate_writes_the_contract(tmp_path):
     on_disk = json.loads((out / "metrics.json").read_text())
     assert on_disk == json.loads(json.dumps(res))
     assert set(on_disk["mean"]) == {"psnr", "dssim1", "dssim2", "lpips", "psnr_dynamic", "psnr_static",
-                                    "ssim_dynamic", "ssim_static"}
+                                    "ssim_dynamic", "ssim_static", "psnr_aligned"}
     # The fake scene is no synthetic scene: its held-out masks come from its own video.
     assert on_disk["protocol"]["regions"]["mask"] == REGION_MASK_ESTIMATED
     for key in ("psnr_dynamic", "psnr_static"):
@@ -137,8 +137,11 @@ def test_bad_renders_and_scenes_raise(tmp_path):
         evaluate(lambda cam, t: np.zeros((H, W - 1, 3), np.float32), scene, tmp_path, progress=False)
     with pytest.raises(NumericalError, match="NaN"):
         evaluate(lambda cam, t: np.full((H, W, 3), np.nan, np.float32), scene, tmp_path, progress=False)
-    with pytest.raises(InputError, match="no held-out cameras"):
-        evaluate(lambda cam, t: None, FakeScene(test_ids=()), tmp_path, progress=False)
+    # no held-out camera (a capture trained on all of them): the train views' fit is scored
+    every = FakeScene(num_frames=2, test_ids=())
+    res = evaluate(lambda cam, t: every.frame(0, 0) * 0.9, every, tmp_path / "fit", progress=False)
+    assert res["held_out"] is False and res["protocol"]["test_cameras"] == [c.name for c in every.cameras]
+    assert np.isfinite(res["mean"]["psnr"])
 
 
 def test_select_frames():
@@ -158,3 +161,17 @@ def test_markdown_table_rows():
     lines = markdown_table(rows).splitlines()
     assert lines[2] == "| STGS (sparse init) | 20.12 | 0.1000 | 0.0500 | 0.3000 | 1.11 h |"
     assert lines[3] == "| STGS (mvs init) | 24.00 | 0.0800 | 0.0400 | n/a | 1.5 min |"
+
+
+def test_exposure_aligned_psnr_undoes_a_gain_and_offset_and_never_lowers_psnr():
+    from fixer4d.eval.evaluate import exposure_aligned
+    from fixer4d.eval.metrics import psnr
+
+    rng = np.random.default_rng(0)
+    gt = rng.uniform(0.1, 0.8, (24, 32, 3)).astype(np.float32)
+    brighter = np.clip(gt * np.array([1.08, 1.05, 0.95]) + 0.02, 0, 1).astype(np.float32)  # exposure + white balance
+    assert psnr(exposure_aligned(brighter, gt), gt) > 60.0 > psnr(brighter, gt)
+    noisy = np.clip(gt + rng.normal(0, 0.05, gt.shape), 0, 1).astype(np.float32)
+    assert psnr(exposure_aligned(noisy, gt), gt) >= psnr(noisy, gt)
+    flat = np.full_like(gt, 0.5)  # no variation: only the offset
+    assert np.isfinite(exposure_aligned(flat, gt)).all()

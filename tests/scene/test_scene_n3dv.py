@@ -133,9 +133,12 @@ def test_video_reader_random_access_and_bounded_cache(tmp_path):
 
 
 # ---------------------------------------------------------------------------- bad input
-def test_missing_poses_bounds_is_an_unknown_layout(n3dv_copy):
+def test_missing_poses_bounds_makes_a_capture_to_calibrate(n3dv_copy, monkeypatch, tmp_path):
+    """Videos without poses_bounds.npy are a capture (fixer4d.scene.capture): its rig is
+    self-calibrated, and a rig the frames cannot fix is refused naming the files that would."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     (n3dv_copy / "poses_bounds.npy").unlink()
-    with pytest.raises(InputError, match="unknown scene layout") as info:
+    with pytest.raises(InputError, match="self-calibration refused") as info:
         load_scene(n3dv_copy)
     assert "poses_bounds.npy" in str(info.value)
 

@@ -1,0 +1,314 @@
+"""Self-calibration of a static synchronized rig from its own frames (structure from motion).
+
+The rig does not move and its cameras are synchronized, so every camera has one pose and one
+set of intrinsics for the whole clip, while the scene in front of it changes. Matches are pooled
+over time: at each of T timestamps spread over the clip, SIFT features (OpenCV) of every camera
+pair are matched at that same instant (moving content matches too: at one instant it obeys the
+same epipolar geometry as the background). Each camera is one COLMAP image whose keypoints are
+the union of its T frames' keypoints; the pooled matches of a pair are verified together (one
+fundamental/essential matrix) and COLMAP's incremental mapper registers the V images with
+focal length and radial distortion refined in its bundle adjustments. The result is normalised
+to the rig: origin at the mean camera centre, unit = rig radius (the largest centre distance
+from that mean); orientation as COLMAP left it (its first registered camera's axes).
+"""
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from itertools import combinations
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from fixer4d.calib.colmap import pycolmap_module, quiet, rig_camera_from_colmap
+from fixer4d.calib.rig import Rig, RigCamera
+from fixer4d.errors import InputError
+from fixer4d.scene.capture import CaptureFiles
+
+# Timestamps pooled per camera pair: 12 spread frames give a 4-camera rig several thousand
+# matches per overlapping pair while SIFT over all 48 frames stays a few seconds at 640x360.
+SFM_TIMESTAMPS = 12
+# SIFT features per frame (OpenCV keeps the strongest).
+SFM_MAX_FEATURES = 4000
+# Lowe's ratio test; 0.8 is COLMAP's default for SIFT.
+SFM_RATIO = 0.8
+# Initial focal guess before bundle adjustment, as a multiple of the larger image side (COLMAP's default).
+FOCAL_GUESS = 1.2
+# COLMAP's lens model for self-calibration: one focal, the image centre, one radial coefficient.
+# Four views cannot pin down a principal point or tangential terms.
+SFM_CAMERA_MODEL = "SIMPLE_RADIAL"
+# Focal change used to probe whether the frames determine the focal length (``focal_sensitivity``).
+FOCAL_PROBE = 1.1
+SCALE_SFM = "rig radius = 1 (structure from motion fixes no metric unit): origin at the mean camera centre"
+COLMAP_SEED = 0
+
+
+@dataclass
+class SfMConfig:
+    """timestamps: frames pooled per camera. max_features: SIFT per frame. intrinsics: "shared"
+    (one camera model for all cameras; they must share a size) or "per-camera"."""
+
+    timestamps: int = SFM_TIMESTAMPS
+    max_features: int = SFM_MAX_FEATURES
+    ratio: float = SFM_RATIO
+    intrinsics: str = "shared"
+    focal: float | None = None  # known focal length in pixels (held fixed), else estimated
+
+    def __post_init__(self) -> None:
+        if self.intrinsics not in ("shared", "per-camera"):
+            raise InputError(f"--intrinsics {self.intrinsics!r}: use shared or per-camera")
+        if self.focal is not None and not self.focal > 0:
+            raise InputError(f"--focal {self.focal}: a focal length in pixels must be > 0")
+        if self.timestamps < 1:
+            raise InputError(f"--timestamps {self.timestamps}: must be >= 1")
+
+
+def spread_frames(num_frames: int, count: int) -> list[int]:
+    """``count`` frame numbers spread evenly over [0, num_frames)."""
+    return sorted({int(round(v)) for v in np.linspace(0, num_frames - 1, min(count, num_frames))})
+
+
+def _features(gray: np.ndarray, max_features: int) -> tuple[np.ndarray, np.ndarray]:
+    """SIFT -> (keypoints (N, 2) in fixer4d's pixel convention (+0.5), descriptors (N, 128) float32 RootSIFT)."""
+    import cv2
+
+    sift = cv2.SIFT_create(nfeatures=max_features)
+    kps, desc = sift.detectAndCompute(gray, None)
+    if desc is None or not kps:
+        return np.zeros((0, 2), np.float32), np.zeros((0, 128), np.float32)
+    xy = np.array([k.pt for k in kps], np.float32) + 0.5
+    desc = desc / np.maximum(desc.sum(1, keepdims=True), 1e-12)  # RootSIFT: L1 normalise, then sqrt
+    return xy, np.sqrt(desc).astype(np.float32)
+
+
+def _match(d1: np.ndarray, d2: np.ndarray, ratio: float) -> np.ndarray:
+    """Mutual nearest neighbours passing the ratio test -> (M, 2) index pairs."""
+    import cv2
+
+    if len(d1) < 2 or len(d2) < 2:
+        return np.zeros((0, 2), np.int64)
+    bf = cv2.BFMatcher(cv2.NORM_L2)
+    fwd = bf.knnMatch(d1, d2, k=2)
+    back = bf.knnMatch(d2, d1, k=1)
+    best_back = np.array([m[0].trainIdx for m in back])
+    out = [(m[0].queryIdx, m[0].trainIdx) for m in fwd
+           if len(m) == 2 and m[0].distance < ratio * m[1].distance and best_back[m[0].trainIdx] == m[0].queryIdx]
+    return np.array(out, np.int64).reshape(-1, 2)
+
+
+@dataclass
+class PooledMatches:
+    """keypoints[c]: (N_c, 2) of camera c over all frames; matches[(a, b)]: (M, 2) indices into them."""
+
+    keypoints: list[np.ndarray]
+    matches: dict[tuple[int, int], np.ndarray]
+    frames: list[int]
+
+
+def pool_matches(files: CaptureFiles, config: SfMConfig, progress: bool = True) -> PooledMatches:
+    """Features of every camera at the spread frames, matched per pair at the same instant."""
+    import cv2
+
+    frames = spread_frames(files.num_frames, config.timestamps)
+    V = len(files.sources)
+    keypoints: list[list[np.ndarray]] = [[] for _ in range(V)]
+    offsets = np.zeros((V, len(frames)), np.int64)
+    matches: dict[tuple[int, int], list[np.ndarray]] = {p: [] for p in combinations(range(V), 2)}
+    bar = tqdm(total=len(frames), desc="calibrate: features and matches", unit="frame", disable=not progress)
+    for t, f in enumerate(frames):
+        feats = []
+        for c in range(V):
+            gray = cv2.cvtColor(files.frame(f, c), cv2.COLOR_RGB2GRAY)
+            xy, desc = _features(gray, config.max_features)
+            offsets[c, t] = sum(len(k) for k in keypoints[c])
+            keypoints[c].append(xy)
+            feats.append(desc)
+        for a, b in matches:
+            m = _match(feats[a], feats[b], config.ratio)
+            matches[(a, b)].append(m + [offsets[a, t], offsets[b, t]])
+        bar.update(1)
+    bar.close()
+    return PooledMatches([np.concatenate(k) if k else np.zeros((0, 2), np.float32) for k in keypoints],
+                         {p: np.concatenate(m) if m else np.zeros((0, 2), np.int64) for p, m in matches.items()}, frames)
+
+
+def _write_database(pycolmap, db_path: Path, files: CaptureFiles, pooled: PooledMatches, shared: bool,
+                    focal: float | None) -> list[int]:
+    """A COLMAP database with one image per camera, its pooled keypoints and the raw matches;
+    returns the image ids in camera order."""
+    image_ids = []
+    with pycolmap.Database.open(str(db_path)) as db:
+        camera_id = None
+        for c, src in enumerate(files.sources):
+            if camera_id is None or not shared:
+                f = focal if focal is not None else FOCAL_GUESS * max(src.width, src.height)
+                cam = pycolmap.Camera(model=SFM_CAMERA_MODEL, width=src.width, height=src.height,
+                                      params=[f, src.width / 2.0, src.height / 2.0, 0.0])
+                cam.has_prior_focal_length = focal is not None
+                camera_id = db.write_camera(cam)
+                cam.camera_id = camera_id
+                rig = pycolmap.Rig()
+                rig.add_ref_sensor(cam.sensor_id)
+                rig_id = db.write_rig(rig)
+            image = pycolmap.Image(name=f"{src.name}.png", camera_id=camera_id)
+            image_id = db.write_image(image)
+            image.image_id = image_id
+            frame = pycolmap.Frame()
+            frame.rig_id = rig_id
+            frame.add_data_id(image.data_id)
+            db.write_frame(frame)
+            db.write_keypoints(image_id, pooled.keypoints[c].astype(np.float32))
+            image_ids.append(image_id)
+        for (a, b), m in pooled.matches.items():
+            if len(m):
+                db.write_matches(image_ids[a], image_ids[b], m.astype(np.uint32))
+    return image_ids
+
+
+def _reprojection_errors(rec, image_ids: list[int]) -> tuple[list[float | None], dict[tuple[int, int], int]]:
+    """Mean reprojection error (pixels) of each image's observations, and the 3D points each pair of images shares."""
+    errors: list[float | None] = []
+    for image_id in image_ids:
+        if image_id not in rec.images or not rec.images[image_id].has_pose:
+            errors.append(None)
+            continue
+        image = rec.images[image_id]
+        obs = [(p.xy, rec.points3D[p.point3D_id].xyz) for p in image.points2D if p.has_point3D()]
+        if not obs:
+            errors.append(None)
+            continue
+        xy = np.array([o[0] for o in obs], np.float64)
+        xyz = np.array([o[1] for o in obs], np.float64)
+        cfw = image.cam_from_world
+        cfw = cfw() if callable(cfw) else cfw
+        M = np.asarray(cfw.matrix(), np.float64)
+        pc = xyz @ M[:, :3].T + M[:, 3]
+        uv = np.asarray(rec.cameras[image.camera_id].img_from_cam(pc, check_cheirality=False), np.float64)
+        errors.append(float(np.mean(np.linalg.norm(uv - xy, axis=1))))
+    index = {iid: k for k, iid in enumerate(image_ids)}
+    shared: dict[tuple[int, int], int] = {}
+    for p in rec.points3D.values():
+        ks = sorted({index[e.image_id] for e in p.track.elements if e.image_id in index})
+        for pair in combinations(ks, 2):
+            shared[pair] = shared.get(pair, 0) + 1
+    return errors, shared
+
+
+def focal_sensitivity(pycolmap, rec, factor: float = FOCAL_PROBE) -> float:
+    """How much the mean reprojection error (pixels) rises when every focal length is forced
+    ``factor`` times larger or smaller and bundle adjustment refits everything else: the smaller
+    of the two rises. Near zero, the frames do not determine the focal length (e.g. cameras that
+    all face the same way: any focal fits them equally well, with a stretched scene)."""
+    import copy
+
+    base = rec.compute_mean_reprojection_error()
+    rises = []
+    for f in (factor, 1.0 / factor):
+        probe = copy.deepcopy(rec)
+        for cam in probe.cameras.values():
+            params = np.array(cam.params, np.float64)
+            params[list(cam.focal_length_idxs())] *= f
+            cam.params = params
+        options = pycolmap.BundleAdjustmentOptions()
+        options.refine_focal_length = False
+        options.refine_principal_point = False
+        options.refine_extra_params = True
+        options.print_summary = False
+        pycolmap.bundle_adjustment(probe, options)
+        rises.append(probe.compute_mean_reprojection_error() - base)
+    return float(min(rises))
+
+
+def _normalise(cams: list[RigCamera]) -> list[RigCamera]:
+    """Origin at the mean camera centre, unit = rig radius (largest centre distance from it)."""
+    centres = np.stack([np.linalg.inv(c.w2c)[:3, 3] for c in cams])
+    mean = centres.mean(0)
+    radius = max(float(np.max(np.linalg.norm(centres - mean, axis=1))), 1e-12)
+    out = []
+    for c, centre in zip(cams, centres):
+        w2c = c.w2c.copy()
+        w2c[:3, 3] = -w2c[:3, :3] @ ((centre - mean) / radius)
+        out.append(RigCamera(c.name, c.width, c.height, c.K, w2c, dict(c.distortion), c.reprojection_error_px))
+    return out
+
+
+def calibrate_sfm(files: CaptureFiles, config: SfMConfig | None = None, progress: bool = True) -> Rig:
+    """Self-calibrate the rig of ``files``; returns the Rig (unchecked: ``fixer4d.calib.gate`` judges it).
+
+    Cameras COLMAP could not register come back absent from ``rig.cameras``; ``rig.pairs`` holds
+    per pair the raw pooled matches, the geometrically verified ones and the 3D points both see.
+    """
+    config = config or SfMConfig()
+    if len(files.sources) < 2:
+        raise InputError(f"{files.root}: calibration needs at least 2 cameras, found {files.names}")
+    shared = config.intrinsics == "shared"
+    if shared and len({(s.width, s.height) for s in files.sources}) > 1:
+        shared = False  # cameras of different sizes cannot share one model
+    t0 = time.perf_counter()
+    pycolmap = pycolmap_module()
+    pooled = pool_matches(files, config, progress)
+    checks: dict = {}
+    work = Path(tempfile.mkdtemp(prefix="fixer4d_calib_"))
+    try:
+        db_path = work / "database.db"
+        (work / "images").mkdir()
+        (work / "sparse").mkdir()
+        pycolmap.set_random_seed(COLMAP_SEED)
+        with quiet(pycolmap):
+            image_ids = _write_database(pycolmap, db_path, files, pooled, shared, config.focal)
+            pairs_txt = work / "pairs.txt"
+            pairs_txt.write_text("".join(f"{files.names[a]}.png {files.names[b]}.png\n" for a, b in pooled.matches))
+            pycolmap.verify_matches(str(db_path), str(pairs_txt))
+            verified = {}
+            with pycolmap.Database.open(str(db_path)) as db:
+                for a, b in pooled.matches:
+                    ia, ib = image_ids[a], image_ids[b]
+                    verified[(a, b)] = (len(db.read_two_view_geometry(ia, ib).inlier_matches)
+                                        if db.exists_two_view_geometry(ia, ib) else 0)
+            options = pycolmap.IncrementalPipelineOptions()
+            options.min_model_size = 2
+            options.multiple_models = False
+            options.extract_colors = False
+            options.num_threads = 1
+            options.random_seed = COLMAP_SEED
+            options.ba_refine_focal_length = config.focal is None
+            options.ba_refine_principal_point = False
+            options.ba_refine_extra_params = config.focal is None
+            if progress:
+                print("[fixer4d] calibrate: incremental mapping and bundle adjustment", flush=True)
+            recs = pycolmap.incremental_mapping(str(db_path), str(work / "images"), str(work / "sparse"), options)
+        rec = max(recs.values(), key=lambda r: (r.num_reg_images(), r.num_points3D())) if recs else None
+        if rec is None:
+            errors, shared_points, cams = [None] * len(image_ids), {}, []
+        else:
+            errors, shared_points = _reprojection_errors(rec, image_ids)
+            cams = []
+            for c, image_id in enumerate(image_ids):
+                if image_id in rec.images and rec.images[image_id].has_pose:
+                    image = rec.images[image_id]
+                    cfw = image.cam_from_world
+                    cfw = cfw() if callable(cfw) else cfw
+                    w2c = np.eye(4)
+                    w2c[:3] = np.asarray(cfw.matrix(), np.float64)
+                    rc = rig_camera_from_colmap(rec.cameras[image.camera_id], files.names[c], w2c, "SfM")
+                    rc.reprojection_error_px = errors[c]
+                    cams.append(rc)
+            if len(cams) >= 2:
+                cams = _normalise(cams)
+                if config.focal is None:
+                    with quiet(pycolmap):
+                        checks["focal_sensitivity_px"] = focal_sensitivity(pycolmap, rec)
+                checks["mean_reprojection_error_px"] = float(rec.compute_mean_reprojection_error())
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    pairs = [{"cameras": [files.names[a], files.names[b]], "raw_matches": int(len(pooled.matches[(a, b)])),
+              "verified_matches": int(verified[(a, b)]), "shared_points": int(shared_points.get((a, b), 0))}
+             for a, b in pooled.matches]
+    rig = Rig(cams, pairs, [files.start + f for f in pooled.frames], SCALE_SFM,
+              f"structure from motion over {len(pooled.frames)} timestamps ({config.intrinsics} intrinsics, "
+              f"{SFM_CAMERA_MODEL}, focal {'given' if config.focal else 'estimated'})", checks)
+    rig.checks["seconds"] = round(time.perf_counter() - t0, 2)
+    return rig
