@@ -216,9 +216,11 @@ def make_request(width: int = 200, height: int = 150, num_frames: int = 16, *, p
 
 
 def clip_psnr(pred: np.ndarray, gt: np.ndarray) -> float:
-    """Mean over frames of per-frame PSNR (dB) of (F, H, W, 3) images in [0, 1]."""
-    mse = ((pred.astype(np.float64) - gt) ** 2).reshape(len(gt), -1).mean(axis=1)
-    return float(np.mean(10.0 * np.log10(1.0 / np.maximum(mse, 1e-12))))
+    """Mean over frames of per-frame PSNR (dB, ``fixer4d.eval.metrics.psnr`` capped at 120 dB)
+    of (F, H, W, 3) images in [0, 1]."""
+    from fixer4d.eval.metrics import psnr
+
+    return float(np.mean([psnr(p, g, max_db=120.0) for p, g in zip(pred, gt)]))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,5 +1,10 @@
 """Image-quality metrics of the evaluation protocol (numpy (H, W, 3) float32 RGB in [0, 1]).
 
+Inputs: two float (H, W, 3) images of one shape, finite, |values| <= IMAGE_VALUE_LIMIT; the SSIM
+based metrics need H, W >= SSIM_WIN_SIZE. Anything else (8-bit images, NaN, a 0x0 or 5x5 image)
+raises InputError naming the metric and what it accepts; accepted images give finite scores
+(PSNR may be inf for identical images).
+
 - PSNR per image with data range 1 (averaged per image by the caller, as 3DGS/STGS do).
 - DSSIM1 = (1 - SSIM) / 2 with ``skimage.metrics.structural_similarity(..., data_range=1.0,
   channel_axis=-1)`` and DSSIM2 the same with ``data_range=2.0``. Everything else is left at
@@ -29,38 +34,79 @@ _lpips_lock = threading.Lock()
 _lpips_state: dict[str, object] = {}
 
 
-def _check_pair(a: np.ndarray, b: np.ndarray, who: str) -> tuple[np.ndarray, np.ndarray]:
+# Largest |value| an image may hold. Images are in [0, 1]; an unclamped render may overshoot
+# (view-dependent colour), but a value beyond this is a diverged model or a wrong unit, not an
+# image. The bound also keeps scikit-image's float32 second moments (values^2 x window) far
+# from float32 overflow, so every metric of accepted images is finite.
+IMAGE_VALUE_LIMIT = 1e4
+
+
+def _check_image_values(img: np.ndarray, what: str, who: str) -> None:
+    """Raise InputError unless ``img`` is a float array of finite values within IMAGE_VALUE_LIMIT."""
+    if img.dtype.kind != "f":
+        hint = " (divide 8-bit images by 255)" if img.dtype == np.uint8 else ""
+        raise InputError(f"{who}: {what} has dtype {img.dtype}; expected float images with values in [0, 1]{hint}")
+    if not np.isfinite(img).all():
+        raise InputError(f"{who}: {what} contains NaN/inf; the render or the ground truth is corrupt")
+    if img.size and float(np.max(np.abs(img))) > IMAGE_VALUE_LIMIT:
+        raise InputError(f"{who}: {what} has values up to {float(np.max(np.abs(img))):.3g}; images hold values in "
+                         f"[0, 1] (|value| <= {IMAGE_VALUE_LIMIT:g} accepted)")
+
+
+def _check_pair(a: np.ndarray, b: np.ndarray, who: str, min_side: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Two (H, W, 3) float images of equal shape, H, W >= min_side, finite, |values| bounded."""
     a = np.asarray(a)
     b = np.asarray(b)
     if a.shape != b.shape or a.ndim != 3 or a.shape[-1] != 3:
         raise InputError(f"{who}: expected two (H, W, 3) images of equal shape, got {a.shape} and {b.shape}")
-    if not (np.isfinite(a).all() and np.isfinite(b).all()):
-        raise InputError(f"{who}: images contain NaN/inf; the render or the ground truth is corrupt")
+    if min(a.shape[:2]) < min_side:
+        raise InputError(f"{who}: images of {a.shape[0]}x{a.shape[1]} pixels are too small; "
+                         f"{'SSIM needs' if min_side > 1 else 'need'} at least {min_side}x{min_side}")
+    _check_image_values(a, "the first image", who)
+    _check_image_values(b, "the second image", who)
     return a, b
 
 
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """PSNR in dB of two (H, W, 3) images with data range 1: -10 log10(MSE); inf if identical."""
+def psnr_from_mse(mse: float, max_db: float | None = None) -> float:
+    """PSNR in dB for data range 1 from a mean squared error: -10 log10(mse); inf for mse = 0,
+    or at most ``max_db`` when given (a cap for reports that cannot hold inf). The one PSNR
+    formula: every PSNR in fixer4d (numpy and torch) ends here."""
+    mse = float(mse)
+    if not (mse >= 0.0 and math.isfinite(mse)):
+        raise InputError(f"psnr: mean squared error must be finite and >= 0, got {mse}")
+    db = math.inf if mse == 0.0 else -10.0 * math.log10(mse)
+    return db if max_db is None else min(db, float(max_db))
+
+
+def psnr(a: np.ndarray, b: np.ndarray, *, max_db: float | None = None) -> float:
+    """PSNR in dB of two (H, W, 3) float images with data range 1: -10 log10(MSE); inf if
+    identical (``max_db``: cap instead, see ``psnr_from_mse``)."""
     a, b = _check_pair(a, b, "psnr")
     mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    return math.inf if mse == 0.0 else -10.0 * math.log10(mse)
+    return psnr_from_mse(mse, max_db)
 
 
 def _ssim(a: np.ndarray, b: np.ndarray, data_range: float) -> float:
     from skimage.metrics import structural_similarity
 
-    return float(structural_similarity(a, b, win_size=SSIM_WIN_SIZE, data_range=data_range, channel_axis=-1))
+    value = float(structural_similarity(a, b, win_size=SSIM_WIN_SIZE, data_range=data_range, channel_axis=-1))
+    if not math.isfinite(value):
+        # float32 moments of large-valued images can cancel to a zero denominator; the
+        # float64 computation of the same SSIM cannot (accepted values are bounded)
+        value = float(structural_similarity(a.astype(np.float64), b.astype(np.float64), win_size=SSIM_WIN_SIZE,
+                                            data_range=data_range, channel_axis=-1))
+    return value
 
 
 def dssim1(a: np.ndarray, b: np.ndarray) -> float:
     """(1 - SSIM) / 2 with scikit-image SSIM at data_range 1.0 (7x7 uniform window)."""
-    a, b = _check_pair(a, b, "dssim1")
+    a, b = _check_pair(a, b, "dssim1", SSIM_WIN_SIZE)
     return (1.0 - _ssim(a, b, DSSIM1_DATA_RANGE)) / 2.0
 
 
 def dssim2(a: np.ndarray, b: np.ndarray) -> float:
     """(1 - SSIM) / 2 with scikit-image SSIM at data_range 2.0 (7x7 uniform window)."""
-    a, b = _check_pair(a, b, "dssim2")
+    a, b = _check_pair(a, b, "dssim2", SSIM_WIN_SIZE)
     return (1.0 - _ssim(a, b, DSSIM2_DATA_RANGE)) / 2.0
 
 
@@ -129,13 +175,18 @@ def masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float | None:
     if not mask.any():
         return None
     mse = float(np.mean((a[mask].astype(np.float64) - b[mask].astype(np.float64)) ** 2))
-    return math.inf if mse == 0.0 else -10.0 * math.log10(mse)
+    return psnr_from_mse(mse)
 
 
 def _check_mask(mask: np.ndarray, shape: tuple, who: str) -> np.ndarray:
+    """(H, W) bool from a bool mask or a numeric one (nonzero = True); InputError for another
+    shape or NaN entries."""
     mask = np.asarray(mask)
     if mask.shape != tuple(shape[:2]):
         raise InputError(f"{who}: mask shape {mask.shape} differs from the images' {tuple(shape[:2])}")
+    if mask.dtype != bool and (mask.dtype.kind not in "iuf" or (mask.dtype.kind == "f" and np.isnan(mask).any())):
+        raise InputError(f"{who}: mask must be a bool (H, W) array (or 0/1 numbers), got dtype {mask.dtype}"
+                         f"{' with NaN' if mask.dtype.kind == 'f' else ''}")
     return mask.astype(bool, copy=False)
 
 
@@ -145,7 +196,7 @@ def ssim_map(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     the window hangs over the edge there) is 1 - 2 x DSSIM1."""
     from skimage.metrics import structural_similarity
 
-    a, b = _check_pair(a, b, "ssim_map")
+    a, b = _check_pair(a, b, "ssim_map", SSIM_WIN_SIZE)
     _, full = structural_similarity(a, b, win_size=SSIM_WIN_SIZE, data_range=DSSIM1_DATA_RANGE, channel_axis=-1,
                                     full=True)
     return full.mean(-1)
@@ -159,7 +210,7 @@ def region_metrics(pred: np.ndarray, gt: np.ndarray, moving: np.ndarray) -> dict
     pixels off the image border, as scikit-image's SSIM)}; a region with no pixels gives None
     for both of its metrics (and None for SSIM if it lies entirely on the border).
     """
-    pred, gt = _check_pair(pred, gt, "region_metrics")
+    pred, gt = _check_pair(pred, gt, "region_metrics", SSIM_WIN_SIZE)
     moving = _check_mask(moving, pred.shape, "region_metrics")
     smap = ssim_map(pred.astype(np.float32, copy=False), gt.astype(np.float32, copy=False))
     pad = (SSIM_WIN_SIZE - 1) // 2
@@ -178,7 +229,7 @@ def image_metrics(pred: np.ndarray, gt: np.ndarray) -> dict[str, float | None]:
 
     Returns {"psnr": dB, "dssim1": float, "dssim2": float, "lpips": float or None}.
     """
-    pred, gt = _check_pair(pred, gt, "image_metrics")
+    pred, gt = _check_pair(pred, gt, "image_metrics", SSIM_WIN_SIZE)
     pred = pred.astype(np.float32, copy=False)
     gt = gt.astype(np.float32, copy=False)
     return {"psnr": psnr(pred, gt), "dssim1": dssim1(pred, gt), "dssim2": dssim2(pred, gt), "lpips": lpips(pred, gt)}

@@ -7,6 +7,7 @@ by a factor s scales fx, fy, cx, cy by exactly s (no half-pixel shift), and ever
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -17,13 +18,77 @@ from fixer4d.errors import InputError
 # OpenCV (x right, y down, z forward) <-> OpenGL (x right, y up, z backward): flip y and z.
 CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
 
+# Skew K[0, 1] accepted as zero when |skew| <= SKEW_REL_TOL * fx: float round-off of a K
+# computed elsewhere, at most ~1e-9 px of shift per pixel of height. Beyond it the rasterizers
+# (which use fx, fy, cx, cy only) and ``project`` (which uses K) would place points differently.
+SKEW_REL_TOL = 1e-9
+# A rotation block is accepted when max|R^T R - I| and |det R - 1| are below this: poses stored
+# in float32 or decomposed from a projection matrix are orthonormal to ~1e-6; a mirror (det -1)
+# or a scaled rotation is off by O(1).
+ROTATION_TOL = 1e-4
+# The c2w bottom row must be [0, 0, 0, 1] to within this (absolute): anything else is a
+# projective matrix, not a rigid pose.
+BOTTOM_ROW_TOL = 1e-9
+
+
+def _image_side(value: Any, name: str, what: str) -> int:
+    """A positive whole number of pixels (int, or a float/array scalar with an integral value)."""
+    try:
+        side = int(value)
+        whole = float(value) == side
+    except (TypeError, ValueError, OverflowError):
+        side, whole = 0, False
+    if not whole or side <= 0:
+        raise InputError(f"camera {name!r}: image size: {what} must be a positive whole number of pixels, got {value!r}")
+    return side
+
+
+def _check_intrinsics(K: np.ndarray, name: str) -> np.ndarray:
+    """The validated (3, 3) pinhole K: upper-triangular, positive focal lengths, zero skew,
+    K[2, 2] = 1 (a positive K[2, 2] != 1 is divided out with a warning: K and K / K[2, 2]
+    project alike). Raises InputError naming the camera and the offending entry."""
+    if K[1, 0] != 0.0 or K[2, 0] != 0.0 or K[2, 1] != 0.0:
+        raise InputError(f"camera {name!r}: K must be upper-triangular [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]; "
+                         f"got lower entries K[1,0]={K[1, 0]}, K[2,0]={K[2, 0]}, K[2,1]={K[2, 1]}")
+    if not K[2, 2] > 0.0:
+        raise InputError(f"camera {name!r}: K[2,2] must be 1 (or positive, to be normalised), got {K[2, 2]}")
+    if K[2, 2] != 1.0:
+        warnings.warn(f"camera {name!r}: K[2,2] = {K[2, 2]}; dividing K by it (the same projection)",
+                      UserWarning, stacklevel=4)
+        K = K / K[2, 2]
+        if not np.all(np.isfinite(K)):
+            raise InputError(f"camera {name!r}: K / K[2,2] overflows; pass K with K[2,2] = 1")
+    if K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise InputError(f"camera {name!r}: focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
+    if abs(K[0, 1]) > SKEW_REL_TOL * K[0, 0]:
+        raise InputError(f"camera {name!r}: skew K[0,1] = {K[0, 1]} is not supported (the rasterizers use fx, fy, "
+                         "cx, cy only); undistort/resample the images to a zero-skew K")
+    return K
+
+
+def _check_pose(c2w: np.ndarray, name: str) -> None:
+    """Raise InputError unless c2w is a rigid camera-to-world: a proper rotation (within
+    ROTATION_TOL, det +1, no mirror or scale) and the bottom row [0, 0, 0, 1]."""
+    if np.max(np.abs(c2w[3] - np.array([0.0, 0.0, 0.0, 1.0]))) > BOTTOM_ROW_TOL:
+        raise InputError(f"camera {name!r}: the c2w bottom row must be [0, 0, 0, 1], got {c2w[3].tolist()}; "
+                         "pass a rigid camera-to-world matrix")
+    R = c2w[:3, :3]
+    ortho = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    det = float(np.linalg.det(R))
+    if not (ortho <= ROTATION_TOL and abs(det - 1.0) <= ROTATION_TOL):
+        what = "a mirror (det -1)" if det < 0 else f"not orthonormal (max|R^T R - I| = {ortho:.3g}, det {det:.6g})"
+        raise InputError(f"camera {name!r}: the c2w rotation is {what}; pass a proper rotation (orthonormal, det +1)")
+
 
 @dataclass(frozen=True, eq=False)
 class Camera:
     """A calibrated pinhole camera.
 
-    K: (3, 3) intrinsics in pixels. c2w: (4, 4) camera-to-world, OpenCV axes.
-    width, height: image size in pixels. name: an identifier (e.g. "cam00", "30").
+    K: (3, 3) intrinsics in pixels, [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0 (no
+    skew; a positive K[2, 2] != 1 is divided out with a warning). c2w: (4, 4) (or (3, 4))
+    camera-to-world, OpenCV axes: a proper rotation (det +1, orthonormal to ROTATION_TOL) and the
+    bottom row [0, 0, 0, 1]. width, height: image size in pixels. name: an identifier (e.g.
+    "cam00", "30"). Anything else raises InputError here, where the camera is built.
     """
 
     K: np.ndarray
@@ -34,25 +99,33 @@ class Camera:
     _w2c: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        K = np.array(self.K, dtype=np.float64).reshape(3, 3)
-        c2w = np.array(self.c2w, dtype=np.float64)
+        try:
+            K = np.array(self.K, dtype=np.float64)
+            c2w = np.array(self.c2w, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"camera {self.name!r}: K and c2w must be numeric matrices ({exc})") from None
+        if K.size != 9:
+            raise InputError(f"camera {self.name!r}: K must be 3x3, got shape {K.shape}")
+        K = K.reshape(3, 3)
         if c2w.shape == (3, 4):
             c2w = np.vstack([c2w, [0.0, 0.0, 0.0, 1.0]])
         if c2w.shape != (4, 4):
             raise InputError(f"camera {self.name!r}: c2w must be 3x4 or 4x4, got shape {c2w.shape}")
         if not (np.all(np.isfinite(K)) and np.all(np.isfinite(c2w))):
             raise InputError(f"camera {self.name!r}: non-finite values in K or c2w; fix the pose/intrinsics source")
-        if int(self.width) <= 0 or int(self.height) <= 0:
-            raise InputError(f"camera {self.name!r}: image size must be positive, got {self.width}x{self.height}")
-        if K[0, 0] <= 0 or K[1, 1] <= 0:
-            raise InputError(f"camera {self.name!r}: focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
+        width, height = _image_side(self.width, self.name, "width"), _image_side(self.height, self.name, "height")
+        K = _check_intrinsics(K, self.name)
+        _check_pose(c2w, self.name)
         K.setflags(write=False)
         c2w.setflags(write=False)
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "c2w", c2w)
-        object.__setattr__(self, "width", int(self.width))
-        object.__setattr__(self, "height", int(self.height))
+        object.__setattr__(self, "width", width)
+        object.__setattr__(self, "height", height)
         w2c = np.linalg.inv(c2w)
+        if not np.all(np.isfinite(w2c)):
+            raise InputError(f"camera {self.name!r}: the pose's translation {c2w[:3, 3].tolist()} is too large to "
+                             "invert in float64; rescale the scene")
         w2c.setflags(write=False)
         object.__setattr__(self, "_w2c", w2c)
 

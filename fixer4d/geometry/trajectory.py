@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -62,6 +63,10 @@ SAME_POSE_TOL = 1e-9
 MIN_PERPENDICULAR = 1e-3
 # nerfstudio's default playback rate.
 NERFSTUDIO_FPS = 30.0
+# nerfstudio's camera_path holds one vertical fov per frame: square pixels and a centred principal
+# point. A camera whose fx/fy or principal point (relative to the image size) differs by more
+# than this round-off level is written as a different camera, so save_nerfstudio warns.
+NERFSTUDIO_INTRINSICS_TOL = 1e-6
 
 
 @dataclass(eq=False)
@@ -271,11 +276,22 @@ def novel_frame_mask(cameras: Sequence[Camera], train_cameras: Sequence[Camera])
     return out
 
 
+def _refuse_listed_twice(cameras: Sequence[Camera]) -> None:
+    """InputError when one camera (the same name and pose) appears twice in ``cameras``: a list
+    built wrongly, not a rig (two cameras of a rig have their own names)."""
+    for i, j in itertools.combinations(range(len(cameras)), 2):
+        a, b = cameras[i], cameras[j]
+        if a is b or (a.name == b.name and same_pose(a, b)):
+            raise InputError(f"train camera {a.name!r} is listed twice (positions {i} and {j}); "
+                             "list each camera once")
+
+
 def scene_trajectories(train_cameras: list[Camera], n_frames: int = DEFAULT_FRAMES, *,
                        amplitude: float | None = None, arcs: bool = True, seed: int = 0) -> list[Trajectory]:
     """The pair trajectories (A = 0) of every pair of train cameras (6 for 4 cameras), then the
-    arcs on the diagonal pairs (``diagonal_pairs``). A pair of cameras on one pose (a duplicated
-    camera) has no path between them and is left out; InputError when no pair is left.
+    arcs on the diagonal pairs (``diagonal_pairs``). Two differently named cameras on one pose
+    have no path between them: their pair is left out with a warning; InputError when no pair is
+    left, or when one camera is listed twice (same name and pose).
 
     amplitude: the arcs' A in world units; None draws A / baseline uniformly from
     ``ARC_AMPLITUDE_RANGE`` with ``numpy.random.default_rng(seed)``. n_ij uses the whole rig's
@@ -283,6 +299,7 @@ def scene_trajectories(train_cameras: list[Camera], n_frames: int = DEFAULT_FRAM
     """
     if len(train_cameras) < 2:
         raise InputError(f"trajectories need at least 2 train cameras, got {len(train_cameras)}")
+    _refuse_listed_twice(train_cameras)
     alphas = alphas_for(n_frames)
     centers = np.stack([c.center for c in train_cameras])
     up = np.sum([_image_up(c) for c in train_cameras], axis=0)
@@ -293,6 +310,11 @@ def scene_trajectories(train_cameras: list[Camera], n_frames: int = DEFAULT_FRAM
     if not distinct:
         raise InputError(f"trajectories need two train cameras at different poses; all {len(train_cameras)} share one "
                          "pose (check the capture's camera poses)")
+    shared = [(train_cameras[i].name, train_cameras[j].name)
+              for i, j in itertools.combinations(range(len(train_cameras)), 2) if (i, j) not in set(distinct)]
+    if shared:
+        warnings.warn(f"train cameras {shared} share one pose: no trajectory between them (their other pairs are kept)",
+                      UserWarning, stacklevel=2)
     for i, j in distinct:
         name = f"{i}-{j}"
         out.append(Trajectory(name, interpolate_pair(train_cameras[i], train_cameras[j], alphas, 0.0, name=name),
@@ -350,7 +372,8 @@ def save_nerfstudio(trajectories: Trajectory | list[Trajectory], path: str | Pat
     render_time: one clip time in [0, 1) for every frame; None uses each trajectory's ``times``
     when set, else sweeps time with the frames (frame k of K gets k / K). Camera poses go out in
     fixer4d's world frame (no nerfstudio dataparser transform), intrinsics as a vertical fov
-    (nerfstudio assumes square pixels and a centred principal point).
+    (nerfstudio assumes square pixels and a centred principal point: cameras that have neither
+    are written with their vertical fov, and a UserWarning names them).
     """
     trajs = [trajectories] if isinstance(trajectories, Trajectory) else list(trajectories)
     cams = [c for t in trajs for c in t.cameras]
@@ -367,6 +390,7 @@ def save_nerfstudio(trajectories: Trajectory | list[Trajectory], path: str | Pat
     else:
         times = np.arange(len(cams)) / len(cams)
     w, h = cams[0].width, cams[0].height
+    _warn_unrepresentable(cams, path)
     doc = {
         "camera_type": "perspective", "render_height": h, "render_width": w, "fps": float(fps),
         "seconds": len(cams) / float(fps), "smoothness_value": 0.0, "is_cycle": False, "keyframes": [],
@@ -374,6 +398,22 @@ def save_nerfstudio(trajectories: Trajectory | list[Trajectory], path: str | Pat
                          "aspect": w / h, "render_time": float(tm)} for c, tm in zip(cams, times)],
     }
     return write_json(path, doc)
+
+
+def _warn_unrepresentable(cams: Sequence[Camera], path: str | Path) -> None:
+    """Warn when a camera's intrinsics cannot be written to a nerfstudio camera path as they are:
+    non-square pixels (fx != fy) or an off-centre principal point would be replaced by a square-
+    pixel, centred camera with the same vertical fov (a different image)."""
+    tol = NERFSTUDIO_INTRINSICS_TOL
+    aspect = [c.name for c in cams if abs(c.fx - c.fy) > tol * c.fy]
+    offset = [c.name for c in cams if abs(c.cx - 0.5 * c.width) > tol * c.width
+              or abs(c.cy - 0.5 * c.height) > tol * c.height]
+    lost = ([f"non-square pixels (fx != fy) of {aspect[:3]}{' ...' if len(aspect) > 3 else ''}"] if aspect else []) + \
+           ([f"the off-centre principal point of {offset[:3]}{' ...' if len(offset) > 3 else ''}"] if offset else [])
+    if lost:
+        warnings.warn(f"{path}: a nerfstudio camera path holds one vertical fov with square pixels and a centred "
+                      f"principal point; {' and '.join(lost)} cannot be written: nerfstudio will render a "
+                      "different camera (use save_presets to keep the exact intrinsics)", UserWarning, stacklevel=3)
 
 
 def load_nerfstudio(path: str | Path, name: str | None = None) -> Trajectory:

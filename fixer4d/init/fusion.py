@@ -19,6 +19,11 @@ from fixer4d.geometry.camera import Camera
 from fixer4d.init import constants as C
 
 
+# Largest |coordinate| filter_cloud accepts: its output is float32 (max 3.4e38), and voxel
+# means and neighbour distances of larger coordinates overflow on the way.
+POINT_LIMIT = 1e30
+
+
 @dataclass
 class FusionConfig:
     """min_views: other views that must agree (k; 0 keeps every valid pixel). depth_tol: relative
@@ -30,6 +35,36 @@ class FusionConfig:
     voxel_rel: float = C.FUSION_VOXEL_REL
     outlier_neighbors: int = C.FUSION_OUTLIER_NEIGHBORS
     outlier_std: float = C.FUSION_OUTLIER_STD
+
+    def __post_init__(self) -> None:
+        _check_count(self.min_views, "min_views")
+        _check_positive(self.depth_tol, "depth_tol")
+        _check_positive(self.voxel_rel, "voxel_rel", zero_ok=True)
+        _check_count(self.outlier_neighbors, "outlier_neighbors")
+        _check_positive(self.outlier_std, "outlier_std")
+
+
+def _check_count(value, name: str) -> None:
+    """InputError unless ``value`` is a whole number >= 0."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise InputError(f"fusion: {name} must be a whole number >= 0, got {value!r}")
+
+
+def _check_positive(value, name: str, zero_ok: bool = False) -> None:
+    """InputError unless ``value`` is a finite number > 0 (>= 0 with ``zero_ok``)."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = float("nan")
+    if not (np.isfinite(v) and (v >= 0.0 if zero_ok else v > 0.0)) or isinstance(value, bool):
+        raise InputError(f"fusion: {name} must be a finite number {'>= 0' if zero_ok else '> 0'}, got {value!r}")
+
+
+def _check_image(image, i: int) -> None:
+    """InputError for an image that is not float RGB (8-bit images would be clipped to white)."""
+    img = np.asarray(image)
+    if img.dtype.kind != "f":
+        raise InputError(f"fusion: image {i} has dtype {img.dtype}; pass float RGB in [0, 1] (divide 8-bit by 255)")
 
 
 def _clean_depth(depth: np.ndarray, valid: np.ndarray | None) -> np.ndarray:
@@ -50,6 +85,8 @@ def consistent_points(images: Sequence[np.ndarray], depths: Sequence[np.ndarray]
     none); cameras: V cameras of those sizes; valids: optional V (H_i, W_i) bool masks.
     Returns (points (N, 3) float64, colors (N, 3) float32); N may be 0, never NaN.
     """
+    _check_count(min_views, "min_views")
+    _check_positive(depth_tol, "depth_tol")
     V = len(cameras)
     if len(images) != V or len(depths) != V or (valids is not None and len(valids) != V):
         raise InputError(f"fusion: {len(images)} images, {len(depths)} depth maps"
@@ -60,6 +97,9 @@ def consistent_points(images: Sequence[np.ndarray], depths: Sequence[np.ndarray]
         raise InputError(f"fusion: each point needs {min_views} other agreeing views but only {V} view(s) were given; "
                          f"pass more views or lower min_views")
     for i, cam in enumerate(cameras):
+        if not isinstance(cam, Camera):
+            raise InputError(f"fusion: camera {i} is a {type(cam).__name__}, not a fixer4d Camera")
+        _check_image(images[i], i)
         size = (cam.height, cam.width)
         if np.asarray(depths[i]).shape != size:
             raise InputError(f"fusion: depth map {i} is {np.asarray(depths[i]).shape}, camera {cam.name!r} is {size}")
@@ -108,8 +148,18 @@ def filter_cloud(points: np.ndarray, colors: np.ndarray, cameras: Sequence[Camer
     statistical outlier removal, as open3d's ``voxel_down_sample`` and
     ``remove_statistical_outlier`` define them (numpy + scipy: importing open3d alone took 0.5 s
     of a 3 s init). Returns (points (M, 3) float32, colors (M, 3) float32)."""
+    _check_positive(voxel_rel, "voxel_rel", zero_ok=True)
+    _check_count(outlier_neighbors, "outlier_neighbors")
+    _check_positive(outlier_std, "outlier_std")
     points = np.asarray(points, np.float64).reshape(-1, 3)
     colors = np.asarray(colors, np.float64).reshape(-1, 3)
+    if points.shape[0] != colors.shape[0]:
+        raise InputError(f"fusion: {points.shape[0]} points but {colors.shape[0]} colours; pass one colour per point")
+    if not (np.all(np.isfinite(points)) and np.all(np.isfinite(colors))):
+        raise InputError("fusion: non-finite points or colours; filter the cloud first")
+    if points.size and float(np.max(np.abs(points))) > POINT_LIMIT:
+        raise InputError(f"fusion: points reach {float(np.max(np.abs(points))):.3g}, beyond the float32 cloud's "
+                         f"range (|coordinate| <= {POINT_LIMIT:g}); rescale the scene")
     if points.shape[0] == 0:
         return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32)
     if voxel_rel > 0:
@@ -178,7 +228,8 @@ def fuse_results(images: Sequence[np.ndarray], results, config: FusionConfig | N
     if len(images) != len(results):
         raise InputError(f"fusion: {len(images)} images for {len(results)} depth results; pass one image per view")
     imgs = []
-    for img, res in zip(images, results):
+    for i, (img, res) in enumerate(zip(images, results)):
+        _check_image(img, i)
         img = np.asarray(img, np.float32)
         if img.shape[:2] != res.depth.shape:
             img = cv2.resize(img, (res.depth.shape[1], res.depth.shape[0]), interpolation=cv2.INTER_AREA)

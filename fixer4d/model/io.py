@@ -195,6 +195,10 @@ def load_npz(path: str | Path) -> SpacetimeGaussians:
         meta = json.loads(str(arrays.pop("format")))
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}: unreadable 'format' entry ({exc}); re-export the model") from None
+    not_numeric = sorted(k for k, a in arrays.items() if a.dtype.kind not in "biuf")
+    if not_numeric:
+        raise InputError(f"{path}: entries {not_numeric} are not numeric arrays (dtype "
+                         f"{arrays[not_numeric[0]].dtype}); a fixer4d .npz holds float and bool arrays: re-export it")
     return SpacetimeGaussians.from_tensors(_config_from_header(meta, path), arrays, source=str(path))
 
 

@@ -31,6 +31,15 @@ from torch import nn
 from fixer4d.errors import InputError, NumericalError
 from fixer4d.model.snapshot import Snapshot
 
+# Largest |coordinate|, time or colour from_points accepts: the model is float32 (max 3.4e38);
+# 1e30 leaves room for the products the renderer and the optimizer form from them.
+FLOAT32_SAFE_LIMIT = 1e30
+
+# Largest |t| at(t) accepts: clip times are in [0, 1); viewers and exports may extrapolate,
+# and up to a million clip lengths out dt^3 = 1e18 keeps the float32 cubic motion of
+# unit-order coefficients and its gradient finite; beyond, positions head for overflow.
+TIME_LIMIT = 1e6
+
 # Real spherical-harmonics constants (the 3DGS / graphics convention), degree 0..3.
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
@@ -226,18 +235,38 @@ class SpacetimeGaussians(nn.Module):
         for label, arr in (("points", pts), ("colors", cols), ("times", tms)):
             if not np.all(np.isfinite(arr)):
                 raise InputError(f"from_points: non-finite values in {label}; filter the point cloud first")
+            if arr.size and float(np.max(np.abs(arr))) > FLOAT32_SAFE_LIMIT:
+                raise InputError(f"from_points: {label} reach {float(np.max(np.abs(arr))):.3g}, beyond what the "
+                                 f"float32 model holds (|value| <= {FLOAT32_SAFE_LIMIT:g}); rescale the scene")
         if not (0.0 < opacity < 1.0):
             raise InputError(f"from_points: opacity must be in (0, 1), got {opacity}")
         if scales is None:
-            sc = np.repeat(knn_scales(pts)[:, None], 3, axis=1)
+            with np.errstate(over="ignore", invalid="ignore"):
+                sc = np.repeat(knn_scales(pts)[:, None], 3, axis=1)
+            if not np.all(np.isfinite(sc)):
+                raise InputError("from_points: the points' nearest-neighbour distances overflow; rescale the scene "
+                                 "to unit order (or pass scales)")
         else:
-            sc = np.asarray(scales, dtype=np.float64)
+            try:
+                sc = np.asarray(scales, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise InputError(f"from_points: scales must be {n} positive finite numbers (or rows of 3)") from None
             sc = np.repeat(sc.reshape(-1, 1), 3, axis=1) if sc.ndim == 1 else sc.reshape(-1, 3)
             if sc.shape[0] != n or not np.all(np.isfinite(sc)) or np.any(sc <= 0):
                 raise InputError(f"from_points: scales must be {n} positive finite values (or rows of 3)")
-        std_t = initial_temporal_std(tms) if t_scale is None else float(t_scale)
-        if not (std_t > 0 and math.isfinite(std_t)):
-            raise InputError(f"from_points: t_scale must be positive and finite, got {t_scale}")
+        if t_scale is None:
+            with np.errstate(over="ignore", invalid="ignore"):
+                std_t = initial_temporal_std(tms)
+            if not (std_t > 0 and math.isfinite(std_t)):
+                raise InputError(f"from_points: the spacing of the point times ({std_t}) is no usable temporal std; "
+                                 "pass t_scale or times in clip units")
+        else:
+            try:
+                std_t = float(t_scale)
+            except (TypeError, ValueError):
+                std_t = math.nan
+            if not (std_t > 0 and math.isfinite(std_t)):
+                raise InputError(f"from_points: t_scale must be positive and finite, got {t_scale!r}")
         model = cls(config, n)
         with torch.no_grad():
             model.means.copy_(torch.from_numpy(pts))
@@ -405,6 +434,9 @@ class SpacetimeGaussians(nn.Module):
         Static Gaussians (``dynamic`` False) and a config without time effects skip every time
         term: their means/quats are the Parameters themselves and their opacity is sigmoid(o).
         """
+        t = _checked_time(t)
+        if camera_center is not None:
+            camera_center = _checked_center(camera_center)
         means, quats = self.means, self.quats
         opacities = torch.sigmoid(self.opacity_logits)
         if self.config.has_time_terms:
@@ -468,6 +500,35 @@ class SpacetimeGaussians(nn.Module):
 
     def extra_repr(self) -> str:
         return f"n={self.num_gaussians}, dynamic={self.num_dynamic}, config={json.dumps(self.config.to_dict())}"
+
+
+def _checked_time(t: Any) -> float | torch.Tensor:
+    """``t`` itself when it is a finite clip time (a real number or a one-element tensor);
+    InputError naming t otherwise (an infinite t would give NaN positions, not a model error)."""
+    if torch.is_tensor(t):
+        if t.numel() != 1 or t.dtype.is_complex:
+            raise InputError(f"at(t): t must be one real clip time, got a tensor of shape {tuple(t.shape)}")
+        value = float(t.detach().reshape(-1)[0])
+    else:
+        try:
+            value = float(t)
+        except (TypeError, ValueError):
+            raise InputError(f"at(t): t must be a real clip time (0 <= t < 1 within the clip), got {t!r}") from None
+    if not abs(value) <= TIME_LIMIT:
+        raise InputError(f"at(t): t must be a finite clip time (0 <= t < 1 within the clip, |t| <= {TIME_LIMIT:g}), "
+                         f"got {value}")
+    return t
+
+
+def _checked_center(center: Any) -> np.ndarray:
+    """(3,) finite float64 camera centre; InputError otherwise."""
+    try:
+        c = np.asarray(center, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError(f"at(t): camera_center must be 3 numbers, got {center!r}") from None
+    if c.shape != (3,) or not np.all(np.isfinite(c)):
+        raise InputError(f"at(t): camera_center must be 3 finite numbers, got {c.tolist()}")
+    return c
 
 
 def _row_mask(mask: Any, n: int, what: str) -> torch.Tensor:

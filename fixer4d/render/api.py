@@ -16,7 +16,7 @@ from fixer4d.geometry.camera import Camera
 from fixer4d.model.snapshot import Snapshot
 from fixer4d.render.constants import ALPHA_MIN
 from fixer4d.render.output import RenderOutput  # re-exported: fixer4d.render.api.RenderOutput
-from fixer4d.render.project import project_gaussians
+from fixer4d.render.project import COLOR_LIMIT, guard_extremes, project_gaussians
 
 BACKENDS = ("auto", "reference", "cpu", "gsplat")
 
@@ -42,12 +42,41 @@ def resolve_backend(backend: str, device: torch.device) -> str:
 
 
 def _background(background, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """(3,) background colour in ``dtype``; InputError for another size, a NaN/inf value or one
+    beyond +-COLOR_LIMIT (it would make every pixel or every gradient non-finite)."""
     if background is None:
         return torch.zeros(3, dtype=dtype, device=device)
-    bg = torch.as_tensor(background, dtype=dtype, device=device).reshape(-1)
+    try:
+        bg = torch.as_tensor(background, dtype=dtype, device=device).reshape(-1)
+    except (TypeError, ValueError, RuntimeError) as exc:
+        raise InputError(f"render background must be 3 numbers (RGB), got {background!r} ({exc})") from None
     if bg.numel() != 3:
         raise InputError(f"render background must have 3 values (RGB), got {bg.numel()}")
+    if not bool((bg.detach().abs() <= COLOR_LIMIT).all()):  # False for NaN/inf too
+        raise InputError(f"render background must be finite RGB values in [0, 1] (|value| <= {COLOR_LIMIT:g}), "
+                         f"got {bg.tolist()}")
     return bg
+
+
+def _check_inputs(snapshot: Snapshot, camera: Camera) -> None:
+    """InputError for a non-Camera, a non-Snapshot, mismatched field shapes, non-float fields or
+    opacities outside [0, 1]; NumericalError (Snapshot.check) for NaN/inf parameters."""
+    if not isinstance(camera, Camera):
+        raise InputError(f"render: camera must be a fixer4d Camera, got {type(camera).__name__}")
+    if not isinstance(snapshot, Snapshot):
+        raise InputError(f"render: expected a Snapshot (model.at(t)), got {type(snapshot).__name__}")
+    n = snapshot.means.shape[0] if snapshot.means.dim() else -1
+    expect = {"means": (n, 3), "quats": (n, 4), "scales": (n, 3), "opacities": (n,), "colors": (n, 3)}
+    for name, shape in expect.items():
+        t = getattr(snapshot, name)
+        if not torch.is_tensor(t) or tuple(t.shape) != shape or not t.is_floating_point():
+            raise InputError(f"render: Snapshot.{name} must be a float tensor of shape {shape}, got "
+                             f"{getattr(t, 'dtype', type(t).__name__)} {tuple(getattr(t, 'shape', ()))}")
+    snapshot.check()
+    if n > 0:
+        low, high = (float(v) for v in snapshot.opacities.detach().aminmax())
+        if low < 0.0 or high > 1.0:
+            raise InputError(f"render: opacities must be in [0, 1], got values in [{low}, {high}]")
 
 
 def render(snapshot: Snapshot, camera: Camera, background: torch.Tensor | tuple | None = None,
@@ -55,17 +84,23 @@ def render(snapshot: Snapshot, camera: Camera, background: torch.Tensor | tuple 
     """Rasterize ``snapshot`` from ``camera``; differentiable w.r.t. every snapshot field.
 
     Raises NumericalError for non-finite Gaussian parameters (never renders a NaN image),
-    InputError for an unknown backend or a malformed background, BackendUnavailable when an
-    explicitly requested backend cannot run here. The reference backend computes in the
-    snapshot's dtype (float64 for gradient checks); the others in float32.
+    InputError for an unknown backend, a malformed or non-finite background, malformed snapshot
+    fields or opacities outside [0, 1], BackendUnavailable when an explicitly requested backend
+    cannot run here. The reference backend computes in the snapshot's dtype (float64 for
+    gradient checks); the others in float32. Finite inputs give a finite image and finite
+    gradients: Gaussians too far or too large to project in float32 are culled, huge colours
+    clamped, huge quaternions rescaled (``project.guard_extremes``), in every dtype alike.
     """
-    snapshot.check()
+    _check_inputs(snapshot, camera)
     device = snapshot.means.device
     name = resolve_backend(backend, device)
+    float64 = name == "reference" and snapshot.means.dtype == torch.float64
+    bg = _background(background, torch.float64 if float64 else torch.float32, device)  # checked before any work
+    snapshot = guard_extremes(snapshot, camera)
     if name == "gsplat":
         from fixer4d.render import gsplat_backend
 
-        return gsplat_backend.render(snapshot, camera, _background(background, torch.float32, device))
+        return gsplat_backend.render(snapshot, camera, bg)
     if device.type != "cpu":
         raise BackendUnavailable(f"render backend {name!r} runs on CPU tensors; the snapshot is on {device}")
     if name == "cpu" or snapshot.means.dtype not in (torch.float32, torch.float64):
@@ -87,7 +122,6 @@ def render(snapshot: Snapshot, camera: Camera, background: torch.Tensor | tuple 
         from fixer4d.render.cpu import rasterize_cpu
 
         color_acc, trans, depth_acc, n_fragments = rasterize_cpu(proj, camera.width, camera.height)
-    bg = _background(background, dtype, device)
     alpha = 1.0 - trans
     rgb = color_acc + trans[..., None] * bg
     # every blended pixel has alpha >= ALPHA_MIN, so the clamp only guards empty pixels

@@ -18,6 +18,59 @@ from fixer4d.render.constants import DET_MIN, LOWPASS_2D, NEAR_PLANE, SIGMA_EXTE
 
 # Largest stored radius (pixels), far below int32 overflow.
 RADIUS_MAX = float(2 ** 30)
+# Largest |entry| of the rows t0, t1 of T = J W R S (pixels per world unit of the scaled axes) of
+# a splat that is drawn; larger ones are culled, by every backend and in every dtype (one rule).
+# Radius <= 3 sqrt(|t0|^2 + |t1|^2 + 2 l) <= 7.4 T_ENTRY_MAX < RADIUS_MAX, and det <= 3 (2
+# T_ENTRY_MAX^2)^2 ~ 4e33 stays far below float32's 3.4e38, so the float32 projection never
+# overflows where the float64 one would not. Such a splat (radius > 1e8 px) needs a Gaussian
+# thousands of scene units wide in front of the camera: none in a unit-order scene.
+T_ENTRY_MAX = RADIUS_MAX / 8.0
+# World-space bounds of a drawable Gaussian (see ``guard_extremes``). Scenes are normalised to
+# unit order; 1e18 is far beyond any of them yet keeps fx x / z, z^2 and their gradients finite
+# in float32.
+MEAN_LIMIT = 1e18
+SCALE_LIMIT = 1e18
+# Quaternions with a component above this are divided by their largest |component| before
+# projection: their squared norm would overflow float32 (at ~1.8e19) and the rotation would
+# fall back to the identity in float32 but not in float64. The rotation is unchanged.
+QUAT_RESCALE_ABOVE = 1e15
+# Colours are clamped to +-COLOR_LIMIT: they are in [0, 1] (view-dependent colour overshoots
+# a little); a colour this large is a diverged Gaussian, and the bound keeps sums of weighted
+# colours and their gradients finite in float32.
+COLOR_LIMIT = 1e4
+
+
+def guard_extremes(snapshot: Snapshot, camera: Camera) -> Snapshot:
+    """``snapshot`` made safe to project in float32, unchanged (the same object) when no value is
+    extreme. Gaussians with |mean| > MEAN_LIMIT or |scale| > SCALE_LIMIT are culled (mean moved
+    to the camera centre, behind the near plane; zero gradient); quaternions with a component
+    above QUAT_RESCALE_ABOVE are rescaled (same rotation); colours are clamped to +-COLOR_LIMIT
+    (zero gradient beyond). Runs in the snapshot's dtype, before any cast to float32, so float32
+    and float64 renders cull the same Gaussians."""
+    if len(snapshot) == 0:
+        return snapshot
+    with torch.no_grad():
+        peaks = torch.stack([snapshot.means.detach().abs().amax(), snapshot.scales.detach().abs().amax(),
+                             snapshot.quats.detach().abs().amax(), snapshot.colors.detach().abs().amax()]).tolist()
+    if (peaks[0] <= MEAN_LIMIT and peaks[1] <= SCALE_LIMIT and peaks[2] <= QUAT_RESCALE_ABOVE
+            and peaks[3] <= COLOR_LIMIT):
+        return snapshot
+    means, scales, quats, colors = snapshot.means, snapshot.scales, snapshot.quats, snapshot.colors
+    with torch.no_grad():
+        far = (means.detach().abs().amax(-1) > MEAN_LIMIT) | (scales.detach().abs().amax(-1) > SCALE_LIMIT)
+    if bool(far.any()):
+        centre = torch.as_tensor(camera.center, dtype=means.dtype, device=means.device).expand_as(means)
+        means = torch.where(far[:, None], centre, means)
+        scales = torch.where(far[:, None], torch.ones_like(scales), scales)
+    if peaks[2] > QUAT_RESCALE_ABOVE:
+        with torch.no_grad():
+            top = quats.detach().abs().amax(-1, keepdim=True)
+            big = top > QUAT_RESCALE_ABOVE
+            divisor = torch.where(big, top, torch.ones_like(top))
+        quats = quats / divisor
+    if peaks[3] > COLOR_LIMIT:
+        colors = colors.clamp(-COLOR_LIMIT, COLOR_LIMIT)
+    return Snapshot(means=means, quats=quats, scales=scales, opacities=snapshot.opacities, colors=colors)
 
 
 @dataclass
@@ -31,7 +84,7 @@ class Projection:
         this form (see ``stable_conic``): unlike (a, b, c) it keeps long thin splats in float32.
     depths: (N,) camera-frame z of the means (world units).
     radii: (N,) int32 pixel radius of the 3-sigma extent; 0 = culled (behind the near plane,
-        degenerate covariance or off-screen). Not differentiable.
+        degenerate covariance, an entry of T above T_ENTRY_MAX, or off-screen). Not differentiable.
     opacities: (N,) and colors: (N, 3): the snapshot's, passed through.
     """
 
@@ -111,8 +164,13 @@ def project_gaussians(snapshot: Snapshot, camera: Camera) -> Projection:
     j_xz, j_yz = (-fx * tx * inv_z * inv_z)[:, None], (-fy * ty * inv_z * inv_z)[:, None]
     t0 = (fx * inv_z)[:, None] * world_rs[:, 0] + j_xz * world_rs[:, 2]
     t1 = (fy * inv_z)[:, None] * world_rs[:, 1] + j_yz * world_rs[:, 2]
+    with torch.no_grad():
+        tame = torch.maximum(t0.detach().abs().amax(-1), t1.detach().abs().amax(-1)) <= T_ENTRY_MAX
+    if not bool(tame.all()):  # culled rows get zero rows, so no inf/NaN reaches the backward
+        t0 = torch.where(tame[:, None], t0, torch.zeros_like(t0))
+        t1 = torch.where(tame[:, None], t1, torch.zeros_like(t1))
     conic_ldl, det = stable_conic(t0, t1, LOWPASS_2D)
-    ok = in_front & (det > DET_MIN) & torch.isfinite(det)
+    ok = in_front & tame & (det > DET_MIN) & torch.isfinite(det)
     conic_ldl = torch.where(ok[:, None], conic_ldl, torch.ones_like(conic_ldl))
 
     with torch.no_grad():

@@ -22,7 +22,7 @@ from fixer4d.geometry.camera import Camera
 from fixer4d.jit import NUMBA_ERROR, njit, prange, torch_threads_kept
 from fixer4d.model.snapshot import Snapshot
 from fixer4d.render.constants import DET_MIN, LOWPASS_2D, NEAR_PLANE, SIGMA_EXTENT, TAN_FOV_MARGIN
-from fixer4d.render.project import RADIUS_MAX, Projection
+from fixer4d.render.project import RADIUS_MAX, T_ENTRY_MAX, Projection
 
 # quaternions with a norm at or below this (or non-finite) map to the identity with zero
 # gradient: the same rule as fixer4d.geometry.quaternion.to_matrix_torch
@@ -32,8 +32,8 @@ _ZERO_NORM = 1e-12
 # height, then every constant the arithmetic uses. Constants come in the row because numba
 # would promote a float32 combined with a Python number to float64, while torch rounds the
 # number to float32 first: typed constants keep the float32 arithmetic that of the torch version.
-(_K_ONE, _K_TWO, _K_HALF, _K_ZERO, _K_NEAR, _K_DET_MIN, _K_LP, _K_LP2, _K_SIGMA) = range(22, 31)
-_CAM_N = 31
+(_K_ONE, _K_TWO, _K_HALF, _K_ZERO, _K_NEAR, _K_DET_MIN, _K_LP, _K_LP2, _K_SIGMA, _K_T_MAX) = range(22, 32)
+_CAM_N = 32
 
 
 def _camera_row(camera: Camera, dtype: np.dtype) -> np.ndarray:
@@ -44,7 +44,8 @@ def _camera_row(camera: Camera, dtype: np.dtype) -> np.ndarray:
     tan_x, tan_y = 0.5 * W / fx, 0.5 * H / fy
     lims = [(W - cx) / fx + TAN_FOV_MARGIN * tan_x, cx / fx + TAN_FOV_MARGIN * tan_x,
             (H - cy) / fy + TAN_FOV_MARGIN * tan_y, cy / fy + TAN_FOV_MARGIN * tan_y]
-    consts = [1.0, 2.0, 0.5, 0.0, NEAR_PLANE, DET_MIN, LOWPASS_2D, LOWPASS_2D * LOWPASS_2D, SIGMA_EXTENT]
+    consts = [1.0, 2.0, 0.5, 0.0, NEAR_PLANE, DET_MIN, LOWPASS_2D, LOWPASS_2D * LOWPASS_2D, SIGMA_EXTENT,
+              T_ENTRY_MAX]
     row = np.array([*w2c[:3, :3].reshape(-1), *w2c[:3, 3], fx, fy, cx, cy, *lims, W, H, *consts], dtype)
     assert row.shape == (_CAM_N,)
     return row
@@ -125,6 +126,13 @@ if njit is not None:
         det = (k0 * k0 + k1 * k1 + k2 * k2) + lp * (ca + cc) - lp2
         return ca, cb, cc, k0, k1, k2, det
 
+    @njit(cache=True, inline="always")
+    def _tame(t00, t01, t02, t10, t11, t12, t_max):
+        """Whether every entry of the rows t0, t1 is within t_max (False for NaN): the
+        projection's cull rule of project.T_ENTRY_MAX."""
+        return (abs(t00) <= t_max and abs(t01) <= t_max and abs(t02) <= t_max and abs(t10) <= t_max
+                and abs(t11) <= t_max and abs(t12) <= t_max)
+
     @njit(cache=True, parallel=True)
     def _project_fwd(means, quats, scales, cam, means2d, conic, depths, radii):
         """Forward for N Gaussians: fills means2d (N, 2), conic (N, 3) LDL (a, r, q), depths
@@ -139,8 +147,11 @@ if njit is not None:
             means2d[i, 0] = u
             means2d[i, 1] = v
             depths[i] = z
+            tame = _tame(t00, t01, t02, t10, t11, t12, cam[_K_T_MAX])
+            if not tame:  # zero rows, as the torch version: no inf/NaN in the radius below
+                t00 = t01 = t02 = t10 = t11 = t12 = zero
             ca, cb, cc, k0, k1, k2, det = _cov2d(t00, t01, t02, t10, t11, t12, lp, lp2)
-            ok = in_front and det > cam[_K_DET_MIN] and np.isfinite(det)
+            ok = in_front and tame and det > cam[_K_DET_MIN] and np.isfinite(det)
             if ok:
                 conic[i, 0] = cc / det
                 conic[i, 1] = -cb / cc
@@ -176,8 +187,9 @@ if njit is not None:
              t00, t01, t02, t10, t11, t12) = _t_rows(means, quats, scales, cam, i)
             s0, s1, s2 = scales[i, 0], scales[i, 1], scales[i, 2]
             zero = cam[_K_ZERO]
+            tame = _tame(t00, t01, t02, t10, t11, t12, cam[_K_T_MAX])
             ca, cb, cc, k0, k1, k2, det = _cov2d(t00, t01, t02, t10, t11, t12, lp, lp2)
-            ok = in_front and det > cam[_K_DET_MIN] and np.isfinite(det)
+            ok = in_front and tame and det > cam[_K_DET_MIN] and np.isfinite(det)
             # conic -> (ca, cb, cc, det) -> t0, t1
             g00 = g01 = g02 = g10 = g11 = g12 = zero
             if ok:

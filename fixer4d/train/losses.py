@@ -34,6 +34,55 @@ def _gaussian_1d(device: torch.device, dtype: torch.dtype) -> torch.Tensor:
     return w
 
 
+# Largest |value| for which the float32 SSIM moments keep their accuracy: the cancellation error
+# of var = E[x^2] - mu^2 is ~eps32 x value^2 x (a few), 3e-5 at 8, far below C2 = 9e-4, so the
+# denominator stays positive. Images are in [0, 1] and renders overshoot by little; inputs
+# beyond this take the guarded path (float64, clamped), inputs within it the plain one.
+FLOAT32_SAFE_VALUE = 8.0
+# The guarded path clamps values to +-LOSS_VALUE_LIMIT (zero gradient beyond): a render that far
+# outside [0, 1] has diverged, and the bound keeps the float64 moments, the loss and its
+# gradients finite when cast back to float32.
+LOSS_VALUE_LIMIT = 1e4
+
+
+def _checked_pair(a: torch.Tensor, b: torch.Tensor, who: str) -> tuple[torch.Tensor, torch.Tensor, torch.dtype | None]:
+    """Validate two images of one shape (non-empty, floating, finite) -> (a, b, cast_back).
+
+    cast_back is None for the plain path. For |values| > FLOAT32_SAFE_VALUE it is the inputs'
+    dtype and (a, b) are float64 copies clamped to +-LOSS_VALUE_LIMIT: the caller computes on
+    them and casts the result back."""
+    if not (torch.is_tensor(a) and torch.is_tensor(b)):
+        raise InputError(f"{who}: expected torch tensors, got {type(a).__name__} and {type(b).__name__}")
+    if a.shape != b.shape:
+        raise InputError(f"{who}: image shapes differ: {tuple(a.shape)} vs {tuple(b.shape)}")
+    if a.numel() == 0:
+        raise InputError(f"{who}: images of shape {tuple(a.shape)} are empty; pass images with pixels")
+    if not (a.is_floating_point() and b.is_floating_point()):
+        raise InputError(f"{who}: expected float images in [0, 1], got {a.dtype} and {b.dtype}")
+    with torch.no_grad():
+        peak = float(torch.maximum(a.detach().abs().amax(), b.detach().abs().amax().to(a.dtype)))
+    if not math.isfinite(peak):
+        raise InputError(f"{who}: images contain NaN/inf; the render or its target is corrupt")
+    if peak <= FLOAT32_SAFE_VALUE:
+        return a, b, None
+    limit = LOSS_VALUE_LIMIT
+    return a.double().clamp(-limit, limit), b.double().clamp(-limit, limit), a.dtype
+
+
+def _checked_weight(weight: torch.Tensor | None, who: str) -> None:
+    """Raise InputError unless ``weight`` is None or a finite, non-negative float tensor."""
+    if weight is None:
+        return
+    if not torch.is_tensor(weight) or not weight.is_floating_point():
+        raise InputError(f"{who}: weight must be a float tensor of per-pixel weights >= 0")
+    if weight.numel() == 0:
+        return
+    low = float(weight.detach().amin())
+    if not (low >= 0.0 and bool(torch.isfinite(weight.detach()).all())):
+        raise InputError(f"{who}: weight must be finite and >= 0 (got a minimum of {low}); "
+                         "a negative weight would reward error")
+
+
 def _as_batch(a: torch.Tensor, b: torch.Tensor, who: str) -> tuple[torch.Tensor, torch.Tensor]:
     """Check shapes and return (B, 3, H, W) views of two (H, W, 3) or (B, H, W, 3) images."""
     if a.shape != b.shape:
@@ -46,10 +95,10 @@ def _as_batch(a: torch.Tensor, b: torch.Tensor, who: str) -> tuple[torch.Tensor,
 
 
 def l1(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Mean absolute difference of two images of equal shape -> scalar tensor."""
-    if a.shape != b.shape:
-        raise InputError(f"l1: image shapes differ: {tuple(a.shape)} vs {tuple(b.shape)}")
-    return (a - b).abs().mean()
+    """Mean absolute difference of two non-empty float images of equal shape -> scalar tensor."""
+    x, y, cast_back = _checked_pair(a, b, "l1")
+    out = (x - y).abs().mean()
+    return out if cast_back is None else out.to(cast_back)
 
 
 def masked_l1(a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
@@ -62,8 +111,14 @@ def masked_l1(a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor | None = No
     """
     if weight is None:
         return l1(a, b)
-    if a.shape != b.shape:
-        raise InputError(f"masked_l1: image shapes differ: {tuple(a.shape)} vs {tuple(b.shape)}")
+    x, y, cast_back = _checked_pair(a, b, "masked_l1")
+    _checked_weight(weight, "masked_l1")
+    out = _masked_l1(x, y, weight)
+    return out if cast_back is None else out.to(cast_back)
+
+
+def _masked_l1(a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """``masked_l1`` on checked inputs."""
     if weight.shape == a.shape[:-1]:
         weight = weight.unsqueeze(-1)
     if weight.dim() != a.dim() or weight.shape[:-1] != a.shape[:-1] or weight.shape[-1] not in (1, a.shape[-1]):
@@ -79,6 +134,14 @@ def ssim(a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor | None = None) -
     then averaged as mean(weight x map) (normalized by the pixel count, as ``masked_l1``).
     Differentiable w.r.t. both inputs.
     """
+    a, b, cast_back = _checked_pair(a, b, "ssim")
+    _checked_weight(weight, "ssim")
+    out = _ssim(a, b, weight)
+    return out if cast_back is None else out.to(cast_back)
+
+
+def _ssim(a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """``ssim`` on checked inputs."""
     x, y = _as_batch(a, b, "ssim")
     n, c, h, w = x.shape
     g = _gaussian_1d(x.device, x.dtype)
@@ -106,9 +169,17 @@ def dssim(a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor | None = None) 
     """The training D-SSIM term 1 - SSIM (the STGS loss's convention, not the metric's (1 - SSIM)/2).
 
     weight: None, or a per-pixel weight (H, W): mean(weight x (1 - SSIM map))."""
+    a, b, cast_back = _checked_pair(a, b, "dssim")
+    _checked_weight(weight, "dssim")
+    out = _dssim(a, b, weight)
+    return out if cast_back is None else out.to(cast_back)
+
+
+def _dssim(a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """``dssim`` on checked inputs."""
     if weight is None:
-        return 1.0 - ssim(a, b)
-    return weight.mean() - ssim(a, b, weight)
+        return 1.0 - _ssim(a, b)
+    return weight.mean() - _ssim(a, b, weight)
 
 
 def stg_loss(render: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
@@ -121,22 +192,42 @@ def stg_loss(render: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | 
     A float32 CPU render goes through the fused numba kernel (fixer4d.train.loss_cpu: loss and
     gradient in one row-parallel pass); everything else, and FIXER4D_FUSED_LOSS=0, through
     ``stg_loss_torch``, the reference it is tested against."""
-    if os.environ.get(FUSED_SWITCH, "1") != "0":
+    x, y, cast_back = _checked_pair(render, target, "stg_loss")
+    _checked_weight(weight, "stg_loss")
+    if cast_back is None and os.environ.get(FUSED_SWITCH, "1") != "0":
         from fixer4d.train.loss_cpu import fused_applies, stg_loss_fused
 
         if fused_applies(render, target, weight):
             return stg_loss_fused(render, target, weight)
-    return stg_loss_torch(render, target, weight)
+    out = _stg_loss(x, y, weight)
+    return out if cast_back is None else out.to(cast_back)
 
 
 def stg_loss_torch(render: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
     """``stg_loss`` in torch ops (any device, dtype or batch shape; differentiable w.r.t. both)."""
+    x, y, cast_back = _checked_pair(render, target, "stg_loss_torch")
+    _checked_weight(weight, "stg_loss_torch")
+    out = _stg_loss(x, y, weight)
+    return out if cast_back is None else out.to(cast_back)
+
+
+def _stg_loss(render: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None) -> torch.Tensor:
+    """``stg_loss_torch`` on checked inputs."""
     if weight is None:
-        return (1.0 - LAMBDA_DSSIM) * l1(render, target) + LAMBDA_DSSIM * dssim(render, target)
-    return (1.0 - LAMBDA_DSSIM) * masked_l1(render, target, weight) + LAMBDA_DSSIM * dssim(render, target, weight)
+        return (1.0 - LAMBDA_DSSIM) * (render - target).abs().mean() + LAMBDA_DSSIM * _dssim(render, target)
+    return ((1.0 - LAMBDA_DSSIM) * _masked_l1(render, target, weight)
+            + LAMBDA_DSSIM * _dssim(render, target, weight))
 
 
 def psnr_torch(a: torch.Tensor, b: torch.Tensor) -> float:
-    """PSNR in dB (data range 1) of two images, for progress bars; inf when identical."""
+    """PSNR in dB (data range 1) of two images of one shape, for progress bars; inf when
+    identical (``fixer4d.eval.metrics.psnr_from_mse``, the one PSNR formula)."""
+    from fixer4d.eval.metrics import psnr_from_mse
+
+    if not (torch.is_tensor(a) and torch.is_tensor(b)) or a.shape != b.shape or a.numel() == 0:
+        raise InputError(f"psnr_torch: expected two non-empty tensors of one shape, got "
+                         f"{tuple(getattr(a, 'shape', ()))} and {tuple(getattr(b, 'shape', ()))}")
     mse = float((a.detach().double() - b.detach().double()).pow(2).mean())
-    return math.inf if mse == 0.0 else -10.0 * math.log10(mse)
+    if not math.isfinite(mse):
+        raise InputError(f"psnr_torch: the images contain NaN/inf or values too large to square (MSE {mse})")
+    return psnr_from_mse(mse)

@@ -18,7 +18,8 @@ HOST_AVX512 = "+avx512f" in llvm.get_host_cpu_features().flatten().split(",")
 PROBE = """
 import json, os
 import numpy as np
-import fixer4d.render.cpu  # sets the features at import
+if not os.environ.get("_FIXER4D_PROBE_PLAIN"):
+    import fixer4d.render.cpu  # sets the features at import
 import numba
 from fixer4d.render import simd
 
@@ -53,5 +54,10 @@ def test_wide_vectors_on_avx512_hosts_only():
 
 
 def test_switch_off():
+    # off: fixer4d leaves numba's target alone, so the loop is what LLVM picks for this host by
+    # itself (16 lanes on CPUs whose LLVM model has no 256-bit preference, e.g. AMD Zen 4)
     res = _probe(FIXER4D_NUMBA_AVX512="0")
-    assert res["features"] is None and not res["zmm"]
+    plain = _probe(FIXER4D_NUMBA_AVX512="0", _FIXER4D_PROBE_PLAIN="1")
+    assert res["features"] is None and res["zmm"] == plain["zmm"]
+    if not HOST_AVX512:
+        assert not res["zmm"]
