@@ -81,7 +81,7 @@ def evaluate_on_other_cameras(run_dir: str | Path, other: str | Path, *, progres
     if ev.restoration_rows:
         rows.append(R.copied_row(R.ROW_IDENTITY, m))
         score(R.ROW_BLUR, blur_render_fn(stage1, ev.blur_sigma_px, "auto", bg))
-        gate = config.stage2.visibility if config.stage2.pseudo_mask == "unobserved" else None
+        gate = config.stage2.visibility if config.eval.gate_restoration else None
         score(R.ROW_RESTORED_INIT, restoration_render_fn(stage1, scene, build_restorer(config, folder.path), "auto",
                                                          gate))
     for name, path in models:

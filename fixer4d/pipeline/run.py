@@ -116,8 +116,8 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
     del clouds
     r_key = S.restorer_key(config)
     # restored renders replace the render only where the train cameras leave a pixel unobserved
-    # (None: the paper's restoration rows, every pixel)
-    gate = config.stage2.visibility if config.stage2.pseudo_mask == "unobserved" else None
+    # (eval.gate_restoration; None: the paper's restoration rows, every pixel)
+    gate = config.stage2.visibility if config.eval.gate_restoration else None
     if restorer is not None and config.eval.restoration_rows:
         add(R.copied_row(R.ROW_IDENTITY, m))
         blur = blur_render_fn(model, config.eval.blur_sigma_px, ctx.backend, config.stage1.background)

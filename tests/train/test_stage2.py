@@ -190,5 +190,8 @@ def test_real_restore_cache_plugs_in(small_scene, small_clouds, make_config, tmp
     trainer = Trainer(model, small_scene, cfg, stage2=Stage2Config(refresh_every=3, rounds=1), cache=cache)
     rec = trainer.step()
     assert trainer.round == 0 and rec["loss_gen"] > 0
-    assert trainer._pseudo_weight(entry) == pytest.approx(np.full((3, h, w), 0.125))
+    assert trainer._pseudo_weight(entry) == pytest.approx(np.full((3, h, w), 0.5))
+    masked = Trainer(model, small_scene, cfg, stage2=Stage2Config(refresh_every=3, rounds=1, pseudo_mask="unobserved"),
+                     cache=cache)
+    assert masked._pseudo_weight(entry) == pytest.approx(np.full((3, h, w), 0.125))
     assert rec["loss"] == pytest.approx(rec["loss_stg"] + 0.5 * rec["loss_gen"], rel=1e-5)

@@ -150,10 +150,12 @@ def test_paper_switch_gives_the_confidence_weighted_loss_exactly(small_scene, sm
 
 def test_unobserved_mask_weights_the_pseudo_loss(small_scene, small_clouds, make_config):
     entry = _masked_clip(small_scene)
-    w = _pseudo_weight(small_scene, small_clouds, make_config, entry)  # the default: unobserved pixels only
+    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, pseudo_mask="unobserved")
     np.testing.assert_allclose(w, entry.conf * entry.hidden, rtol=1e-6)
-    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, observed_weight=0.25)
+    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, pseudo_mask="unobserved", observed_weight=0.25)
     np.testing.assert_allclose(w, entry.conf * (0.25 + 0.75 * entry.hidden), rtol=1e-6)
     blank = MaskedEntry(entry.key, entry.cameras, entry.time, entry.frames, entry.conf, None)
     with pytest.raises(Exception, match="unobserved-pixel map"):
-        _pseudo_weight(small_scene, small_clouds, make_config, blank)
+        _pseudo_weight(small_scene, small_clouds, make_config, blank, pseudo_mask="unobserved")
+    # the default (chosen on the validation cameras) supervises every pixel, as the paper
+    assert np.array_equal(_pseudo_weight(small_scene, small_clouds, make_config, entry), entry.conf)
