@@ -82,10 +82,22 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fixer4d {args.verb}: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM as errors.Terminated
-        what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
-        resume = "; completed stages are saved and a rerun resumes" if args.verb in RESUMABLE else ""
-        print(f"\nfixer4d {args.verb}: {what}{resume}", file=sys.stderr)
-        return 143 if isinstance(exc, Terminated) else 130
+        return _interrupted(args.verb, exc)
+    except SystemError as exc:  # an interrupt raised inside a numba kernel arrives wrapped
+        from fixer4d.signals import interrupt_behind
+
+        inner = interrupt_behind(exc)
+        if inner is None:
+            raise
+        return _interrupted(args.verb, inner)
+
+
+def _interrupted(verb: str, exc: KeyboardInterrupt) -> int:
+    """One line for a Ctrl-C (exit 130) or a SIGTERM (exit 143), saying whether a rerun resumes."""
+    what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+    resume = "; completed stages are saved and a rerun resumes" if verb in RESUMABLE else ""
+    print(f"\nfixer4d {verb}: {what}{resume}", file=sys.stderr)
+    return 143 if isinstance(exc, Terminated) else 130
 
 
 if __name__ == "__main__":

@@ -40,3 +40,17 @@ def reassert_python_handlers() -> None:
         handler = signal.getsignal(sig)
         if handler is not None:  # None: set outside Python, nothing of ours to restore
             signal.signal(sig, handler)
+
+
+def interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The Ctrl-C or ``Terminated`` that ``exc`` wraps, if any. A signal handler that raises while
+    a numba kernel runs (the kernel calls back into Python between its parallel chunks) surfaces
+    as numba's ``SystemError("... returned a result with an exception set")`` with the
+    interrupt as its context."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None

@@ -57,3 +57,18 @@ def test_a_terminated_run_says_so_and_resumes(tmp_path):
     done = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
     assert (run / "report.json").exists()
+
+
+def test_an_interrupt_inside_a_numba_kernel_is_found_behind_its_system_error():
+    # a handler that raises while a parallel numba kernel runs surfaces as numba's SystemError
+    from fixer4d.errors import Terminated
+    from fixer4d.signals import interrupt_behind
+
+    try:
+        try:
+            raise Terminated("signal SIGTERM")
+        except Terminated:
+            raise SystemError("CPUDispatcher(<function _bin_tiles>) returned a result with an exception set")
+    except SystemError as exc:
+        assert isinstance(interrupt_behind(exc), Terminated)
+    assert interrupt_behind(SystemError("a real fault")) is None
