@@ -246,6 +246,8 @@ class Camera:
 
     def scaled(self, factor: float) -> "Camera":
         """Resize by a factor (e.g. 0.5 for half resolution), rounding the size to whole pixels."""
+        if not np.isfinite(self.width * factor) or not np.isfinite(self.height * factor) or not factor > 0:
+            raise InputError(f"camera {self.name!r}: scale factor must be > 0 with a finite image size, got {factor}")
         return self.resized(max(1, int(round(self.width * factor))), max(1, int(round(self.height * factor))))
 
     def with_pose(self, c2w: np.ndarray, name: str | None = None) -> "Camera":

@@ -69,6 +69,8 @@ def decide(psnr: dict[str, float], tie_db: float, allow_skip: bool = True) -> st
     earlier (simpler) one by more than ``tie_db``. Without ``allow_skip`` the candidates are
     continue and refine."""
     candidates = [c for c in CHOICES if c in psnr and (allow_skip or c != "skip")]
+    if not candidates:
+        raise InputError(f"self-check: no PSNR of a candidate ({', '.join(CHOICES)}) to decide from, got {sorted(psnr)}")
     best = candidates[0]
     for choice in candidates[1:]:
         if psnr[choice] > psnr[best] + tie_db:

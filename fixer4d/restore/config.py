@@ -117,7 +117,10 @@ class RestoreConfig:
             unknown = set(parts[name]) - known
             if unknown:
                 raise InputError(f"restorer config: unknown {name} setting(s) {sorted(unknown)}; known: {sorted(known)}")
-            built[name] = klass(**parts[name])
+            try:
+                built[name] = klass(**parts[name])
+            except (TypeError, ValueError) as exc:  # a value of the wrong type meets a range check
+                raise InputError(f"restorer config: {name} setting(s) {parts[name]}: {exc}") from None
         return cls(kind=str(kind), **built)
 
     def settings_key(self) -> dict[str, Any]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import difflib
+import numbers
 
 from fixer4d.errors import InputError
 from fixer4d.scene.base import MultiViewVideo, SceneBounds
@@ -82,6 +83,8 @@ def load_scene(source: str | Path, *, scale: float = 1.0, frame_range: tuple[int
     """
     from fixer4d.scene.validate import check_ids
 
+    if isinstance(scale, bool) or not isinstance(scale, numbers.Real) or not 0 < scale < float("inf"):
+        raise InputError(f"scene {source!s}: scale must be a number > 0 (0.5 = half resolution), got {scale!r}")
     if calibration is not None or offsets or holdout:
         src = Path(str(source))
         if not (src.is_dir() and detect_layout(src) == "capture"):

@@ -35,6 +35,8 @@ def read_json_object(path: Path, label: str, fix: str) -> dict:
 
 def frame_time(frame: int, num_frames: int) -> float:
     """t = f / T: the STGS convention, t in [0, 1)."""
+    if not num_frames >= 1:
+        raise InputError(f"frame_time: the clip must have at least one frame, got num_frames={num_frames}")
     return frame / float(num_frames)
 
 
