@@ -21,7 +21,7 @@ def test_sigterm_raises_terminated_after_pycolmap_took_the_signal():
             "from fixer4d.signals import install_sigterm\n"
             "from fixer4d.errors import Terminated\n"
             "assert install_sigterm()\n"
-            "from fixer4d.init.poses import _pycolmap\n"
+            "from fixer4d.calib.colmap import pycolmap_module as _pycolmap\n"
             "_pycolmap()\n"
             "try:\n"
             "    os.kill(os.getpid(), signal.SIGTERM)\n"

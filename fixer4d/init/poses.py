@@ -11,17 +11,17 @@ that the sparse baseline reuses for each frame; it lives in a temporary folder r
 """
 from __future__ import annotations
 
-import contextlib
 import shutil
 import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
-from fixer4d.errors import BackendUnavailable, InputError
+from fixer4d.calib.colmap import pycolmap_module as _pycolmap
+from fixer4d.calib.colmap import quiet as quiet_colmap
+from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera, rig_extent
 from fixer4d.init import constants as C
 
@@ -52,28 +52,6 @@ class SfMResult:
     colors: np.ndarray
     seconds: float
     stats: dict = field(default_factory=dict)
-
-
-def _pycolmap():
-    try:
-        import pycolmap
-    except ImportError as exc:  # pragma: no cover - pycolmap is a declared dependency of [init]
-        raise BackendUnavailable("pycolmap is not installed; install fixer4d[init] (pip install pycolmap)") from exc
-    from fixer4d.signals import reassert_python_handlers
-
-    reassert_python_handlers()  # its glog took SIGTERM on import (fixer4d.signals)
-    return pycolmap
-
-
-@contextlib.contextmanager
-def _quiet_glog(pycolmap) -> Iterator[None]:
-    """COLMAP logs every step at INFO through glog; keep warnings and errors only."""
-    old = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 2
-    try:
-        yield
-    finally:
-        pycolmap.logging.minloglevel = old
 
 
 def cam_from_world_matrix(image) -> np.ndarray:
@@ -132,7 +110,7 @@ class ColmapWorkspace:
         from PIL import Image
 
         pycolmap = _pycolmap()
-        with _quiet_glog(pycolmap):
+        with quiet_colmap(pycolmap):
             for name, img, cam in zip(self.names, self.images, self.cameras):
                 rgb8 = np.round(np.clip(np.nan_to_num(np.asarray(img, np.float32)), 0, 1) * 255).astype(np.uint8)
                 Image.fromarray(rgb8).save(self.image_dir / name)
@@ -173,7 +151,7 @@ class ColmapWorkspace:
         pycolmap = _pycolmap()
         out = self.dir / "triangulated"
         out.mkdir()
-        with _quiet_glog(pycolmap):
+        with quiet_colmap(pycolmap):
             rec = pycolmap.triangulate_points(self.fixed_pose_reconstruction(), self.database, self.image_dir, out)
         return _points_of(rec)
 
@@ -189,7 +167,7 @@ class ColmapWorkspace:
         options.ba_refine_principal_point = False
         options.ba_refine_extra_params = False
         options.random_seed = 0
-        with _quiet_glog(pycolmap):
+        with quiet_colmap(pycolmap):
             recs = pycolmap.incremental_mapping(self.database, self.image_dir, out, options)
         if not recs:
             return None
