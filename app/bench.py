@@ -310,18 +310,10 @@ def bench_orbit(ctx, model: str | None, frames: int, window: tuple[int, int], ro
     (the first 3 frames of each turn, the budget's warm-up, are not timed)."""
     from imgui_bundle import imgui
 
-    from app.sources import app_services, initial_state, open_source
-    from app.viewer import Viewer, ViewerSource
-    from fixer4d.scene import load_scene
+    from app.sources import app_services, initial_state
+    from app.viewer import Viewer
 
-    if model:
-        src, g, _ = open_source(model)
-        label = model
-    else:
-        scene = load_scene("demo")
-        g = demo_surface_gaussians(scene)
-        src = ViewerSource(scene=scene, label="demo (surface model)")
-        label = f"demo scene surfaces, {g.n} static Gaussians (no run folder given)"
+    src, g, label = _bench_source(model)
     fbo = ctx.simple_framebuffer(window)
     out = {"model": label, "gaussians": int(g.n), "window": list(window), "rounds": rounds, "frames": frames}
     times: dict[str, list[float]] = {name: [] for name, _, _ in ORBIT_MODES}
@@ -376,18 +368,10 @@ def bench_playback(ctx, model: str | None, window: tuple[int, int], loops: int =
     quality into the frame cache (``fill_s``: its wall time, ``fill_ms_per_frame``), the later
     ``loops - 1`` passes show the cached frames (``fps_cached``); then one pass with the cache
     off (level of detail while the time moves) for comparison (``fps_uncached``)."""
-    from app.sources import app_services, initial_state, open_source
-    from app.viewer import Viewer, ViewerSource
-    from fixer4d.scene import load_scene
+    from app.sources import app_services, initial_state
+    from app.viewer import Viewer
 
-    if model:
-        src, g, _ = open_source(model)
-        label = model
-    else:
-        scene = load_scene("demo")
-        g = demo_surface_gaussians(scene)
-        src = ViewerSource(scene=scene, label="demo (surface model)")
-        label = f"demo scene surfaces, {g.n} static Gaussians (no run folder given)"
+    src, g, label = _bench_source(model)
     fbo = ctx.simple_framebuffer(window)
     state = initial_state(src, g)
     state.show_frusta = state.show_trajectories = False
@@ -446,3 +430,19 @@ def bench_playback(ctx, model: str | None, window: tuple[int, int], loops: int =
           f"({out['fps_uncached']:.1f} fps without it, level of detail); the 3D view alone at {window[0]}x{window[1]}: "
           f"{out['view_only_fill_ms_per_frame']:.0f} ms per full-quality frame", flush=True)
     return out
+
+
+def _bench_source(model: str | None):
+    """(source, gaussians, label) a viewer benchmark shows: ``model`` (a run folder or model file),
+    else the demo scene's surfaces as static Gaussians."""
+    from app.sources import open_source
+    from app.viewer import ViewerSource
+    from fixer4d.scene import load_scene
+
+    if model:
+        src, g, _ = open_source(model)
+        return src, g, model
+    scene = load_scene("demo")
+    g = demo_surface_gaussians(scene)
+    src = ViewerSource(scene=scene, label="demo (surface model)")
+    return src, g, f"demo scene surfaces, {g.n} static Gaussians (no run folder given)"

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from fixer4d.errors import InputError
+from numerics_finite import finite
 from fixer4d.eval import metrics as M
 from fixer4d.geometry import Camera, rig_extent
 from fixer4d.geometry.trajectory import Trajectory, save_nerfstudio, scene_trajectories
@@ -33,20 +34,6 @@ UNIT = st.floats(min_value=0.0, max_value=1.0, allow_nan=False, width=32)
 # magnitudes spanning float32: tiny, unit-order and near overflow, either sign
 MAG = st.sampled_from([0.0, 1e-30, 1e-6, 0.1, 1.0, 7.0, 1e4, 1e12, 1e20, 1e30, 3e38])
 SIGNED_MAG = st.builds(lambda m, s: m * s, MAG, st.sampled_from([-1.0, 1.0]))
-
-
-def _finite(x) -> bool:
-    if torch.is_tensor(x):
-        return bool(torch.isfinite(x).all())
-    if isinstance(x, np.ndarray):
-        return bool(np.isfinite(x).all()) if x.dtype.kind in "fc" else True
-    if isinstance(x, float):
-        return math.isfinite(x)
-    if isinstance(x, dict):
-        return all(v is None or _finite(v) for v in x.values())
-    if isinstance(x, (tuple, list)):
-        return all(_finite(v) for v in x)
-    return True
 
 
 def _image(h, w, dtype=np.float32, elements=F32):
@@ -119,7 +106,7 @@ def test_metrics_finite_or_input_error(pair, name):
         return
     if isinstance(out, dict) and out.get("psnr") == math.inf:
         out = {k: v for k, v in out.items() if k != "psnr"}
-    assert _finite(out), out
+    assert finite(out), out
 
 
 @SETTINGS
@@ -218,9 +205,9 @@ def test_render_finite_image_and_gradients_or_input_error(snap, backend, backgro
         out = render(snap, _CAM, background=background, backend=backend)
     except InputError:
         return
-    assert _finite(out.rgb) and _finite(out.alpha) and _finite(out.depth)
+    assert finite(out.rgb) and finite(out.alpha) and finite(out.depth)
     (out.rgb.sum() + out.alpha.sum() + out.depth.sum()).backward()
-    assert all(t.grad is None or _finite(t.grad) for t in leaves)
+    assert all(t.grad is None or finite(t.grad) for t in leaves)
 
 
 @SETTINGS
@@ -263,7 +250,7 @@ def test_from_points_and_at_finite_or_input_error(points, t_scale, t):
     except InputError:
         assert abs(t) > 1e6
         return
-    assert all(_finite(getattr(snap, f)) for f in ("means", "quats", "scales", "opacities", "colors"))
+    assert all(finite(getattr(snap, f)) for f in ("means", "quats", "scales", "opacities", "colors"))
 
 
 @SETTINGS
@@ -292,7 +279,7 @@ def test_frame_clouds_finite_or_input_error(arrays):
         except InputError:
             continue
     points, colors, times = merge_clouds(clouds)
-    assert _finite((points, colors, times))
+    assert finite((points, colors, times))
 
 
 @SETTINGS
@@ -323,7 +310,7 @@ def test_fusion_finite_or_input_error(depths, depth_tol, min_views):
         pts, cols = filter_cloud(pts, cols, _RIG)
     except InputError:
         return
-    assert _finite((pts, cols)) and pts.shape[0] == cols.shape[0]
+    assert finite((pts, cols)) and pts.shape[0] == cols.shape[0]
 
 
 @SETTINGS

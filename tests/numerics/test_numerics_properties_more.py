@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from fixer4d.errors import InputError
+from numerics_finite import finite
 from fixer4d.geometry import Camera
 
 SETTINGS = settings(max_examples=15, deadline=None, derandomize=True,
@@ -30,18 +31,6 @@ ODD_NUMBERS = st.sampled_from([0, -1, 1, 2.5, -0.5, 1e-300, 1e308, -1e308, float
                                float("-inf")])
 FINITE_ODD = st.sampled_from([0, -1, 1, 2.5, -0.5, 1e-300, 1e308, -1e308])
 ODD_VALUES = st.one_of(ODD_NUMBERS, st.sampled_from([None, True, False, "x", "", [1], [], {}, {"a": 1}]))
-
-
-def _finite(x) -> bool:
-    if isinstance(x, np.ndarray):
-        return bool(np.isfinite(x).all()) if x.dtype.kind in "fc" else True
-    if isinstance(x, float):
-        return math.isfinite(x)
-    if isinstance(x, dict):
-        return all(v is None or _finite(v) for v in x.values())
-    if isinstance(x, (tuple, list)):
-        return all(_finite(v) for v in x)
-    return True
 
 
 def _arrays(shape, elements=SIGNED_MAG):
@@ -84,7 +73,7 @@ def test_reference_warp_restore_finite_or_input_error(request, extra):
     restorer = ReferenceWarpRestorer(ReferenceWarpConfig(use_extra_views=extra, temporal_radius=1))
     out = restorer.restore(request)
     assert out.rgb.shape == request.rgb.shape
-    assert _finite(out.rgb) and _finite(out.confidence) and _finite(out.frame_confidence)
+    assert finite(out.rgb) and finite(out.confidence) and finite(out.frame_confidence)
     assert float(out.confidence.min()) >= 0.0 and float(out.confidence.max()) <= 1.0
 
 
@@ -122,7 +111,7 @@ def test_blend_with_render_finite_in_unit_range(f, render_el, result_el, with_we
                            np.zeros(f, np.float32))
     weight = data.draw(_arrays((f, 3, 4), SIGNED_MAG)) if with_weight else None
     out = blend_with_render(render, result, weight)
-    assert _finite(out.rgb) and _finite(out.confidence) and _finite(out.frame_confidence)
+    assert finite(out.rgb) and finite(out.confidence) and finite(out.frame_confidence)
     assert out.rgb.min() >= 0.0 and out.rgb.max() <= 1.0 and out.confidence.min() >= 0.0
     with pytest.raises(InputError):
         blend_with_render(render[:, :2], result, weight)
@@ -138,7 +127,7 @@ def test_unobserved_weight_and_clip_finite_in_unit_range(f, data):
     alphas = data.draw(_arrays((f, _H, _W), st.one_of(UNIT, SIGNED_MAG)))
     train = [TrainView(c, data.draw(_arrays((_H, _W), DEPTH)), data.draw(_arrays((_H, _W), UNIT))) for c in _REFS]
     clip = unobserved_clip(_CLIP[:f], depths, alphas, train)
-    assert clip.shape == (f, _H, _W) and _finite(clip) and clip.min() >= 0.0 and clip.max() <= 1.0
+    assert clip.shape == (f, _H, _W) and finite(clip) and clip.min() >= 0.0 and clip.max() <= 1.0
     assert 0.0 <= unobserved_fraction(clip) <= 1.0
     with pytest.raises(InputError):
         unobserved_weight(_CLIP[0], depths[0][:, :2], alphas[0], train)
@@ -170,7 +159,7 @@ def test_restore_configs_from_dict_or_input_error(key, value):
         cfg = RestoreConfig.from_dict(d)
     except InputError:
         return
-    assert _finite([v for v in (cfg.warp.__dict__ | cfg.learned.__dict__).values() if isinstance(v, float)])
+    assert finite([v for v in (cfg.warp.__dict__ | cfg.learned.__dict__).values() if isinstance(v, float)])
     if cfg.kind == "warp":
         assert build_restorer(cfg).settings()
 
@@ -247,7 +236,7 @@ def test_report_rows_hold_every_metric_key(method, mean, seconds):
     assert method in ROW_NAMES
     for row in (metrics_row(method, {"mean": mean}, seconds), copied_row(method, {"mean": mean, "method": "y"}),
                 failed_row(method, "reason")):
-        assert row["method"] == method and set(METRIC_KEYS) <= set(row) and _finite(row)
+        assert row["method"] == method and set(METRIC_KEYS) <= set(row) and finite(row)
 
 
 # ---- scene -----------------------------------------------------------------------------------
@@ -305,7 +294,7 @@ def test_train_only_view_or_input_error(train_ids, scale, cam):
         assert cam not in base.train_ids
         return
     assert cam in base.train_ids and img.shape == (view.cameras[cam].height, view.cameras[cam].width, 3)
-    assert _finite(img)
+    assert finite(img)
 
 
 def test_scene_names_and_layouts_or_input_error(tmp_path):
@@ -321,7 +310,7 @@ def test_scene_names_and_layouts_or_input_error(tmp_path):
     scene = open_scene_checked("tiny", frame_range="0:2", scale=0.5)
     validate_scene(scene)
     bounds = scene.bounds()
-    assert _finite([np.asarray(v, np.float64) for v in vars(bounds).values() if v is not None])
+    assert finite([np.asarray(v, np.float64) for v in vars(bounds).values() if v is not None])
 
 
 # ---- init cloud files ------------------------------------------------------------------------
@@ -348,7 +337,7 @@ def test_frame_cloud_files_round_trip_finite_or_input_error(frames, colour):
         back = load_frame_clouds(tmp)
     assert [c.frame for c in back] == sorted(c.frame for c in clouds)
     for c in back:
-        assert _finite((c.points, c.colors, c.times)) and ((c.colors >= 0.0) & (c.colors <= 1.0)).all()
+        assert finite((c.points, c.colors, c.times)) and ((c.colors >= 0.0) & (c.colors <= 1.0)).all()
 
 
 # ---- every public name is covered or exempt --------------------------------------------------
