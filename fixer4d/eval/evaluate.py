@@ -32,7 +32,7 @@ of ``restore.visibility`` computed from the stage-1 model's renders at the held-
 train cameras: no held-out image is read) and ``unobserved_fraction``.
 
 Exposure-aligned PSNR: ``psnr_aligned`` is the PSNR after a per-image, per-channel affine fit of
-the render to the ground truth (least squares, ``exposure_aligned``), the "colour-corrected"
+the render to the ground truth (least squares, ``metrics.exposure_aligned``), the "colour-corrected"
 convention of in-the-wild view synthesis: it shows how much of the error is camera exposure and
 white balance rather than geometry. The raw PSNR stays the headline.
 """
@@ -131,22 +131,6 @@ def heldout_moving_masks(scene, cam_idx: int, frames: Sequence[int]) -> tuple[np
     from fixer4d.init.masks import moving_masks_for_scene
 
     return moving_masks_for_scene(scene, [cam_idx], frames)[0], REGION_MASK_ESTIMATED
-
-
-def exposure_aligned(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
-    """(H, W, 3) ``pred`` after a per-channel affine fit a_c x + b_c to ``gt`` (least squares over
-    the image's pixels), clipped to [0, 1]; a flat channel gets only the offset."""
-    pred = np.asarray(pred, np.float64)
-    gt = np.asarray(gt, np.float64)
-    out = np.empty_like(pred)
-    for c in range(pred.shape[-1]):
-        x = pred[..., c].ravel()
-        y = gt[..., c].ravel()
-        var = float(x.var())
-        a = float(np.mean((x - x.mean()) * (y - y.mean())) / var) if var > 1e-12 else 0.0
-        b = float(y.mean() - a * x.mean())
-        out[..., c] = a * pred[..., c] + b
-    return np.clip(out, 0.0, 1.0).astype(np.float32)
 
 
 def _slug(text: str) -> str:
@@ -273,7 +257,7 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
             t0 = time.perf_counter()
             m = M.image_metrics(pred, gt)
             m.update(M.region_metrics(pred, gt, moving[j]))
-            m["psnr_aligned"] = M.psnr(exposure_aligned(pred, gt), gt)
+            m["psnr_aligned"] = M.psnr(M.exposure_aligned(pred, gt), gt)
             extra: dict[str, Any] = {}
             if unobserved_fn is not None:
                 hidden = np.asarray(unobserved_fn(cam_idx, f), bool)

@@ -224,6 +224,22 @@ def region_metrics(pred: np.ndarray, gt: np.ndarray, moving: np.ndarray) -> dict
     return out
 
 
+def exposure_aligned(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """(H, W, 3) ``pred`` after a per-channel affine fit a_c x + b_c to ``gt`` (least squares over
+    the image's pixels), clipped to [0, 1]; a flat channel gets only the offset."""
+    pred = np.asarray(pred, np.float64)
+    gt = np.asarray(gt, np.float64)
+    out = np.empty_like(pred)
+    for c in range(pred.shape[-1]):
+        x = pred[..., c].ravel()
+        y = gt[..., c].ravel()
+        var = float(x.var())
+        a = float(np.mean((x - x.mean()) * (y - y.mean())) / var) if var > 1e-12 else 0.0
+        b = float(y.mean() - a * x.mean())
+        out[..., c] = a * pred[..., c] + b
+    return np.clip(out, 0.0, 1.0).astype(np.float32)
+
+
 def image_metrics(pred: np.ndarray, gt: np.ndarray) -> dict[str, float | None]:
     """All four metrics of one rendered image against its ground truth.
 

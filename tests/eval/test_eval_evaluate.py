@@ -164,7 +164,7 @@ def test_markdown_table_rows():
 
 
 def test_exposure_aligned_psnr_undoes_a_gain_and_offset_and_never_lowers_psnr():
-    from fixer4d.eval.evaluate import exposure_aligned
+    from fixer4d.eval.metrics import exposure_aligned
     from fixer4d.eval.metrics import psnr
 
     rng = np.random.default_rng(0)
