@@ -32,7 +32,7 @@ def _psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float
 def seams(run: Path, which: str = "final") -> dict:
     from fixer4d.eval.evaluate import heldout_moving_masks
     from fixer4d.model.io import load_ply
-    from fixer4d.pipeline.restoration import model_render_fn
+    from fixer4d.render.views import model_render_fn
     from fixer4d.pipeline.run_folder import load_scene_for, read_run_config
     from fixer4d.pipeline.segments import segment_dir, split_segments, to_local_time
 

@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     from fixer4d.init.decompose import DecomposedInit, has_decomposed
-    from fixer4d.pipeline.restoration import model_render_fn
+    from fixer4d.render.views import model_render_fn
     from fixer4d.pipeline.run_folder import RunFolder, load_scene_for
     from fixer4d.pipeline.stages import StageContext, evaluate_stage, stage1_trainer
 

@@ -59,7 +59,8 @@ def main(argv: list[str] | None = None) -> int:
     from fixer4d.pipeline import report as R
     from fixer4d.pipeline import stages as S
     from fixer4d.pipeline.config import RunConfig
-    from fixer4d.pipeline.restoration import make_refresh_callback, model_render_fn
+    from fixer4d.pipeline.restoration import make_refresh_callback
+    from fixer4d.render.views import model_render_fn
     from fixer4d.pipeline.run import open_context
     from fixer4d.pipeline.run_folder import read_run_config
 

@@ -9,11 +9,8 @@ Kernel modules import ``njit``/``prange``/``numba`` from here and define their k
 """
 from __future__ import annotations
 
-import contextlib
-
-import torch
-
 from fixer4d.render.simd import prefer_512_bit_vectors
+from fixer4d.threads import torch_threads
 
 prefer_512_bit_vectors()  # before numba builds its CPU target: 16-lane float32 loops (see simd.py)
 
@@ -27,7 +24,6 @@ else:
     NUMBA_ERROR = None
 
 
-@contextlib.contextmanager
 def torch_threads_kept():
     """Run numba's parallel machinery without letting it change torch's intra-op thread count.
 
@@ -38,9 +34,4 @@ def torch_threads_kept():
     barrier: a training iteration measured 1.9 s instead of 0.3 s (30k Gaussians, 320x180), and
     a 50k fwd+bwd render 4.3 s instead of 0.45 s. The count is restored on exit.
     """
-    n = torch.get_num_threads()
-    try:
-        yield
-    finally:
-        if torch.get_num_threads() != n:
-            torch.set_num_threads(n)
+    return torch_threads(None)

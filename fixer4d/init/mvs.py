@@ -26,11 +26,10 @@ it is importable and local weights are given; otherwise it raises BackendUnavail
 """
 from __future__ import annotations
 
-import contextlib
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Iterator, Protocol, Sequence, runtime_checkable
+from typing import Protocol, Sequence, runtime_checkable
 
 import numpy as np
 import torch
@@ -40,6 +39,7 @@ from fixer4d.errors import BackendUnavailable, InputError
 from fixer4d.geometry.camera import Camera, rig_extent
 from fixer4d.geometry.rig import axes_converge, axes_system, common_view_bounds
 from fixer4d.init import constants as C
+from fixer4d.threads import torch_threads
 
 MVSANYWHERE_WEIGHTS_ENV = "FIXER4D_MVSANYWHERE_WEIGHTS"
 MVSANYWHERE_CONFIG_ENV = "FIXER4D_MVSANYWHERE_CONFIG"
@@ -197,17 +197,6 @@ class PlaneSweepConfig:
         """Planes of the coarse sweep: the full grid's step in pixels at the coarse resolution
         (fewer planes alias: the ZNCC peak falls between two planes)."""
         return max(3, int(round(self.planes * self.coarse_scale)))
-
-
-@contextlib.contextmanager
-def torch_threads(n: int) -> Iterator[None]:
-    """Run with n torch threads (0 = every core), restoring the previous setting."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(n if n > 0 else (os.cpu_count() or 1))
-    try:
-        yield
-    finally:
-        torch.set_num_threads(old)
 
 
 def _box(x: torch.Tensor, k: int) -> torch.Tensor:

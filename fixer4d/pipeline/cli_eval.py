@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     from fixer4d.atomic import write_json
     from fixer4d.eval.evaluate import evaluate, markdown_table
     from fixer4d.model.io import load_ply
-    from fixer4d.pipeline.restoration import model_render_fn
+    from fixer4d.render.views import model_render_fn
     from fixer4d.pipeline.run_folder import RunFolder
     from fixer4d.pipeline.stages import eval_slug
 

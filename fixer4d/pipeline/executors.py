@@ -81,16 +81,16 @@ def _thread_counts(_job: Any) -> tuple[int, int]:
 def _run_with_threads(fn: Callable[[Any], Any], threads: int, job: Any) -> Any:
     """``fn(job)`` with torch (and numba, up to its pool size) on ``threads`` threads: a Ray task's
     body (top-level, so workers can unpickle it)."""
-    import torch
+    from fixer4d.threads import torch_threads
 
-    torch.set_num_threads(threads)
-    try:
-        import numba
+    with torch_threads(threads):
+        try:
+            import numba
 
-        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-    except ImportError:
-        pass
-    return fn(job)
+            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+        except ImportError:
+            pass
+        return fn(job)
 
 
 def make_executor(kind: str, address: str | None = None):

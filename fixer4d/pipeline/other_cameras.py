@@ -46,10 +46,10 @@ def evaluate_on_other_cameras(run_dir: str | Path, other: str | Path, *, progres
     from fixer4d.eval.evaluate import evaluate
     from fixer4d.model.io import load_ply
     from fixer4d.pipeline import report as R
-    from fixer4d.pipeline.restoration import UnobservedMasks, blur_render_fn, build_restorer, model_render_fn, \
-        restoration_render_fn
+    from fixer4d.pipeline.restoration import UnobservedMasks, blur_render_fn, build_restorer, restoration_render_fn
     from fixer4d.pipeline.run_folder import RunFolder, load_scene_for
     from fixer4d.pipeline.self_check import DECISION_FILE
+    from fixer4d.render.views import model_render_fn
 
     folder = RunFolder.open(run_dir)
     config = folder.config

@@ -10,55 +10,14 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
-import torch
 
 from fixer4d.geometry.camera import Camera
 from fixer4d.pipeline.config import RunConfig, TrajectoryConfig
+from fixer4d.render.views import model_render_fn, render_views
 from fixer4d.restore.visibility import VisibilityConfig
 
 # The learned restorer's folder inside a run (weights, training pairs, validation.json).
 RESTORER_DIR = "restorer"
-
-
-def render_views(model, cameras: list[Camera], t: float, backend: str = "auto",
-                 background: torch.Tensor | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Render ``model`` at time ``t`` from every camera: rgb (F,H,W,3), depth (F,H,W), alpha (F,H,W).
-
-    Cameras that coincide (same size, intrinsics and pose within 1e-9) are rendered once: a pair
-    trajectory's endpoints are its reference cameras, which a restore request also needs.
-    """
-    from fixer4d.render.api import render
-
-    rendered: list[tuple[Camera, tuple[np.ndarray, np.ndarray, np.ndarray]]] = []
-    rgbs, depths, alphas = [], [], []
-    with torch.no_grad():
-        for cam in cameras:
-            hit = next((r for c, r in rendered if _same_view(c, cam)), None)
-            if hit is None:
-                snap = model.at(t, camera_center=cam.center)
-                out = render(snap, cam, background=background, backend=backend)
-                hit = (out.rgb.clamp(0, 1).numpy(), out.depth.numpy(), out.alpha.numpy())
-                rendered.append((cam, hit))
-            rgbs.append(hit[0])
-            depths.append(hit[1])
-            alphas.append(hit[2])
-    return np.stack(rgbs).astype(np.float32), np.stack(depths).astype(np.float32), np.stack(alphas).astype(np.float32)
-
-
-def _same_view(a: Camera, b: Camera) -> bool:
-    return (a.width == b.width and a.height == b.height and np.allclose(a.K, b.K, rtol=0.0, atol=1e-9)
-            and np.allclose(a.c2w, b.c2w, rtol=0.0, atol=1e-9))
-
-
-def model_render_fn(model, backend: str = "auto",
-                    background: tuple[float, float, float] | None = None) -> Callable[[Camera, float], np.ndarray]:
-    """``fn(camera, t) -> (H,W,3)`` rendering ``model`` (what evaluation and the viewer call)."""
-    bg = None if background is None else torch.tensor(background, dtype=torch.float32)
-
-    def fn(camera: Camera, t: float) -> np.ndarray:
-        return render_views(model, [camera], t, backend, bg)[0][0]
-
-    return fn
 
 
 def make_request(model, scene, cameras: list[Camera], frame: int, ref_ids: tuple[int, int], *,

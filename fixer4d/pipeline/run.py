@@ -20,11 +20,12 @@ from fixer4d import atomic
 from fixer4d.pipeline import report as R
 from fixer4d.pipeline import stages as S
 from fixer4d.pipeline.config import RunConfig
-from fixer4d.pipeline.restoration import (UnobservedMasks, blur_render_fn, build_restorer, model_render_fn,
-                                          pseudo_view_summary, restoration_render_fn)
+from fixer4d.pipeline.restoration import (UnobservedMasks, blur_render_fn, build_restorer, pseudo_view_summary,
+                                          restoration_render_fn)
 from fixer4d.pipeline.run_folder import RunFolder, load_scene_for, stage_key
 from fixer4d.pipeline.shared_static import SHARED_DIR, export_shared_static
 from fixer4d.pipeline.stage_cache import StageCache
+from fixer4d.render.views import model_render_fn
 
 log = logging.getLogger("fixer4d.pipeline")
 

@@ -18,7 +18,7 @@ log = logging.getLogger("fixer4d.pipeline")
 def _held_back_psnr(model, views, cam: int, frames: list[int], backend: str, background) -> float:
     """Mean PSNR of ``model`` at train camera ``cam`` of the fold over ``frames``."""
     from fixer4d.eval.metrics import psnr
-    from fixer4d.pipeline.restoration import render_views
+    from fixer4d.render.views import render_views
 
     scores = []
     for f in frames:

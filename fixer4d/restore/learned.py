@@ -42,6 +42,7 @@ from fixer4d.restore import constants as C
 from fixer4d.restore.base import ProgressFn, RestoreRequest, RestoreResult
 from fixer4d.restore.config import META_FILE, WEIGHTS_FILE, LearnedRestorerConfig, RestoreConfig
 from fixer4d.restore.reference_warp import FrameWarp, ReferenceWarpRestorer, sanitize_depth, smooth_along_clip
+from fixer4d.threads import torch_threads
 
 FORMAT = 1
 FEATURE_CHANNELS = 23
@@ -199,20 +200,6 @@ def restorer_loss(net: RestorerNet, feats: torch.Tensor, target: torch.Tensor) -
     return loss, out
 
 
-class _Threads:
-    """Run a block with ``n`` torch threads, restoring the previous count."""
-
-    def __init__(self, n: int) -> None:
-        self.n = int(n)
-
-    def __enter__(self) -> None:
-        self.prev = torch.get_num_threads()
-        torch.set_num_threads(self.n)
-
-    def __exit__(self, *exc: object) -> None:
-        torch.set_num_threads(self.prev)
-
-
 def train_network(samples: Sequence[tuple[np.ndarray, np.ndarray]], config: LearnedRestorerConfig,
                   progress: Callable[[int, float], None] | None = None) -> tuple[RestorerNet, dict[str, Any]]:
     """Train a RestorerNet on ``samples`` = [(features (C, H, W), target (H, W, 3))].
@@ -234,7 +221,7 @@ def train_network(samples: Sequence[tuple[np.ndarray, np.ndarray]], config: Lear
     data = [(torch.from_numpy(np.ascontiguousarray(f, np.float32)),
              torch.from_numpy(np.ascontiguousarray(t.transpose(2, 0, 1), np.float32))) for f, t in samples]
     cpu0, wall0 = time.process_time(), time.perf_counter()
-    with _Threads(config.threads):
+    with torch_threads(config.threads):
         torch.manual_seed(config.seed)
         net = RestorerNet(config.width, config.residual_bound)
         opt = torch.optim.Adam(net.parameters(), lr=config.lr)

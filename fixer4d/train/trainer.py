@@ -37,6 +37,7 @@ from fixer4d.model.snapshot import Snapshot
 from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians, knn_scales
 from fixer4d.render.api import RenderOutput, render
 from fixer4d.render.constants import ALPHA_MIN
+from fixer4d.render.views import model_render_fn
 from fixer4d.scene.base import MultiViewVideo
 from fixer4d.train.config import Stage1Config, Stage2Config
 from fixer4d.train.losses import masked_l1, psnr_torch, stg_loss
@@ -621,13 +622,9 @@ class Trainer:
             return self.model.at(float(t), camera_center).detach()
 
     def render_fn(self) -> Callable[[Camera, float], np.ndarray]:
-        """``fn(camera, t) -> (H, W, 3) float32`` rendering the current model (for evaluation)."""
-        def fn(camera: Camera, t: float) -> np.ndarray:
-            with torch.no_grad():
-                snap = self.snapshot(t, camera.center)
-                out = render(snap, camera, background=self.background, backend=self.config.backend)
-            return out.rgb.clamp(0.0, 1.0).cpu().numpy().astype(np.float32)
-        return fn
+        """``fn(camera, t) -> (H, W, 3) float32`` rendering the current model (for evaluation);
+        each render takes its snapshot under the trainer's lock."""
+        return model_render_fn(_Snapshots(self), self.config.backend, self.background)
 
     # -- checkpoints --------------------------------------------------------------------------
     @property
@@ -775,3 +772,10 @@ def _comparable(cfg: dict[str, Any]) -> dict[str, Any]:
     """A stage config without the fields that do not change the result (progress display,
     checkpoint cadence)."""
     return {k: v for k, v in cfg.items() if k not in ("progress", "checkpoint_every", "keep_checkpoints")}
+
+
+class _Snapshots:
+    """A trainer seen as a model: ``at(t, camera_center)`` is its locked, detached snapshot."""
+
+    def __init__(self, trainer: Trainer) -> None:
+        self.at = lambda t, camera_center=None: trainer.snapshot(t, camera_center)

@@ -4,8 +4,9 @@ from types import SimpleNamespace
 import numpy as np
 import torch
 
-import fixer4d.render.api as api
-from fixer4d.pipeline.restoration import make_request, render_views
+import fixer4d.render.views as views
+from fixer4d.pipeline.restoration import make_request
+from fixer4d.render.views import render_views
 from fixer4d.scene import load_scene
 
 
@@ -26,7 +27,7 @@ def _fake_render(calls):
 def test_coinciding_cameras_are_rendered_once(monkeypatch):
     scene = load_scene("tiny")
     calls = []
-    monkeypatch.setattr(api, "render", _fake_render(calls))
+    monkeypatch.setattr(views, "render", _fake_render(calls))
     a, b = scene.train_cameras[:2]
     rgb, depth, alpha = render_views(_Model(), [a, b, a.with_pose(a.c2w.copy())], 0.0)
     assert len(calls) == 2 and rgb.shape[0] == 3
@@ -39,7 +40,7 @@ def test_a_request_renders_each_distinct_view_once(monkeypatch):
 
     scene = load_scene("tiny")
     calls = []
-    monkeypatch.setattr(api, "render", _fake_render(calls))
+    monkeypatch.setattr(views, "render", _fake_render(calls))
     tr = scene_trajectories(scene.train_cameras, 5, arcs=False)[0]
     ids = (scene.train_ids[tr.pair[0]], scene.train_ids[tr.pair[1]])
     req = make_request(_Model(), scene, tr.cameras, 0, ids)
