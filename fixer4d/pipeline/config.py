@@ -143,32 +143,19 @@ class RunConfig:
         return self.init.method
 
 
-# The defaults of `fixer4d run`: sized so that the demo (three stage-1 trainings, R = 2 restoration
-# rounds and six evaluations) ends within 10 minutes on 2 idle CPU cores; raise them for quality.
-# Stage 1 keeps its schedule scaled to its iterations (Stage1Config.from_partial). The Gaussian
-# budget is ~0.7 Gaussian per pixel of one 200x150 demo view: a 20k run gave MVS 23.51, matched
-# 23.93 and Full 24.03 dB where the previous release's 30k cap (25k init points) gave 23.46, 23.77
-# and 23.93, with every training and rendering stage drawing fewer splats. 1500 stage-1
-# iterations, not 500: the demo's stage 1 was under-trained (train views fitted to 25.6 dB);
-# from the same init, held-out PSNR 23.51 -> 25.03 dB (seed 0) and 23.51 -> 24.31 (seed 1), LPIPS
-# 0.118 -> 0.087; a 40k budget at 1500 iterations fits the train views better (29.3 dB) but
-# generalizes worse (23.94 dB held out), so the budget stays. docs/training.md has the runs.
-RUN_DEFAULTS: dict[str, Any] = {
-    "stage1": {"iterations": 1500, "init_max_points": 15_000, "max_gaussians": 20_000},
-    "stage2": {"rounds": 2, "refresh_every": 150},
-}
-
-
 def resolve(source: str | None = None, *, config_file: str | Path | dict[str, Any] | None = None,
             overrides: dict[str, Any] | None = None, relative: set[str] | None = None,
             defaults: dict[str, Any] | None = None) -> RunConfig:
     """Defaults <- config file <- overrides, validated in full; raises InputError naming the key.
 
+    The defaults are the stage dataclasses' own (``RunConfig()``); ``defaults`` replaces them
+    with a partial tree (a study's base).
+
     source: the scene (sets ``scene.source`` unless an override does). config_file: a path to a
     JSON config (a run's ``config.json`` or a partial tree) or the dict itself. relative: dotted
     keys whose override multiplies the value it replaces (a study's "half the iterations").
     """
-    tree = copy.deepcopy(RUN_DEFAULTS if defaults is None else defaults)
+    tree = copy.deepcopy(defaults or {})
     if config_file is not None:
         tree = config_tree.merge(tree, copy.deepcopy(_read_config_file(config_file)))
     if source is not None:

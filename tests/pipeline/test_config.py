@@ -61,7 +61,7 @@ def test_round_trip_is_exact():
     ({"scene.frame_range": [5, 2]}, "frame_range"),
     ({"trajectories": 3}, "expected a section"),
     ({"eval.stride": 0}, "stride must be >= 1"),
-    ({"stage1.iterations.x": 3}, "not a section"),
+    ({"stage1.iterations.x": 3}, "stage1.iterations: expected an integer"),
     ({"seeed": 1}, "did you mean 'seed'"),
 ])
 def test_bad_values_name_the_key(overrides, message):
@@ -145,3 +145,12 @@ def test_a_scene_path_is_stored_absolute(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert resolve("my_scene.json").scene.source == str(spec.resolve())
     assert resolve("demo").scene.source == "demo"  # bundled names stay names
+
+
+def test_the_dataclasses_are_the_one_source_of_defaults():
+    """A run's defaults are the stage dataclasses' own, and their schedule is the one their
+    iteration count derives (so a default config and a rescheduled one agree)."""
+    from fixer4d.train.config import Stage1Config
+
+    assert resolve().to_dict() == RunConfig().to_dict()
+    assert Stage1Config() == Stage1Config.for_iterations(Stage1Config.iterations)
