@@ -34,6 +34,7 @@ import statistics
 import threading
 import time
 from pathlib import Path
+from typing import Any, Callable
 
 import numpy as np
 
@@ -113,14 +114,7 @@ def bench_live(iterations: int, steps: int, warmup: int, scene_name: str = "demo
     alike. The plain loop steps in a thread started before the viewer's first frame, so it keeps
     the process's CPU priority when the viewer lowers its UI thread's (app.main.TRAINING_UI_NICE),
     as ``fixer4d run`` would have it. Returns steps/s of both and their ratio."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    import moderngl
-
-    from app.main import pace_frame
-    from app.session import TrainingSession, live_stage1_trainer
-    from app.sources import app_services, initial_state
-    from app.viewer import Viewer, ViewerSource
+    from app.session import live_stage1_trainer
     from fixer4d.scene import load_scene
 
     scene = load_scene(scene_name)
@@ -128,92 +122,126 @@ def bench_live(iterations: int, steps: int, warmup: int, scene_name: str = "demo
     def setup(report=lambda text: None):
         return live_stage1_trainer(scene, iterations, "sparse", 2, report)
 
-    plain = setup()
-    ctx = moderngl.create_standalone_context(backend="egl", require=330)
-    training = TrainingSession(setup)
-    src = ViewerSource(scene=scene, label="bench", training=training)
-    viewer = Viewer(ctx, initial_state(src, None), src, services=app_services())
-    fbo = ctx.simple_framebuffer((1440, 900))
-    plain_s = viewer_s = 0.0
-    plain_steps = viewer_steps = ui_frames = 0
-
-    def ui_until(target: int) -> None:
-        nonlocal ui_frames
-        deadline = time.monotonic() + 1800
-        while training.step < target and training.state not in ("failed", "done") and time.monotonic() < deadline:
-            start = time.perf_counter()
-            viewer.frame(1.0 / 10, fbo)
-            gl_finish(ctx)  # as a window's swap: the wait releases the GIL
-            ui_frames += 1
-            pace_frame(viewer, start)
-        if training.state == "failed":
-            raise RuntimeError(f"live training failed: {training.error}")
-
-    def pause() -> None:  # and let a step already begun finish before the plain loop's turn
-        training.pause()
-        while training.stepping:
-            time.sleep(0.005)
-
-    def plain_steps_run(n: int) -> float:
-        tic = time.perf_counter()
-        for _ in range(n):
-            plain.step()
-        return time.perf_counter() - tic
-
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="plain-trainer")
+    run = LiveTurns(scene, setup)
     tid = threading.get_native_id()
     ui_nice = os.getpriority(os.PRIO_PROCESS, tid)
     try:
-        pool.submit(plain_steps_run, warmup).result()
+        run.take_turns(steps, warmup, chunk)
+        gaussians_viewer = 0 if run.viewer.state.gaussians is None else run.viewer.state.gaussians.n
+        gaussians_live = int(run.training.trainer.model.num_gaussians)
+    finally:
+        run.close()
+        _restore_ui_priority(tid, ui_nice)
+    restored = os.getpriority(os.PRIO_PROCESS, tid) == ui_nice
+    pipeline_rate, viewer_rate = run.plain_steps / run.plain_s, run.viewer_steps / run.viewer_s
+    out = {"scene": scene_name, "iterations": iterations, "timed_steps": [warmup, steps], "chunk": chunk,
+           "pipeline_steps_per_s": pipeline_rate, "viewer_steps_per_s": viewer_rate,
+           "live_vs_pipeline_ratio": viewer_rate / pipeline_rate, "gaussians_pipeline": run.plain.model.num_gaussians,
+           "gaussians_live": gaussians_live, "gaussians_viewer_shown": gaussians_viewer,
+           "ui_frames_per_s_while_training": run.ui_frames / run.viewer_s, "ui_priority_restored_after": restored}
+    print(f"  live training ({scene_name}, stage-1 config for {iterations} iterations, steps {warmup}..{steps} in "
+          f"turns of {chunk}): {viewer_rate:.2f} steps/s in the viewer vs {pipeline_rate:.2f} without it "
+          f"(ratio {out['live_vs_pipeline_ratio']:.2f}; UI {out['ui_frames_per_s_while_training']:.1f} frames/s)",
+          flush=True)
+    return out
+
+
+class LiveTurns:
+    """The two trainers of ``bench_live`` built by one ``setup``: ``plain``, stepped in a thread
+    of its own, and the viewer's live ``training``, stepped while the viewer draws headless
+    into a 1440x900 framebuffer. Counts the steps and seconds of each and the UI frames."""
+
+    def __init__(self, scene: Any, setup: Callable[..., Any]) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        import moderngl
+
+        from app.session import TrainingSession
+        from app.sources import app_services, initial_state
+        from app.viewer import Viewer, ViewerSource
+
+        self.plain = setup()
+        self.ctx = moderngl.create_standalone_context(backend="egl", require=330)
+        self.training = TrainingSession(setup)
+        src = ViewerSource(scene=scene, label="bench", training=self.training)
+        self.viewer = Viewer(self.ctx, initial_state(src, None), src, services=app_services())
+        self.fbo = self.ctx.simple_framebuffer((1440, 900))
+        self.plain_s = self.viewer_s = 0.0
+        self.plain_steps = self.viewer_steps = self.ui_frames = 0
+        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="plain-trainer")
+
+    def take_turns(self, steps: int, warmup: int, chunk: int) -> None:
+        """``warmup`` untimed steps each, then turns of ``chunk`` timed steps each up to ``steps``."""
+        training = self.training
+        self.pool.submit(self._plain_steps, warmup).result()
         # Turns of exactly n steps each: the live trainer pauses itself at the turn's last step
         # (TrainingSession.pause_at). Without that it ran on while the UI slept out its frame
         # period, densified ahead of the plain loop and was timed on a larger model (20k vs 3.3k
         # Gaussians at step 100 on the demo: the 0.56-0.67 "ratios" of earlier runs).
         training.pause_at = warmup
         training.start()
-        ui_until(warmup)
-        pause()
-        while plain.step_count < steps:
-            n = min(chunk, steps - plain.step_count)
-            plain_s += pool.submit(plain_steps_run, n).result()
-            plain_steps += n
-            start_step, frames0 = training.step, ui_frames
+        self._ui_until(warmup)
+        self._pause()
+        while self.plain.step_count < steps:
+            n = min(chunk, steps - self.plain.step_count)
+            self.plain_s += self.pool.submit(self._plain_steps, n).result()
+            self.plain_steps += n
+            start_step, frames0 = training.step, self.ui_frames
             training.pause_at, training.paused_at_time = start_step + n, None
             tic = time.perf_counter()
             training.resume()
-            ui_until(start_step + n)
-            pause()
-            viewer_s += (training.paused_at_time or time.perf_counter()) - tic
-            viewer_steps += training.step - start_step
-            if ui_frames == frames0:
+            self._ui_until(start_step + n)
+            self._pause()
+            self.viewer_s += (training.paused_at_time or time.perf_counter()) - tic
+            self.viewer_steps += training.step - start_step
+            if self.ui_frames == frames0:
                 break
-        gaussians_viewer = 0 if viewer.state.gaussians is None else viewer.state.gaussians.n
-        gaussians_live = int(training.trainer.model.num_gaussians)
-    finally:
-        pool.shutdown()
-        viewer.close()
-        ctx.release()
-        # the next run's threads are started from this thread: give it its priority back (raising
-        # a nice value needs privileges; without them the next run would start lowered, so say so)
-        from app.main import _UI_THREADS_LOWERED
 
-        _UI_THREADS_LOWERED.discard(tid)
-        try:
-            os.setpriority(os.PRIO_PROCESS, tid, ui_nice)
-        except OSError:
-            pass
-    restored = os.getpriority(os.PRIO_PROCESS, tid) == ui_nice
-    pipeline_rate, viewer_rate = plain_steps / plain_s, viewer_steps / viewer_s
-    out = {"scene": scene_name, "iterations": iterations, "timed_steps": [warmup, steps], "chunk": chunk,
-           "pipeline_steps_per_s": pipeline_rate, "viewer_steps_per_s": viewer_rate,
-           "live_vs_pipeline_ratio": viewer_rate / pipeline_rate, "gaussians_pipeline": plain.model.num_gaussians,
-           "gaussians_live": gaussians_live, "gaussians_viewer_shown": gaussians_viewer, "ui_frames_per_s_while_training": ui_frames / viewer_s,
-           "ui_priority_restored_after": restored}
-    print(f"  live training ({scene_name}, stage-1 config for {iterations} iterations, steps {warmup}..{steps} in "
-          f"turns of {chunk}): {viewer_rate:.2f} steps/s in the viewer vs {pipeline_rate:.2f} without it "
-          f"(ratio {out['live_vs_pipeline_ratio']:.2f}; UI {out['ui_frames_per_s_while_training']:.1f} frames/s)",
-          flush=True)
-    return out
+    def _ui_until(self, target: int) -> None:
+        """Draw viewer frames, paced like the window loop, until live training reaches step ``target``."""
+        from app.main import pace_frame
+
+        training = self.training
+        deadline = time.monotonic() + 1800
+        while training.step < target and training.state not in ("failed", "done") and time.monotonic() < deadline:
+            start = time.perf_counter()
+            self.viewer.frame(1.0 / 10, self.fbo)
+            gl_finish(self.ctx)  # as a window's swap: the wait releases the GIL
+            self.ui_frames += 1
+            pace_frame(self.viewer, start)
+        if training.state == "failed":
+            raise RuntimeError(f"live training failed: {training.error}")
+
+    def _pause(self) -> None:
+        """Pause live training and let a step already begun finish before the plain loop's turn."""
+        self.training.pause()
+        while self.training.stepping:
+            time.sleep(0.005)
+
+    def _plain_steps(self, n: int) -> float:
+        """``n`` steps of the plain trainer; returns their seconds."""
+        tic = time.perf_counter()
+        for _ in range(n):
+            self.plain.step()
+        return time.perf_counter() - tic
+
+    def close(self) -> None:
+        self.pool.shutdown()
+        self.viewer.close()
+        self.ctx.release()
+
+
+def _restore_ui_priority(tid: int, ui_nice: int) -> None:
+    """Give thread ``tid`` its nice value ``ui_nice`` back: the next run's threads are started
+    from it (raising a nice value needs privileges; without them the next run would start
+    lowered, and bench_live's result says so)."""
+    from app.main import _UI_THREADS_LOWERED
+
+    _UI_THREADS_LOWERED.discard(tid)
+    try:
+        os.setpriority(os.PRIO_PROCESS, tid, ui_nice)
+    except OSError:
+        pass
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -270,7 +298,7 @@ def demo_surface_gaussians(scene, target: int = 30_000, frame: int = 0):
     ``frame`` back-projected with its depth, coloured by the pixel, sized to the sample
     spacing), so the splat count, sizes and screen coverage are those of a trained model."""
     from app.gaussians import GaussianArrays
-    from fixer4d.model.spacetime import SH_C0
+    from fixer4d.model.sh import SH_C0
 
     pixels = sum(scene.cameras[i].width * scene.cameras[i].height for i in scene.train_ids)
     stride = max(1, int(round(np.sqrt(pixels / target))))

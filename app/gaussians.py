@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 
 from fixer4d.errors import InputError
-from fixer4d.model.spacetime import SH_C0, T_LOG_SCALE_MIN
+from fixer4d.model.sh import SH_C0
+from fixer4d.model.spacetime import T_LOG_SCALE_MIN
 
 # Opacity clamp when converting a snapshot's opacities back to logits: keeps logit(x) finite.
 _OPACITY_EPS = 1e-6

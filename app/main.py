@@ -112,40 +112,19 @@ def install_key_callback(glfw: Any, window: Any, viewer_ref: list) -> None:
 
 
 def run_window(args: argparse.Namespace) -> int:
+    """Open the source ``args`` names (or the chooser), show it in a glfw window until the user
+    quits (or, with --screenshot, until the image is saved). Returns the exit status."""
     import ctypes
 
     import glfw
     import moderngl
     from imgui_bundle import imgui
 
-    startup_error: Exception | None = None
     source = args.source if args.source is not None or not args.screenshot else "demo"
     services = app_services()
-    if source is None:  # the desktop entry: open the window with the chooser
-        src, gaussians, session_dir = ViewerSource(label="nothing open: File > Open"), None, config_dir() / "start"
-    else:
-        try:
-            src, gaussians, session_dir = open_source(source, scale=args.scale, iterations=args.iterations,
-                                                      init=args.init, init_frames=args.init_frames)
-            remember_recent(config_dir(), str(Path(source).resolve()) if Path(source).exists() else source)
-        except Exception as exc:  # started without a terminal: say it in the window, not only on stderr
-            report_startup_error(source, exc, args.verbose)
-            startup_error = exc
-            src, gaussians, session_dir = ViewerSource(label=f"could not open {source}"), None, config_dir() / "start"
+    src, gaussians, session_dir, startup_error = open_start_source(args, source)
     state = initial_state(src, gaussians)
-    w, h = (int(v) for v in args.size.lower().split("x"))
-    if not glfw.init():
-        raise InputError("glfw could not initialize a display; set DISPLAY (or run under Xvfb)")
-    glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
-    glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
-    glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
-    glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
-    window = glfw.create_window(w, h, f"fixer4d-view - {src.label}", None, None)
-    if not window:
-        glfw.terminate()
-        raise InputError("could not open an OpenGL 3.3 window; check the GPU driver or Mesa")
-    glfw.make_context_current(window)
-    glfw.swap_interval(0 if args.screenshot else 1)
+    window = open_gl_window(glfw, args, src.label)
     ctx = moderngl.create_context()
     if not args.no_session:  # --no-session writes nothing into a run folder (read-only or shared runs)
         session_dir.mkdir(parents=True, exist_ok=True)
@@ -166,44 +145,88 @@ def run_window(args: argparse.Namespace) -> int:
         files.ask(viewer, "open", "" if source is None else source)
     if src.training is not None:
         src.training.start()
-    status = 0
-    frames_with_model = frames = 0
-    started = time.monotonic()
-    last = time.perf_counter()
     try:
-        while not viewer.quit_confirmed:
-            if glfw.window_should_close(window):  # the close button: unsaved edits ask first
-                glfw.set_window_should_close(window, False)
-                if args.screenshot or viewer.request_close():
-                    break
-            if viewer.is_idle() and not args.screenshot:
-                glfw.wait_events_timeout(IDLE_WAIT_S)  # no busy loop: wake on input
-            else:
-                glfw.poll_events()
-            now = time.perf_counter()
-            fbo = ctx.detect_framebuffer()
-            viewer.frame(now - last, fbo, platform_new_frame=imgui.backends.glfw_new_frame)
-            last = now
-            if args.screenshot:
-                frames += 1
-                frames_with_model += viewer.state.gaussians is not None
-                failed = (src.training is not None and src.training.state == "failed") or \
-                    (startup_error is not None and frames >= args.frames)
-                if frames_with_model >= args.frames or failed or time.monotonic() - started > SCREENSHOT_MODEL_TIMEOUT_S:
-                    save_png(args.screenshot, viewer.screenshot(fbo))
-                    print(f"fixer4d-view: wrote {args.screenshot} after {frames_with_model} frames with a model")
-                    if viewer.state.gaussians is None:
-                        why = startup_error or (src.training.error if src.training else "nothing to show")
-                        print(f"fixer4d-view: no model to show: {why}", file=sys.stderr)
-                        status = 1
-                    break
-            glfw.swap_buffers(window)
-            pace_frame(viewer, now, glfw.wait_events_timeout)
+        return window_loop(glfw, window, ctx, viewer, args, startup_error)
     finally:
         viewer.close(platform_shutdown=imgui.backends.glfw_shutdown)
         glfw.destroy_window(window)
         glfw.terminate()
-    return status
+
+
+def open_start_source(args: argparse.Namespace, source: str | None) -> tuple[ViewerSource, Any, Path, Exception | None]:
+    """What the window opens with: (ViewerSource, initial GaussianArrays or None, session folder,
+    the error that kept ``source`` from opening or None). No source: the chooser's empty source."""
+    if source is None:  # the desktop entry: open the window with the chooser
+        return ViewerSource(label="nothing open: File > Open"), None, config_dir() / "start", None
+    try:
+        src, gaussians, session_dir = open_source(source, scale=args.scale, iterations=args.iterations,
+                                                  init=args.init, init_frames=args.init_frames)
+        remember_recent(config_dir(), str(Path(source).resolve()) if Path(source).exists() else source)
+    except Exception as exc:  # started without a terminal: say it in the window, not only on stderr
+        report_startup_error(source, exc, args.verbose)
+        return ViewerSource(label=f"could not open {source}"), None, config_dir() / "start", exc
+    return src, gaussians, session_dir, None
+
+
+def open_gl_window(glfw: Any, args: argparse.Namespace, label: str) -> Any:
+    """A glfw window of ``args.size`` with a current OpenGL 3.3 core context (vsync off for
+    --screenshot); InputError when there is no display or no such context."""
+    w, h = (int(v) for v in args.size.lower().split("x"))
+    if not glfw.init():
+        raise InputError("glfw could not initialize a display; set DISPLAY (or run under Xvfb)")
+    glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
+    glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
+    glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
+    glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
+    window = glfw.create_window(w, h, f"fixer4d-view - {label}", None, None)
+    if not window:
+        glfw.terminate()
+        raise InputError("could not open an OpenGL 3.3 window; check the GPU driver or Mesa")
+    glfw.make_context_current(window)
+    glfw.swap_interval(0 if args.screenshot else 1)
+    return window
+
+
+def window_loop(glfw: Any, window: Any, ctx: Any, viewer: Viewer, args: argparse.Namespace,
+                startup_error: Exception | None) -> int:
+    """Draw frames until the user quits (the close button asks about unsaved edits first) or,
+    with --screenshot, until the image is saved. Returns the exit status (1: a screenshot
+    without a model)."""
+    from imgui_bundle import imgui
+
+    src = viewer.source
+    frames_with_model = frames = 0
+    started = time.monotonic()
+    last = time.perf_counter()
+    while not viewer.quit_confirmed:
+        if glfw.window_should_close(window):  # the close button: unsaved edits ask first
+            glfw.set_window_should_close(window, False)
+            if args.screenshot or viewer.request_close():
+                break
+        if viewer.is_idle() and not args.screenshot:
+            glfw.wait_events_timeout(IDLE_WAIT_S)  # no busy loop: wake on input
+        else:
+            glfw.poll_events()
+        now = time.perf_counter()
+        fbo = ctx.detect_framebuffer()
+        viewer.frame(now - last, fbo, platform_new_frame=imgui.backends.glfw_new_frame)
+        last = now
+        if args.screenshot:
+            frames += 1
+            frames_with_model += viewer.state.gaussians is not None
+            failed = (src.training is not None and src.training.state == "failed") or \
+                (startup_error is not None and frames >= args.frames)
+            if frames_with_model >= args.frames or failed or time.monotonic() - started > SCREENSHOT_MODEL_TIMEOUT_S:
+                save_png(args.screenshot, viewer.screenshot(fbo))
+                print(f"fixer4d-view: wrote {args.screenshot} after {frames_with_model} frames with a model")
+                if viewer.state.gaussians is None:
+                    why = startup_error or (src.training.error if src.training else "nothing to show")
+                    print(f"fixer4d-view: no model to show: {why}", file=sys.stderr)
+                    return 1
+                return 0
+        glfw.swap_buffers(window)
+        pace_frame(viewer, now, glfw.wait_events_timeout)
+    return 0
 
 
 def pace_frame(viewer: Viewer, frame_start: float, wait: Callable[[float], Any] = time.sleep) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 from app.camera_control import ViewCamera, rig_up
 from app.session import RestoreQueue, TrainingSession, live_stage1_trainer
 from app.state import AppState
-from app.viewer_source import RenderFn, ViewerServices, ViewerSource
+from app.viewer_source import GaussiansRenderFn, ViewerServices, ViewerSource
 from fixer4d.errors import Fixer4DError, InputError
 
 # First view of a scene: from the rig, pulled back by this factor of its distance to the scene
@@ -196,30 +196,24 @@ class TorchRenders:
         return self._model
 
     def __call__(self, key: Any, gaussians: Any, segments: Any, segment: int | None,
-                 background: tuple[float, float, float], backend: str) -> RenderFn:
+                 background: tuple[float, float, float], backend: str) -> GaussiansRenderFn:
         """``fn(camera, t) -> {"rgb", "depth", "alpha"}`` with the torch rasterizer at clip time t
-        (a segmented run: the segment that owns t, at its local time)."""
-        import torch
-
-        from fixer4d.render.api import render
+        (a segmented run: the segment that owns t, at its local time), through
+        ``fixer4d.render.views.render_views``."""
+        from fixer4d.render.views import render_views
 
         model = self.model(key, gaussians, segments, segment)
         if model is None:
             raise InputError("no model loaded: nothing to render")
-        if segments is not None:
-            snap = lambda t, center: model.at(t, camera_center=center)  # noqa: E731
-        else:
-            snap = model.snapshot
+        background = tuple(background)
 
         def fn(camera: Any, t: float) -> dict[str, np.ndarray]:
-            with torch.no_grad():
-                out = render(snap(t, camera.center), camera, background=tuple(background), backend=backend)
-            return {"rgb": out.rgb.clamp(0, 1).numpy().astype(np.float32),
-                    "depth": out.depth.numpy().astype(np.float32), "alpha": out.alpha.numpy().astype(np.float32)}
+            rgb, depth, alpha = render_views(model, [camera], t, backend, background)
+            return {"rgb": rgb[0], "depth": depth[0], "alpha": alpha[0]}
         return fn
 
 
-def render_video(render_fn: RenderFn, cameras: list, times: list[float], out: Path, *, fps: float = 30.0,
+def render_video(render_fn: GaussiansRenderFn, cameras: list, times: list[float], out: Path, *, fps: float = 30.0,
                  progress: Callable[[float], None] | None = None,
                  should_stop: Callable[[], bool] | None = None) -> Path:
     """A video of ``render_fn`` along ``cameras`` at clip ``times`` written to ``out``, through

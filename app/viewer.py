@@ -31,7 +31,7 @@ from app.panels._layout import guard, panel
 from app.shortcuts import FIRST_LAUNCH_HINT, SHORTCUTS
 from app.state import AppState, TrajectorySpec
 from app.view3d import View3D
-from app.viewer_source import RenderFn, ViewerServices, ViewerSource
+from app.viewer_source import GaussiansRenderFn, ViewerServices, ViewerSource
 from app.viewport import Viewport
 from fixer4d.geometry.camera import Camera
 
@@ -59,6 +59,26 @@ class Viewer(Viewport, View3D, Document):
         self.source = source
         self.services = services if services is not None else ViewerServices()
         self.session_path = session_path
+        self._init_imgui(ini_path, platform_init)
+        self.splats = SplatRenderer(ctx)
+        self.overlays = OverlayRenderer(ctx)
+        self.frame_cache = FrameCache(ctx)
+        self._init_view_fields()
+        self._init_panel_fields(first_launch)
+        from app.panels import PANELS
+
+        self.panels = PANELS
+        self.home_view = ViewCamera.from_dict(state.view.to_dict())  # "reset view" returns here
+        if session_path is not None:
+            try:
+                state.load_session(session_path)
+            except Exception as exc:  # a bad session must not stop the app; say so
+                state.status = str(exc)
+        self.check_autosave()
+
+    def _init_imgui(self, ini_path: Path | None, platform_init: Callable[[], None] | None) -> None:
+        """The imgui and implot contexts (docking on, layout kept in ``ini_path`` or nowhere), the
+        window backend (``platform_init``) and imgui's GL renderer."""
         self.imgui_ctx = imgui.create_context()
         self.implot_ctx = implot.create_context()
         io = imgui.get_io()
@@ -73,9 +93,9 @@ class Viewer(Viewport, View3D, Document):
         if platform_init is not None:
             platform_init()
         imgui.backends.opengl3_init("#version 330")
-        self.splats = SplatRenderer(ctx)
-        self.overlays = OverlayRenderer(ctx)
-        self.frame_cache = FrameCache(ctx)
+
+    def _init_view_fields(self) -> None:
+        """What the 3D view, its tools and the model upload keep between frames."""
         self.use_frame_cache = True
         self.view_mode = "no model"  # which kind of image the 3D view shows (the status line says it)
         self._shown: moderngl.Texture | None = None  # the texture the viewport showed last
@@ -102,6 +122,11 @@ class Viewer(Viewport, View3D, Document):
         self.frame_times: list[float] = []
         self.ui_ms: float | None = None  # running estimate of a frame's cost besides the splat draw
         self._draw_ms = 0.0  # the splat draw of the current frame
+        self._trajectory_cache: dict[int, tuple[TrajectorySpec, list[Camera]]] = {}
+
+    def _init_panel_fields(self, first_launch: bool) -> None:
+        """What the panels, notifications, key presses, closing and the window layout keep
+        between frames."""
         self.images: dict[str, moderngl.Texture] = {}
         self._image_sources: dict[str, Any] = {}  # the array each named texture holds
         self.panel_errors: dict[str, str] = {}  # panel -> its current error (cleared when it draws again)
@@ -133,17 +158,6 @@ class Viewer(Viewport, View3D, Document):
         self.pending_window_rects: dict[str, tuple[float, float, float, float]] = {}
         self._layout_size: tuple[float, float] | None = None
         self.tooltip_shown: str | None = None  # the tooltip text drawn this frame (tests read it)
-        self._trajectory_cache: dict[int, tuple[TrajectorySpec, list[Camera]]] = {}
-        from app.panels import PANELS
-
-        self.panels = PANELS
-        self.home_view = ViewCamera.from_dict(state.view.to_dict())  # "reset view" returns here
-        if session_path is not None:
-            try:
-                state.load_session(session_path)
-            except Exception as exc:  # a bad session must not stop the app; say so
-                state.status = str(exc)
-        self.check_autosave()
 
     # ---- per-frame ------------------------------------------------------------------------------
     def frame(self, dt: float, fbo: moderngl.Framebuffer, platform_new_frame: Callable[[], None] | None = None) -> None:
@@ -310,7 +324,7 @@ class Viewer(Viewport, View3D, Document):
             self._trajectory_cache[id(spec)] = hit  # specs are immutable: an edit makes a new one
         return hit[1]
 
-    def model_render_fn(self) -> RenderFn:
+    def gaussians_render_fn(self) -> GaussiansRenderFn:
         """``fn(camera, t) -> {"rgb", "depth", "alpha"}``: torch renders of the displayed
         Gaussians (the set the GL view shows, edits included) at clip time t, from the injected
         ``services.render``."""

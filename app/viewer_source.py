@@ -13,8 +13,8 @@ from typing import Any, Callable
 
 from fixer4d.errors import InputError
 
-# fn(camera, t) -> {"rgb" (H,W,3), "depth" (H,W), "alpha" (H,W)} float32 arrays
-RenderFn = Callable[[Any, float], dict]
+# fn(camera, t) -> {"rgb" (H,W,3), "depth" (H,W), "alpha" (H,W)} float32 arrays of the shown Gaussians
+GaussiansRenderFn = Callable[[Any, float], dict]
 
 
 @dataclass
@@ -55,7 +55,7 @@ class ViewerServices:
 
     open_source(text) -> (ViewerSource, GaussianArrays or None, session folder): File > Open.
     initial_state(source, gaussians) -> AppState: a fresh session for a source.
-    render(key, gaussians, segments, segment, background, backend) -> RenderFn: torch renders
+    render(key, gaussians, segments, segment, background, backend) -> GaussiansRenderFn: torch renders
       of the shown Gaussians (``key`` changes whenever they do; the model is built once per key).
     make_jobs(kind, cache, run_dir) -> RestoreJobs: a restorer of ``kind`` for new jobs.
     render_video(model_fn, cameras, times, out, fps, progress, should_stop) -> Path: a video of
@@ -65,7 +65,7 @@ class ViewerServices:
 
     open_source: Callable[[str], tuple] = _missing("a source opener")
     initial_state: Callable[[ViewerSource, Any], Any] = _missing("a state factory")
-    render: Callable[..., RenderFn] = _missing("a renderer")
+    render: Callable[..., GaussiansRenderFn] = _missing("a renderer")
     make_jobs: Callable[[str, Any, Path | None], Any] = _missing("a restorer factory")
     render_video: Callable[..., Path] = _missing("a video writer")
     config_dir: Path = Path.home() / ".config" / "fixer4d" / "view"

@@ -1,6 +1,7 @@
-"""Self-calibration of a capture against the true rig: the demo's four train videos and Panoptic's.
+"""Calibration of a capture against the true rig: self-calibration of the demo's four train videos
+and Panoptic's, and calibration from synthetic ChArUco board videos.
 
-    python benchmarks/calibration.py [--demo DIR] [--panoptic-videos DIR] [--only demo|panoptic]
+    python benchmarks/calibration.py [--demo DIR] [--panoptic-videos DIR] [--only demo|panoptic|board]
 
 demo: `fixer4d make-scene demo --format n3dv` (written to a temporary folder unless --demo names
 one), reduced to its four train videos: no poses_bounds.npy, no scene.json. Panoptic: the four
@@ -17,7 +18,18 @@ scoring only. For each capture it records
 * the same with the focal length given (--focal, the lens a user knows), on the demo;
 * the relative rotations between cameras (no alignment at all).
 
-Writes benchmarks/results/calibration_demo.json and calibration_panoptic.json.
+Board (``board``): exact board videos (fixer4d.calib.board_render: a ChArUco board at 30 poses
+tilted up to 40 degrees, mild blur and noise) of
+* four cameras converging on the volume (an arc of 70 degrees, 1.5 m away), 320x240 and 640x480,
+  two of them behind distorting lenses;
+* the demo's four train cameras (parallel 2x2 grid) filmed at 4x their 200x150 video size, the
+  rig then used at 200x150; the same board at 200x150 itself; and the workflow that fixes the
+  self-calibration's focal with the board's (`fixer4d calibrate CAPTURE --focal-from rig.json`).
+Each through `fixer4d calibrate` (its wall time), scored like the self-calibration plus the
+principal point, the metric scale (the alignment's scale: 1 = metres recovered) and the lens
+(largest displacement error over the central 70 % of the image).
+
+Writes benchmarks/results/calibration_demo.json, calibration_panoptic.json, calibration_board.json.
 """
 from __future__ import annotations
 
@@ -36,7 +48,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from fixer4d import atomic  # noqa: E402
+from fixer4d.calib.board import BoardSpec  # noqa: E402
+from fixer4d.calib.board_render import board_poses, write_board_capture  # noqa: E402
 from fixer4d.calib.gate import problems  # noqa: E402
+from fixer4d.calib.rig import RigCamera, distort_points, read_rig_json  # noqa: E402
 from fixer4d.calib.sfm import SfMConfig, calibrate_sfm  # noqa: E402
 from fixer4d.errors import InputError  # noqa: E402
 from fixer4d.geometry.camera import Camera, rig_extent  # noqa: E402
@@ -103,22 +118,114 @@ def evaluate_capture(capture: Path, gt: list[Camera], focal: float | None = None
     return out
 
 
-def demo(folder: Path | None) -> dict:
+def demo_capture(folder: Path | None, tmp: Path) -> tuple[Path, list[Camera]]:
+    """The demo's four train videos in tmp/capture (the demo written to tmp/demo unless ``folder``
+    names one) and their true cameras, in name order."""
     from fixer4d.scene import load_scene
 
+    full = folder or tmp / "demo"
+    if folder is None:
+        subprocess.run([sys.executable, "-m", "fixer4d.cli", "make-scene", "demo", "--format", "n3dv", "--out",
+                        str(full), "--no-progress"], check=True, cwd=ROOT)
+    scene = load_scene(full)
+    capture = tmp / "capture"
+    capture.mkdir()
+    gt = [scene.cameras[i] for i in scene.train_ids]
+    for c in gt:
+        shutil.copy(full / f"{c.name}.mp4", capture / f"{c.name}.mp4")
+    return capture, sorted(gt, key=lambda c: c.name)
+
+
+def demo(folder: Path | None) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
-        full = folder or Path(tmp) / "demo"
-        if folder is None:
-            subprocess.run([sys.executable, "-m", "fixer4d.cli", "make-scene", "demo", "--format", "n3dv", "--out",
-                            str(full), "--no-progress"], check=True, cwd=ROOT)
-        scene = load_scene(full)
-        capture = Path(tmp) / "capture"
-        capture.mkdir()
-        gt = [scene.cameras[i] for i in scene.train_ids]
-        for c in gt:
-            shutil.copy(full / f"{c.name}.mp4", capture / f"{c.name}.mp4")
-        gt = sorted(gt, key=lambda c: c.name)
+        capture, gt = demo_capture(folder, Path(tmp))
         return {"capture": "demo, 4 train videos only", **evaluate_capture(capture, gt, focal=gt[0].fx)}
+
+
+# The converging rig of tests/calib/test_board.py and its board: 0.84 x 0.6 m, 1.5 m from the cameras.
+CONVERGING_RIG = {"layout": "arc", "count": 4, "radius": 1.5, "arc_deg": 70, "height_offset": 0.4,
+                  "fov_y_deg": 50, "target": [0.0, 0.1, 0.0]}
+CONVERGING_BOARD = BoardSpec(7, 5, 0.12, 0.09, "DICT_4X4_50")
+CONVERGING_VOLUME = (np.array([0.0, 0.1, 0.0]), np.array([0.3, 0.2, 0.3]))
+# Two lenses: strong barrel (k1, k2) and mild pincushion with the tangential terms of a slightly
+# decentred lens; the other two cameras are pinholes.
+LENSES = {"cam01": {"k1": -0.2, "k2": 0.08}, "cam03": {"k1": 0.1, "p1": 0.0005, "p2": -0.0003}}
+# The demo's cameras stand ~4 m from its scene; a 1.4 x 1.0 m board held 2.5 m in front of them.
+DEMO_BOARD = BoardSpec(7, 5, 0.2, 0.15, "DICT_4X4_50")
+DEMO_BOARD_DISTANCE = 2.5
+DEMO_BOARD_SPREAD = np.array([0.4, 0.3, 0.4])
+BOARD_POSES = 30
+BOARD_TILT_DEG = 40.0
+
+
+def _calibrate_cli(capture: Path, out: Path, *extra: str) -> dict:
+    """`fixer4d calibrate CAPTURE --out OUT ...` in a subprocess: exit code, wall time, last error line."""
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "fixer4d.cli", "calibrate", str(capture), "--out", str(out),
+                           "--quiet", *extra], capture_output=True, text=True, cwd=ROOT)
+    shown = [Path(e).name if "/" in e else e for e in extra]  # no temporary folders in the record
+    return {"command": " ".join(["fixer4d calibrate", capture.name, "--out", out.name, *shown]),
+            "exit_code": proc.returncode, "seconds": round(time.perf_counter() - t0, 2),
+            "message": (proc.stderr.strip().splitlines() or [""])[-1] if proc.returncode else "accepted"}
+
+
+def board_score(rig, gt: list[Camera], lenses: dict) -> dict:
+    """``score`` plus the principal point (px), the alignment's scale and the lens error (px)."""
+    est = [c.camera() for c in rig.cameras]
+    u, v = np.meshgrid(np.linspace(0.15, 0.85, 15), np.linspace(0.15, 0.85, 11))
+    lens_err = []
+    for c, g in zip(rig.cameras, gt):
+        grid = np.stack([u.ravel() * g.width, v.ravel() * g.height], 1)
+        truth = RigCamera(g.name, g.width, g.height, g.K, np.eye(4), lenses.get(g.name, {}))
+        lens_err.append(float(np.abs(distort_points(c, grid) - distort_points(truth, grid)).max()))
+    return {**score(rig, gt), "scale": compare_poses(est, gt)["scale"],
+            "principal_point_error_px": [float(np.hypot(e.cx - g.cx, e.cy - g.cy)) for e, g in zip(est, gt)],
+            "lens_error_px_max": lens_err, "lens_model": rig.checks.get("lens_model"),
+            "frames_with_board": rig.checks.get("frames_with_board")}
+
+
+def board_case(cameras: list[Camera], spec: BoardSpec, volume: tuple, lenses: dict, tmp: Path,
+               score_at: list[Camera] | None = None) -> dict:
+    """Board videos of ``cameras``, calibrated by `fixer4d calibrate`; scored against ``score_at``
+    (the same cameras at another size; default ``cameras``) with the rig resized to it."""
+    poses = board_poses(spec, cameras, *volume, count=BOARD_POSES, tilt_deg=BOARD_TILT_DEG, seed=0)
+    write_board_capture(spec, cameras, poses, tmp / "board", distortion=lenses)
+    out = {"board": spec.describe(), "cameras": f"{len(cameras)} at {cameras[0].width}x{cameras[0].height}",
+           **_calibrate_cli(tmp / "board", tmp / "rig.json", "--board", str(tmp / "board" / "board.json"))}
+    if out["exit_code"] == 0:
+        rig = read_rig_json(tmp / "rig.json")
+        gt = score_at or cameras
+        rig.cameras = [c.resized(g.width, g.height) for c, g in zip(rig.cameras, gt)]
+        out.update(board_score(rig, gt, lenses))
+    return out
+
+
+def board(folder: Path | None) -> dict:
+    from fixer4d.scene.synthetic import build_rig
+
+    result = {}
+    for w, h in ((320, 240), (640, 480)):
+        cams = build_rig({"rig": {**CONVERGING_RIG, "width": w, "height": h}})
+        with tempfile.TemporaryDirectory() as tmp:
+            result[f"converging_{w}x{h}"] = board_case(cams, CONVERGING_BOARD, CONVERGING_VOLUME, LENSES, Path(tmp))
+    with tempfile.TemporaryDirectory() as tmp:
+        capture, gt = demo_capture(folder, Path(tmp))
+        centre = np.mean([c.center for c in gt], 0)
+        forward = np.mean([c.forward for c in gt], 0)
+        volume = (centre + DEMO_BOARD_DISTANCE * forward, DEMO_BOARD_SPREAD)
+        for factor in (4, 1):
+            with tempfile.TemporaryDirectory() as sub:
+                big = [c.scaled(factor) for c in gt]
+                key = f"demo_parallel_{big[0].width}x{big[0].height}"
+                result[key] = board_case(big, DEMO_BOARD, volume, {}, Path(sub), score_at=gt)
+                if factor == 4 and result[key]["exit_code"] == 0:
+                    shutil.copy(Path(sub) / "rig.json", Path(tmp) / "board_rig.json")
+        # the workflow for a rig whose geometry cannot fix the focal: the board's focal, the frames' poses
+        flow = _calibrate_cli(capture, Path(tmp) / "rig.json", "--focal-from", str(Path(tmp) / "board_rig.json"))
+        if flow["exit_code"] == 0:
+            flow.update(score(read_rig_json(Path(tmp) / "rig.json"), gt))
+        result["demo_self_calibration_with_board_focal"] = flow
+    return result
 
 
 def panoptic(videos: Path) -> dict:
@@ -132,12 +239,16 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--demo", type=Path, default=None, help="an existing `make-scene demo --format n3dv` folder")
     parser.add_argument("--panoptic-videos", type=Path, default=PANOPTIC / "panoptic_basketball_videos")
-    parser.add_argument("--only", choices=["demo", "panoptic"], default=None)
+    parser.add_argument("--only", choices=["demo", "panoptic", "board"], default=None)
     args = parser.parse_args()
     if args.only in (None, "demo"):
         result = demo(args.demo)
         atomic.write_json(RESULTS / "calibration_demo.json", result)
         print(json.dumps({k: v for k, v in result.items() if k != "pairs"}, indent=1, default=str)[:3000])
+    if args.only in (None, "board"):
+        result = board(args.demo)
+        atomic.write_json(RESULTS / "calibration_board.json", result)
+        print(json.dumps(result, indent=1, default=str)[:4000])
     if args.only in (None, "panoptic"):
         if not args.panoptic_videos.is_dir():
             print(f"{args.panoptic_videos}: absent, Panoptic skipped")

@@ -1,4 +1,4 @@
-"""numba, set up once for every kernel module (render/cpu.py, render/project_cpu.py,
+"""numba, set up once for every kernel module (render/cpu_kernels.py, render/project_cpu.py,
 train/loss_cpu.py, init/mvs_kernel.py): the AVX-512 vector-width preference (render/simd.py),
 which must be in place before numba builds its CPU target, the import guard (numba is a core
 dependency, but each kernel module keeps a torch path that works without it), and the guard that

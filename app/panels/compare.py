@@ -48,7 +48,7 @@ def frame_images(viewer, ui: dict, entry, k: int) -> dict[str, np.ndarray]:
     cache = ui["cache"]
     if key not in cache:
         cam = entry.cameras[k]
-        out = {"render": viewer.model_render_fn()(cam, entry.time)["rgb"], "target": entry.rgb()[k]}
+        out = {"render": viewer.gaussians_render_fn()(cam, entry.time)["rgb"], "target": entry.rgb()[k]}
         hidden = entry.unobserved() if hasattr(entry, "unobserved") else None
         if hidden is not None:
             out["supervised"] = supervised_overlay(out["target"], hidden[k])

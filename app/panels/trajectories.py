@@ -151,7 +151,7 @@ def video_row(viewer, k: int) -> None:
         cams = viewer.trajectory_cameras(spec)
         out = viewer.output_path(f"viewer/videos/{spec.name}_f{st.frame:04d}.mp4")
         out.parent.mkdir(parents=True, exist_ok=True)
-        ui["job"] = VideoJob(viewer.services.render_video, viewer.model_render_fn(), cams,
+        ui["job"] = VideoJob(viewer.services.render_video, viewer.gaussians_render_fn(), cams,
                              trajectory_times(st.frame, len(cams), st.num_frames), out, st.fps)
         return
     if job is None:

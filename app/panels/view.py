@@ -12,94 +12,117 @@ TOOLS = ("navigate", "box", "brush")
 
 
 def draw(viewer) -> None:
-    st = viewer.state
-    scene = viewer.source.scene
     with panel(viewer, "view", "View & edit", 5, 30, 290, 330) as expanded:
         if not expanded:
             return
-        imgui.text("camera")
-        for mode in ("orbit", "fly"):
-            same_line_if_fits(toggle_width(mode))
-            if imgui.radio_button(mode, st.view.mode == mode):
-                st.view.mode = mode
-            tip("orbit: drag turns around the target; fly: drag looks around, W/A/S/D/Q/E move (mouse over "
-                "the view)" if mode == "orbit" else "fly: drag looks around, W/A/S/D/Q/E move", viewer)
-        same_line_if_fits(button_width("reset view"))
-        reset = imgui.button("reset view")
-        viewer.record_item("reset_view")
-        tip("back to the first view of this scene", viewer)
-        if reset:
-            from app.camera_control import ViewCamera
-
-            st.view = ViewCamera.from_dict(viewer.home_view.to_dict())
-            st.previewing = False
-        if scene is not None:
-            names = [f"{'train' if i in scene.train_ids else 'test'} camera {c.name or i}  ({c.width}x{c.height})"
-                     for i, c in enumerate(scene.cameras)]
-            snapped = st.view.snapped
-            current = next((i for i, c in enumerate(scene.cameras) if snapped is not None and c.name == snapped.name
-                            and np.allclose(c.c2w, snapped.c2w)), -1)
-            imgui.set_next_item_width(-60)
-            changed, idx = combo_with_preview("snap to", current, names, "(free camera)")
-            tip("show exactly what a scene camera saw: its pose and intrinsics (letterboxed)", viewer)
-            if changed and idx >= 0:
-                st.view.snap_to(scene.cameras[idx])
-                st.previewing = False
-        _, st.show_frusta = imgui.checkbox("frusta", st.show_frusta)
-        tip("the scene's cameras: train in green, held-out in orange", viewer)
-        same_line_if_fits(toggle_width("trajectories"))
-        _, st.show_trajectories = imgui.checkbox("trajectories", st.show_trajectories)
-        tip("the novel-view trajectories' paths (the selected one in magenta)", viewer)
+        _camera_section(viewer)
         imgui.separator()
-        imgui.text("select Gaussians (now)")
-        tip("selection works on the Gaussians as they are at the current time", viewer)
-        for k, tool in enumerate(TOOLS):
-            if k:
-                same_line_if_fits(toggle_width(tool))
-            if imgui.radio_button(tool, viewer.tool == tool):
-                viewer.tool = tool
-            viewer.record_item(f"tool_{tool}")
-            tip({"navigate": "mouse steers the camera", "box": "drag a box: select the Gaussians in it (Shift adds)",
-                 "brush": "drag: add the Gaussians under the brush"}[tool], viewer)
-        same_line_if_fits(toggle_width("through"))
-        _, viewer.select_through = imgui.checkbox("through", viewer.select_through)
-        viewer.record_item("select_through")
-        tip("off: the box takes only the front surface (what you see); on: everything in the box, hidden "
-            "Gaussians behind it included", viewer)
-        n_sel = 0 if st.selection is None else int(st.selection.sum())
-        n = 0 if st.gaussians is None else st.gaussians.n
-        imgui.text(f"{n_sel} of {n} selected")
-        if imgui.button("clear selection"):
-            st.set_selection(None)
-        tip("select nothing", viewer)
-        same_line_if_fits(button_width("delete"))
-        delete = imgui.button("delete")
-        viewer.record_item("delete")
-        tip("remove the selected Gaussians (Ctrl+Z undoes)", viewer)
-        if delete:
-            st.delete_selected()
-        same_line_if_fits(button_width("isolate"))
-        if imgui.button("isolate"):
-            st.isolate_selected()
-        tip("keep only the selected Gaussians (Ctrl+Z undoes)", viewer)
-        if imgui.button("save as new version"):
-            viewer.save_edited_model()
-        tip("write RUN/model_edit_<k>.ply (Ctrl+S); the run reopens with it", viewer)
-        same_line_if_fits(button_width("undo"))
-        imgui.begin_disabled(not st.undo_stack)
-        undo = imgui.button("undo")
-        viewer.record_item("undo")
-        if undo:
-            st.undo()
-        imgui.end_disabled()
-        same_line_if_fits(button_width("redo"))
-        imgui.begin_disabled(not st.redo_stack)
-        if imgui.button("redo"):
-            st.redo()
-        imgui.end_disabled()
-        if st.undo_stack:
-            imgui.same_line()
-            imgui.text_disabled(st.undo_stack[-1].label)
+        _selection_section(viewer)
+        _edit_section(viewer)
+
+
+def _camera_section(viewer) -> None:
+    """Orbit/fly, reset view, snap to a scene camera, frusta and trajectories on/off."""
+    st = viewer.state
+    scene = viewer.source.scene
+    imgui.text("camera")
+    for mode in ("orbit", "fly"):
+        same_line_if_fits(toggle_width(mode))
+        if imgui.radio_button(mode, st.view.mode == mode):
+            st.view.mode = mode
+        tip("orbit: drag turns around the target; fly: drag looks around, W/A/S/D/Q/E move (mouse over "
+            "the view)" if mode == "orbit" else "fly: drag looks around, W/A/S/D/Q/E move", viewer)
+    same_line_if_fits(button_width("reset view"))
+    reset = imgui.button("reset view")
+    viewer.record_item("reset_view")
+    tip("back to the first view of this scene", viewer)
+    if reset:
+        from app.camera_control import ViewCamera
+
+        st.view = ViewCamera.from_dict(viewer.home_view.to_dict())
+        st.previewing = False
+    if scene is not None:
+        _snap_combo(viewer, scene)
+    _, st.show_frusta = imgui.checkbox("frusta", st.show_frusta)
+    tip("the scene's cameras: train in green, held-out in orange", viewer)
+    same_line_if_fits(toggle_width("trajectories"))
+    _, st.show_trajectories = imgui.checkbox("trajectories", st.show_trajectories)
+    tip("the novel-view trajectories' paths (the selected one in magenta)", viewer)
+
+
+def _snap_combo(viewer, scene) -> None:
+    """The "snap to" list of the scene's cameras (the one the view is snapped to, if any, shown)."""
+    st = viewer.state
+    names = [f"{'train' if i in scene.train_ids else 'test'} camera {c.name or i}  ({c.width}x{c.height})"
+             for i, c in enumerate(scene.cameras)]
+    snapped = st.view.snapped
+    current = next((i for i, c in enumerate(scene.cameras) if snapped is not None and c.name == snapped.name
+                    and np.allclose(c.c2w, snapped.c2w)), -1)
+    imgui.set_next_item_width(-60)
+    changed, idx = combo_with_preview("snap to", current, names, "(free camera)")
+    tip("show exactly what a scene camera saw: its pose and intrinsics (letterboxed)", viewer)
+    if changed and idx >= 0:
+        st.view.snap_to(scene.cameras[idx])
+        st.previewing = False
+
+
+def _selection_section(viewer) -> None:
+    """The selection tools (navigate, box, brush), box-through and the selection count."""
+    st = viewer.state
+    imgui.text("select Gaussians (now)")
+    tip("selection works on the Gaussians as they are at the current time", viewer)
+    for k, tool in enumerate(TOOLS):
+        if k:
+            same_line_if_fits(toggle_width(tool))
+        if imgui.radio_button(tool, viewer.tool == tool):
+            viewer.tool = tool
+        viewer.record_item(f"tool_{tool}")
+        tip({"navigate": "mouse steers the camera", "box": "drag a box: select the Gaussians in it (Shift adds)",
+             "brush": "drag: add the Gaussians under the brush"}[tool], viewer)
+    same_line_if_fits(toggle_width("through"))
+    _, viewer.select_through = imgui.checkbox("through", viewer.select_through)
+    viewer.record_item("select_through")
+    tip("off: the box takes only the front surface (what you see); on: everything in the box, hidden "
+        "Gaussians behind it included", viewer)
+    n_sel = 0 if st.selection is None else int(st.selection.sum())
+    n = 0 if st.gaussians is None else st.gaussians.n
+    imgui.text(f"{n_sel} of {n} selected")
+
+
+def _edit_section(viewer) -> None:
+    """Clear selection, delete, isolate, save as a new version, undo and redo."""
+    st = viewer.state
+    if imgui.button("clear selection"):
+        st.set_selection(None)
+    tip("select nothing", viewer)
+    same_line_if_fits(button_width("delete"))
+    delete = imgui.button("delete")
+    viewer.record_item("delete")
+    tip("remove the selected Gaussians (Ctrl+Z undoes)", viewer)
+    if delete:
+        st.delete_selected()
+    same_line_if_fits(button_width("isolate"))
+    if imgui.button("isolate"):
+        st.isolate_selected()
+    tip("keep only the selected Gaussians (Ctrl+Z undoes)", viewer)
+    if imgui.button("save as new version"):
+        viewer.save_edited_model()
+    tip("write RUN/model_edit_<k>.ply (Ctrl+S); the run reopens with it", viewer)
+    same_line_if_fits(button_width("undo"))
+    imgui.begin_disabled(not st.undo_stack)
+    undo = imgui.button("undo")
+    viewer.record_item("undo")
+    if undo:
+        st.undo()
+    imgui.end_disabled()
+    same_line_if_fits(button_width("redo"))
+    imgui.begin_disabled(not st.redo_stack)
+    if imgui.button("redo"):
+        st.redo()
+    imgui.end_disabled()
+    if st.undo_stack:
+        imgui.same_line()
+        imgui.text_disabled(st.undo_stack[-1].label)
 
 
 def combo_with_preview(label: str, current: int, names: list[str], none_text: str) -> tuple[bool, int]:

@@ -48,6 +48,14 @@ def depth_clouds(scene, stride: int = INIT_STRIDE, frames: list[int] | None = No
 
 
 def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    if args.effects:
+        return _effects_main(args)
+    return _iteration_main(args)
+
+
+def _parser() -> argparse.ArgumentParser:
+    """The command line of ``fixer4d bench iteration`` (plain timing, or --effects)."""
     parser = argparse.ArgumentParser(prog="fixer4d bench iteration", description=__doc__.splitlines()[0])
     parser.add_argument("--scene", default="demo")
     parser.add_argument("--scale", type=float, default=1.0, help="image scale of the scene")
@@ -65,10 +73,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", default=None, metavar="A:B",
                         help="the clip, half-open (the run's frame_range, e.g. 0:30 for the README's Panoptic "
                              "command; an --init's times are clip times)")
-    args = parser.parse_args(argv)
-    if args.effects:
-        return _effects_main(args)
+    return parser
 
+
+def _iteration_main(args) -> int:
+    """Seconds per stage-1 iteration split by part, and one densify/prune call (see the module
+    docstring); writes ``args.out``."""
     import torch
     from tqdm import tqdm
 
@@ -76,7 +86,8 @@ def main(argv: list[str] | None = None) -> int:
     from fixer4d.model.densify import densify_and_prune
     from fixer4d.scene import load_scene
     from fixer4d.train.config import Stage1Config
-    from fixer4d.train.trainer import Trainer, model_from_clouds
+    from fixer4d.train.model_init import model_from_clouds
+    from fixer4d.train.trainer import Trainer
 
     scene = load_scene(args.scene, scale=args.scale, frame_range=_clip(args.frames))
     cam = scene.cameras[scene.train_ids[0]]
@@ -150,7 +161,8 @@ def effects_comparison(scene, init, cfg, iterations: int, warmup: int) -> dict:
     import time
 
     from fixer4d.model.effects import EffectsConfig
-    from fixer4d.train.trainer import Trainer, model_from_init
+    from fixer4d.train.model_init import model_from_init
+    from fixer4d.train.trainer import Trainer
 
     for f in range(scene.num_frames):  # decode every train frame first: no row pays the loading
         for c in scene.train_ids:

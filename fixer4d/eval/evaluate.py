@@ -41,7 +41,7 @@ from __future__ import annotations
 import math
 import re
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -65,20 +65,6 @@ REGION_MASK_ESTIMATED = "estimated: temporal statistics of the held-out video (f
 # keeps typical reconstruction errors (0.02-0.2) in the visible range.
 ERROR_VIS_MAX = 0.25
 ERROR_COLORMAP = "inferno"
-
-
-@dataclass
-class EvalConfig:
-    """Evaluation settings (the keyword arguments of :func:`evaluate`; echoed into metrics.json).
-
-    frame_stride: evaluate every S-th frame of ``frames`` (1 = every frame).
-    frames: explicit frame indices, or None for all frames of the scene.
-    save_examples: number of frames (evenly spaced) saved as side-by-side PNGs per held-out view.
-    """
-
-    frame_stride: int = 1
-    frames: list[int] | None = None
-    save_examples: int = 3
 
 
 def select_frames(num_frames: int, frame_stride: int = 1, frames: Sequence[int] | None = None) -> list[int]:
@@ -212,9 +198,10 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
     A scene without held-out cameras is scored on its train cameras (the fit, not novel views;
     ``held_out`` False in the result). Returns the metrics.json content. Raises InputError for a
     render of the wrong shape, NumericalError for a non-finite render.
-    """
-    from tqdm.auto import tqdm
 
+    A run sets these from its ``eval`` section (``fixer4d.pipeline.config.EvalConfig``: stride
+    -> frame_stride, examples -> save_examples); metrics.json's ``protocol`` records them.
+    """
     t_start = time.perf_counter()
     out_dir = Path(out_dir)
     test_ids = [int(i) for i in scene.test_ids]
@@ -228,73 +215,10 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
     n_examples = max(0, min(int(save_examples), len(chosen)))
     example_frames = ({chosen[int(round(k))] for k in np.linspace(0, len(chosen) - 1, n_examples)}
                       if n_examples else set())
-
-    per_frame: list[dict[str, Any]] = []
-    examples: list[str] = []
-    render_s = 0.0
-    metric_s = 0.0
-    mask_s = 0.0
-    mask_rules: set[str] = set()
-    bar = tqdm(total=len(chosen) * len(test_ids), desc=f"eval {method_name}", unit="img", disable=not progress)
-    for cam_idx, key in zip(test_ids, keys):
-        camera = scene.cameras[cam_idx]
-        t0 = time.perf_counter()
-        moving, rule = heldout_moving_masks(scene, cam_idx, chosen)
-        mask_s += time.perf_counter() - t0
-        mask_rules.add(rule)
-        for j, f in enumerate(chosen):
-            t = scene.time(f)
-            t0 = time.perf_counter()
-            pred = np.asarray(render_fn(camera, t))
-            render_s += time.perf_counter() - t0
-            gt = np.asarray(scene.frame(f, cam_idx), dtype=np.float32)
-            if pred.shape != gt.shape:
-                raise InputError(f"render of camera {key} at frame {f} has shape {pred.shape}, but the ground truth "
-                                 f"is {gt.shape}; render at the scene camera's resolution")
-            if not np.isfinite(pred).all():
-                raise NumericalError(f"render of camera {key} at frame {f} contains NaN/inf; the model is corrupt")
-            pred = np.clip(pred.astype(np.float32), 0.0, 1.0)
-            t0 = time.perf_counter()
-            m = M.image_metrics(pred, gt)
-            m.update(M.region_metrics(pred, gt, moving[j]))
-            m["psnr_aligned"] = M.psnr(M.exposure_aligned(pred, gt), gt)
-            extra: dict[str, Any] = {}
-            if unobserved_fn is not None:
-                hidden = np.asarray(unobserved_fn(cam_idx, f), bool)
-                m["psnr_unobserved"] = M.masked_psnr(pred, gt, hidden)
-                extra["unobserved_fraction"] = float(hidden.mean())
-            metric_s += time.perf_counter() - t0
-            per_frame.append({"camera": key, "camera_index": cam_idx, "frame": f, "time": t, **m,
-                              "moving_fraction": float(moving[j].mean()), **extra})
-            if f in example_frames:
-                name = f"example_{_slug(key)}_f{f:04d}.png"
-                _save_png(out_dir / name, side_by_side(pred, gt))
-                examples.append(name)
-            bar.update(1)
-            bar.set_postfix(psnr=f"{m['psnr']:.2f}")
-    bar.close()
-
-    scored = METRIC_KEYS + ALIGNED_KEYS
-    present = REGION_KEYS + (OPTIONAL_KEYS if unobserved_fn is not None else ())
-    per_view: dict[str, dict[str, Any]] = {}
-    for cam_idx, key in zip(test_ids, keys):
-        rows = [r for r in per_frame if r["camera_index"] == cam_idx]
-        per_view[key] = {"camera_index": cam_idx, "frames": len(rows),
-                         **{k: _finite_or_none(_mean([r[k] for r in rows])) for k in scored},
-                         **{k: _mean_present([r[k] for r in rows]) for k in present},
-                         "moving_fraction": float(np.mean([r["moving_fraction"] for r in rows]))}
-        if unobserved_fn is not None:
-            per_view[key]["unobserved_fraction"] = float(np.mean([r["unobserved_fraction"] for r in rows]))
-    mean = {k: _finite_or_none(_mean([r[k] for r in per_frame])) for k in scored}
-    mean.update({k: _mean_present([r[k] for r in per_frame]) for k in present})
-    if unobserved_fn is not None:
-        mean["unobserved_fraction"] = float(np.mean([r["unobserved_fraction"] for r in per_frame]))
-    for r in per_frame:
-        for k in scored + present:
-            r[k] = _finite_or_none(r[k])
-
+    scores = _score_images(render_fn, scene, out_dir, test_ids, keys, chosen, example_frames, method_name,
+                           progress, unobserved_fn)
+    per_view, mean = _summaries(scores.per_frame, test_ids, keys, unobserved_fn is not None)
     seconds = dict(seconds or {})
-    cam0 = scene.cameras[test_ids[0]]
     result: dict[str, Any] = {
         "method": method_name,
         "held_out": held_out,
@@ -303,37 +227,146 @@ def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: s
         "seconds": {"prep": _finite_or_none(seconds.get("prep")), "train": _finite_or_none(seconds.get("train")),
                     "eval": None},
         "lpips_unavailable_reason": _lpips_reason(scene),
-        "per_frame": per_frame,
-        "protocol": {
-            "scene": scene.name,
-            "test_cameras": keys,
-            "frames": chosen,
-            "frame_stride": int(frame_stride),
-            "num_frames": scene.num_frames,
-            "resolution": [cam0.width, cam0.height],
-            "images": len(per_frame),
-            "render_clamped_to_01": True,
-            "psnr": "per image, data range 1, averaged over images",
-            "ssim": {"implementation": "skimage.metrics.structural_similarity", "win_size": M.SSIM_WIN_SIZE,
-                     "gaussian_weights": False, "use_sample_covariance": True, "channel_axis": -1,
-                     "dssim1_data_range": M.DSSIM1_DATA_RANGE, "dssim2_data_range": M.DSSIM2_DATA_RANGE},
-            "lpips": {"net": "alex", "weights": M.lpips_weights_path()},
-            "regions": {"mask": sorted(mask_rules)[0] if len(mask_rules) == 1 else sorted(mask_rules),
-                        "psnr": "10 log10(1 / MSE) over the region's pixels, per image; mean over images "
-                                "where the region is not empty",
-                        "ssim": "mean of the SSIM map (data range 1) over the region",
-                        "moving_fraction": float(np.mean([r["moving_fraction"] for r in per_frame])),
-                        "unobserved": None if unobserved_fn is None else
-                        "restore.visibility of the stage-1 model's renders (train cameras only), weight > 0.5"},
-            "psnr_aligned": "PSNR after a per-image per-channel affine fit of the render to the ground truth",
-        },
-        "timing": {"render_seconds": render_s, "metrics_seconds": metric_s, "mask_seconds": mask_s},
-        "examples": examples,
+        "per_frame": scores.per_frame,
+        "protocol": _protocol(scene, test_ids, keys, chosen, frame_stride, scores, unobserved_fn is not None),
+        "timing": {"render_seconds": scores.render_s, "metrics_seconds": scores.metric_s,
+                   "mask_seconds": scores.mask_s},
+        "examples": scores.examples,
     }
     result["seconds"]["eval"] = time.perf_counter() - t_start
     write_json(out_dir / "metrics.json", result)
     write_text(out_dir / "metrics.md", markdown_table([result]))
     return result
+
+
+@dataclass
+class _Scores:
+    """What scoring every image gave: per-frame rows, example files, the region-mask rules used
+    and the seconds spent rendering, scoring and computing masks."""
+
+    per_frame: list[dict[str, Any]] = field(default_factory=list)
+    examples: list[str] = field(default_factory=list)
+    mask_rules: set[str] = field(default_factory=set)
+    render_s: float = 0.0
+    metric_s: float = 0.0
+    mask_s: float = 0.0
+
+
+def _score_images(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: Path, test_ids: list[int],
+                  keys: list[str], chosen: list[int], example_frames: set[int], method_name: str, progress: bool,
+                  unobserved_fn: Callable[[int, int], np.ndarray] | None) -> _Scores:
+    """Render and score every (camera, frame) pair, saving the example PNGs on the way."""
+    from tqdm.auto import tqdm
+
+    sc = _Scores()
+    bar = tqdm(total=len(chosen) * len(test_ids), desc=f"eval {method_name}", unit="img", disable=not progress)
+    for cam_idx, key in zip(test_ids, keys):
+        camera = scene.cameras[cam_idx]
+        t0 = time.perf_counter()
+        moving, rule = heldout_moving_masks(scene, cam_idx, chosen)
+        sc.mask_s += time.perf_counter() - t0
+        sc.mask_rules.add(rule)
+        for j, f in enumerate(chosen):
+            t = scene.time(f)
+            t0 = time.perf_counter()
+            pred = np.asarray(render_fn(camera, t))
+            sc.render_s += time.perf_counter() - t0
+            gt = np.asarray(scene.frame(f, cam_idx), dtype=np.float32)
+            pred = _checked_render(pred, gt, key, f)
+            t0 = time.perf_counter()
+            m, extra = _image_scores(pred, gt, moving[j], cam_idx, f, unobserved_fn)
+            sc.metric_s += time.perf_counter() - t0
+            sc.per_frame.append({"camera": key, "camera_index": cam_idx, "frame": f, "time": t, **m,
+                                 "moving_fraction": float(moving[j].mean()), **extra})
+            if f in example_frames:
+                name = f"example_{_slug(key)}_f{f:04d}.png"
+                _save_png(out_dir / name, side_by_side(pred, gt))
+                sc.examples.append(name)
+            bar.update(1)
+            bar.set_postfix(psnr=f"{m['psnr']:.2f}")
+    bar.close()
+    return sc
+
+
+def _checked_render(pred: np.ndarray, gt: np.ndarray, key: str, f: int) -> np.ndarray:
+    """The render (H, W, 3) clamped to [0, 1] in float32; InputError for a shape other than the
+    ground truth's, NumericalError for NaN/inf."""
+    if pred.shape != gt.shape:
+        raise InputError(f"render of camera {key} at frame {f} has shape {pred.shape}, but the ground truth "
+                         f"is {gt.shape}; render at the scene camera's resolution")
+    if not np.isfinite(pred).all():
+        raise NumericalError(f"render of camera {key} at frame {f} contains NaN/inf; the model is corrupt")
+    return np.clip(pred.astype(np.float32), 0.0, 1.0)
+
+
+def _image_scores(pred: np.ndarray, gt: np.ndarray, moving: np.ndarray, cam_idx: int, f: int,
+                  unobserved_fn: Callable[[int, int], np.ndarray] | None) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(scores, extra fields) of one image: the image and region metrics, the exposure-aligned
+    PSNR and, given ``unobserved_fn``, the PSNR over the unobserved pixels and their share."""
+    m = M.image_metrics(pred, gt)
+    m.update(M.region_metrics(pred, gt, moving))
+    m["psnr_aligned"] = M.psnr(M.exposure_aligned(pred, gt), gt)
+    extra: dict[str, Any] = {}
+    if unobserved_fn is not None:
+        hidden = np.asarray(unobserved_fn(cam_idx, f), bool)
+        m["psnr_unobserved"] = M.masked_psnr(pred, gt, hidden)
+        extra["unobserved_fraction"] = float(hidden.mean())
+    return m, extra
+
+
+def _summaries(per_frame: list[dict[str, Any]], test_ids: list[int], keys: list[str],
+               unobserved: bool) -> tuple[dict[str, dict[str, Any]], dict[str, Any]]:
+    """(per_view, mean) over the per-frame rows; then every row's scores are made JSON-safe
+    (inf/NaN -> None) in place."""
+    scored = METRIC_KEYS + ALIGNED_KEYS
+    present = REGION_KEYS + (OPTIONAL_KEYS if unobserved else ())
+    per_view: dict[str, dict[str, Any]] = {}
+    for cam_idx, key in zip(test_ids, keys):
+        rows = [r for r in per_frame if r["camera_index"] == cam_idx]
+        per_view[key] = {"camera_index": cam_idx, "frames": len(rows),
+                         **{k: _finite_or_none(_mean([r[k] for r in rows])) for k in scored},
+                         **{k: _mean_present([r[k] for r in rows]) for k in present},
+                         "moving_fraction": float(np.mean([r["moving_fraction"] for r in rows]))}
+        if unobserved:
+            per_view[key]["unobserved_fraction"] = float(np.mean([r["unobserved_fraction"] for r in rows]))
+    mean = {k: _finite_or_none(_mean([r[k] for r in per_frame])) for k in scored}
+    mean.update({k: _mean_present([r[k] for r in per_frame]) for k in present})
+    if unobserved:
+        mean["unobserved_fraction"] = float(np.mean([r["unobserved_fraction"] for r in per_frame]))
+    for r in per_frame:
+        for k in scored + present:
+            r[k] = _finite_or_none(r[k])
+    return per_view, mean
+
+
+def _protocol(scene, test_ids: list[int], keys: list[str], chosen: list[int], frame_stride: int, scores: _Scores,
+              unobserved: bool) -> dict[str, Any]:
+    """metrics.json's ``protocol``: what was scored and how."""
+    cam0 = scene.cameras[test_ids[0]]
+    rules = scores.mask_rules
+    return {
+        "scene": scene.name,
+        "test_cameras": keys,
+        "frames": chosen,
+        "frame_stride": int(frame_stride),
+        "num_frames": scene.num_frames,
+        "resolution": [cam0.width, cam0.height],
+        "images": len(scores.per_frame),
+        "render_clamped_to_01": True,
+        "psnr": "per image, data range 1, averaged over images",
+        "ssim": {"implementation": "skimage.metrics.structural_similarity", "win_size": M.SSIM_WIN_SIZE,
+                 "gaussian_weights": False, "use_sample_covariance": True, "channel_axis": -1,
+                 "dssim1_data_range": M.DSSIM1_DATA_RANGE, "dssim2_data_range": M.DSSIM2_DATA_RANGE},
+        "lpips": {"net": "alex", "weights": M.lpips_weights_path()},
+        "regions": {"mask": sorted(rules)[0] if len(rules) == 1 else sorted(rules),
+                    "psnr": "10 log10(1 / MSE) over the region's pixels, per image; mean over images "
+                            "where the region is not empty",
+                    "ssim": "mean of the SSIM map (data range 1) over the region",
+                    "moving_fraction": float(np.mean([r["moving_fraction"] for r in scores.per_frame])),
+                    "unobserved": None if not unobserved else
+                    "restore.visibility of the stage-1 model's renders (train cameras only), weight > 0.5"},
+        "psnr_aligned": "PSNR after a per-image per-channel affine fit of the render to the ground truth",
+    }
 
 
 def _lpips_reason(scene) -> str | None:

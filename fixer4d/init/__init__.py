@@ -7,11 +7,12 @@ into a dense cloud (Eq. 1-2). ``run_init`` drives it and writes ``frame_XXXX.ply
 `fixer4d --help` stays fast.
 """
 from fixer4d.init.cloud import FrameCloud, load_frame_clouds, merge_clouds, save_frame_clouds
+from fixer4d.init.report import REPORT_NAME
 
 __all__ = ["FrameCloud", "save_frame_clouds", "load_frame_clouds", "merge_clouds", "InitConfig", "run_init",
            "METHODS", "REPORT_NAME"]
 
-_LAZY = {"InitConfig", "run_init", "METHODS", "REPORT_NAME"}
+_LAZY = {"InitConfig", "run_init", "METHODS"}
 
 
 def __getattr__(name: str):

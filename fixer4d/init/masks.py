@@ -55,7 +55,7 @@ def _temporal_median(x: np.ndarray, exclude: np.ndarray | None = None) -> np.nda
             ex = exclude[:, r:r + C.MASK_ROW_CHUNK]
             some = ex.any(0) & ~ex.all(0)
             if some.any():
-                med[some] = _median_without(blk[:, some], ex[:, some])
+                med[some] = median_without(blk[:, some], ex[:, some])
         out[r:r + C.MASK_ROW_CHUNK] = med
     return out
 
@@ -70,7 +70,7 @@ def _median0(x: np.ndarray) -> np.ndarray:
     return p[..., k] if F % 2 else (p[..., :k].max(-1) + p[..., k]) / 2
 
 
-def _median_without(x: np.ndarray, ex: np.ndarray) -> np.ndarray:
+def median_without(x: np.ndarray, ex: np.ndarray) -> np.ndarray:
     """Median over axis 0 of x (F, ...) leaving out the samples ex marks (ex: x's leading axes, at
     least one kept per column): ``np.nanmedian`` with the excluded samples as NaN, by one sort (10x faster
     than nanmedian's masked-array path at F = 30)."""

@@ -1,15 +1,16 @@
-"""The plane sweep's matching cost (``PlaneSweepMVS._scores``) as one fused numba kernel.
+"""The plane sweep's matching cost as one fused numba kernel.
 
-Same function as the torch version in fixer4d/init/mvs.py (the readable reference): per plane and
-reference tile, every source view warped through the plane-induced homography (bilinear,
-``grid_sample(align_corners=False, padding_mode="zeros")`` semantics, a sample outside the
-source image is 0), windowed ZNCC against the reference (box means that shrink at the tile
-border, a window with less than MVS_MIN_INSIDE of its samples inside the source scores -1),
-the mean of the best k sources, and a box aggregation. Why: the torch version is ~25 small ops
-per (source, chunk of planes), and the coarse-to-fine sweep calls it on 16-pixel tiles, so on
-Panoptic (320x180, 5 init frames) Python and op dispatch took most of the 4.6 s of plane sweeps
-and two worker threads ran no faster than one (they take turns holding the GIL). Here one call
-covers every (plane, tile) pair of a batch, parallel over the pairs, without the GIL.
+Same function as the torch version (``plane_scores_torch`` in fixer4d/init/matching_cost.py, the
+readable reference): per plane and reference tile, every source view warped through the
+plane-induced homography (bilinear, ``grid_sample(align_corners=False, padding_mode="zeros")``
+semantics, a sample outside the source image is 0), windowed ZNCC against the reference (box
+means that shrink at the tile border, a window with less than MVS_MIN_INSIDE of its samples
+inside the source scores -1), the mean of the best k sources, and a box aggregation. Why: the
+torch version is ~25 small ops per (source, chunk of planes), and the coarse-to-fine sweep calls
+it on 16-pixel tiles, so on Panoptic (320x180, 5 init frames) Python and op dispatch took most
+of the 4.6 s of plane sweeps and two worker threads ran no faster than one (they take turns
+holding the GIL). Here one call covers every (plane, tile) pair of a batch, parallel over the
+pairs, without the GIL.
 
 float32 arithmetic like the torch version, in a different order (box sums as running sums of
 the window rows): scores agree to ~1e-5 (tests/init/test_mvs_kernel.py).

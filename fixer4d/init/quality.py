@@ -9,6 +9,9 @@
 - depth errors of a depth map on its valid pixels that see a surface: abs-rel, shares within
   1% and 5%; valid_share = valid pixels / pixels that see a surface; coverage = pixels with a
   valid depth within 5% / pixels that see a surface (valid and right).
+
+The ``frame_*`` helpers and ``summarize_clouds`` apply these to a scene with ground truth (a
+synthetic scene: ``scene.depth``), the quality section of ``init_report.json``.
 """
 from __future__ import annotations
 
@@ -86,3 +89,51 @@ def summarize_depth(stats: Sequence[dict]) -> dict:
             "depth_within_5pct": sum(s["within_5pct"] for s in stats) / valid if valid else None,
             "valid_share": valid / pixels,
             "coverage": sum(s["within_5pct"] for s in stats) / pixels}
+
+
+def summarize_clouds(per_frame: Sequence[dict]) -> dict:
+    """Pool per-frame ``cloud_quality`` results: mean accuracy and accuracy_rel (None when no
+    frame has a point), mean completeness, the completeness tolerance (relative to the scene
+    scale) and depth_abs_rel None, for a depth summary (``summarize_depth``) to fill in."""
+    acc = [p["accuracy"] for p in per_frame if p.get("accuracy") is not None]
+    return {"accuracy": float(np.mean(acc)) if acc else None,
+            "accuracy_rel": float(np.mean([p["accuracy_rel"] for p in per_frame if p.get("accuracy_rel") is not None]))
+            if acc else None,
+            "completeness": float(np.mean([p["completeness"] for p in per_frame])),
+            "completeness_tolerance_rel": C.QUALITY_COMPLETENESS_REL,
+            "depth_abs_rel": None}
+
+
+def frame_cloud_quality(scene, frame: int, points: np.ndarray) -> dict:
+    """``cloud_quality`` of one frame's cloud (N, 3) against the true surface of every camera of
+    ``scene`` (train, then held-out) at ``frame``."""
+    ids = list(scene.train_ids) + [i for i in scene.test_ids if i not in scene.train_ids]
+    surface, scale = surface_samples([scene.depth(frame, i) for i in ids], [scene.cameras[i] for i in ids])
+    return cloud_quality(points, surface, scale)
+
+
+def frame_depth_quality(scene, frame: int, results: Sequence, excluded: Sequence[np.ndarray] | None = None
+                        ) -> list[dict]:
+    """``depth_quality`` of each train view's DepthResult at ``frame`` against the scene's true
+    depth at the result's resolution. excluded: optional per view (H, W) bool at the result's
+    resolution, pixels left out of both the prediction and the truth."""
+    stats = []
+    for v, (r, i) in enumerate(zip(results, scene.train_ids)):
+        if excluded is None:
+            stats.append(depth_quality(r.depth, r.valid, gt_depth_at(scene, i, frame, r.camera)))
+        else:
+            stats.append(depth_quality(r.depth, r.valid & ~excluded[v],
+                                       np.where(excluded[v], np.nan, gt_depth_at(scene, i, frame, r.camera))))
+    return stats
+
+
+def gt_depth_at(scene, cam_index: int, frame: int, camera: Camera) -> np.ndarray:
+    """Ground-truth depth of scene camera ``cam_index`` at ``camera``'s resolution."""
+    full = scene.cameras[cam_index]
+    if (camera.width, camera.height) == (full.width, full.height):
+        return scene.depth(frame, cam_index)
+    if hasattr(scene, "render_gt"):
+        return scene.render_gt(full.resized(camera.width, camera.height), scene.time(frame))[1]
+    import cv2
+
+    return cv2.resize(scene.depth(frame, cam_index), (camera.width, camera.height), interpolation=cv2.INTER_NEAREST)

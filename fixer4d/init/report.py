@@ -1,12 +1,10 @@
-"""What ``run_init`` and the decomposed init share: stage timers, ground-truth depth for the
-quality report, and the init report writer (``init_report.json``)."""
+"""What ``run_init`` and the decomposed init share: stage timers and the init report writer
+(``init_report.json``)."""
 from __future__ import annotations
 
 import time
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from fixer4d.atomic import write_json
 
@@ -31,18 +29,8 @@ class Timer:
         return dt
 
 
-def gt_depth_at(scene, cam_index: int, frame: int, camera) -> np.ndarray:
-    """Ground-truth depth of scene camera ``cam_index`` at ``camera``'s resolution."""
-    full = scene.cameras[cam_index]
-    if (camera.width, camera.height) == (full.width, full.height):
-        return scene.depth(frame, cam_index)
-    if hasattr(scene, "render_gt"):
-        return scene.render_gt(full.resized(camera.width, camera.height), scene.time(frame))[1]
-    import cv2
-
-    return cv2.resize(scene.depth(frame, cam_index), (camera.width, camera.height), interpolation=cv2.INTER_NEAREST)
-
-
+# Stages whose time counts as preparing the init (loading, writing and quality checks do not;
+# a pose *check* with given poses is a diagnostic, not part of preparing the clouds).
 PREP_STAGES = ("depth_range", "sparse", "mvs", "fusion", "masks", "static_median", "motion", "evidence")
 
 

@@ -1,4 +1,5 @@
-"""fixer4d.model: spacetime Gaussians (spacetime.py), their snapshot (snapshot.py) and I/O (io.py).
+"""fixer4d.model: spacetime Gaussians (spacetime.py; view-dependent colour sh.py, initial extents
+initial_scales.py), their snapshot (snapshot.py) and I/O (io.py).
 
 Names are resolved lazily so that `import fixer4d.model.cli` (the `export` verb) stays light.
 """

@@ -21,11 +21,7 @@ sh_degree, rotation_velocity, temporal_opacity; None = decided):
   the static cloud becomes clip-long dynamic Gaussians): the reference for speed and accuracy.
 - static: no time terms at all, the static cloud only.
 
-During stage 1 (``revise``): a dynamic Gaussian whose motion over the clip stays within
-DEMOTE_MOTION_SCALES of its own size and whose temporal opacity varies by less than
-DEMOTE_OPACITY_VARIATION is demoted to static; a static Gaussian whose view-space gradient is
-concentrated in one time bin (TemporalStats; PROMOTE_*) is split: a time-local dynamic copy
-is added at that bin (the static one keeps the other times).
+During stage 1 (``revise``) the decision is revised per Gaussian: fixer4d/model/effect_revisions.py.
 
 Decisions are deterministic (no randomness; ties broken by fixed order).
 """
@@ -39,6 +35,7 @@ import numpy as np
 import torch
 
 from fixer4d.errors import InputError
+from fixer4d.model.initial_scales import initial_temporal_std, knn_scales
 from fixer4d.model.spacetime import MAX_MOTION_DEGREE, ModelConfig, SpacetimeGaussians
 
 MODES = ("auto", "all", "static")
@@ -84,21 +81,6 @@ ALL_MODE_STATIC_TEMPORAL_STD = 1.0
 # Priority of dynamic points under the init point cap: they may take at most half of it (the
 # static cloud needs the rest; the demo's moving points are ~25% of the raw points).
 DYNAMIC_CAP_SHARE = 0.5
-
-# -- revisions during training --
-# Time bins of the per-Gaussian gradient statistics: 4 bins of a clip resolve "only while the
-# ball passes" from "always", and each bin still gets ~1/4 of the steps.
-TEMPORAL_BINS = 4
-# Demotion: motion over the whole clip within 0.5 of the Gaussian's largest std, and temporal
-# opacity varying by < 10% over the clip: it renders the same as a static Gaussian.
-DEMOTE_MOTION_SCALES = 0.5
-DEMOTE_OPACITY_VARIATION = 0.1
-# Split (promotion): a static Gaussian whose mean gradient in its hottest time bin is >= 2x the
-# densification threshold and >= 3x its mean over the other bins keeps a residual that one
-# static position cannot remove. Each bin needs >= 3 views' statistics to be trusted.
-PROMOTE_GRAD_FACTOR = 2.0
-PROMOTE_CONCENTRATION = 3.0
-PROMOTE_MIN_VIEWS = 3
 
 
 @dataclass
@@ -160,9 +142,21 @@ class EffectsDecision:
 
 
 def _lifetime(init) -> float:
-    from fixer4d.model.spacetime import initial_temporal_std
-
     return initial_temporal_std(np.asarray(init.dyn_times)) if init.num_dynamic else 1.0
+
+
+@dataclass
+class _Switches:
+    """The scene's switches and the per-point choices while ``decide_effects`` settles them."""
+
+    motion: int
+    rotation: bool
+    temporal: bool
+    sh: int
+    keep: np.ndarray
+    point_degree: np.ndarray
+    rotates: np.ndarray
+    static_dynamic: bool = False
 
 
 def decide_effects(init, config: EffectsConfig | None = None) -> EffectsDecision:
@@ -171,18 +165,48 @@ def decide_effects(init, config: EffectsConfig | None = None) -> EffectsDecision
     M = init.num_dynamic
     ev: dict[str, Any] = {"static_points": init.num_static, "moving_points": M}
     reasons: dict[str, str] = {}
+    sh = _sh_degree(init, ev, reasons)
+    degree = np.asarray(init.dyn_degree, np.int64)
+    keep, reliable = _dynamic_points(init, degree, ev)
+    n_dyn = int(keep.sum())
+    has_dynamic = n_dyn >= MIN_DYNAMIC_POINTS
+    motion = _motion_degree(degree, reliable, n_dyn, has_dynamic, ev, reasons)
+    point_degree = np.clip(degree, 0, motion)
+    rotation, rotates = _rotation(init, keep, degree, has_dynamic and motion > 0, ev, reasons)
+    reasons["temporal_opacity"] = (f"{n_dyn} time-local dynamic Gaussians" if has_dynamic else "no dynamic Gaussians")
+    sw = _Switches(motion, rotation, has_dynamic, sh, keep, point_degree, rotates)
+    _apply_mode(sw, config.mode, degree, M, reasons)
+    forced = config.forced
+    _apply_forced(sw, forced, reasons)
+    if not sw.rotation:
+        sw.rotates = np.zeros(M, bool)
+    cfg = ModelConfig(motion_degree=sw.motion, rotation_velocity=sw.rotation, temporal_opacity=sw.temporal,
+                      sh_degree=sw.sh)
+    if not cfg.has_time_terms:
+        sw.keep = np.zeros(M, bool)
+        if M and config.mode != "static":
+            reasons["dynamic"] = "the model has no time terms: moving points are left out (they would be ghosts)"
+    return EffectsDecision(mode=config.mode, model_config=cfg, dynamic_keep=sw.keep, point_degree=sw.point_degree,
+                           rotates=sw.rotates & sw.keep, static_dynamic=sw.static_dynamic and cfg.has_time_terms,
+                           reasons=reasons, evidence=ev, forced=forced)
 
-    # -- SH degree from the static cloud's view-dependent residual --------------------------------
+
+def _sh_degree(init, ev: dict[str, Any], reasons: dict[str, str]) -> int:
+    """SH degree from the static cloud's view-dependent residual (SH_VIEW_STD, SH_MIN_SHARE)."""
     std = np.asarray(init.static_view_std, np.float64)
     seen = np.isfinite(std)
     share_vd = float((std[seen] > SH_VIEW_STD).mean()) if seen.any() else 0.0
     ev["view_dependent_share"] = share_vd
-    sh = SH_MAX_SUPPORTED if share_vd >= SH_MIN_SHARE else 0
     reasons["sh_degree"] = (f"{100 * share_vd:.1f}% of the static points seen by >= 2 views differ across views by "
                             f"more than {SH_VIEW_STD} (std, exposure-corrected); threshold {100 * SH_MIN_SHARE:.0f}%")
+    return SH_MAX_SUPPORTED if share_vd >= SH_MIN_SHARE else 0
 
-    # -- static vs dynamic per moving point ------------------------------------------------------
-    degree = np.asarray(init.dyn_degree, np.int64)
+
+def _dynamic_points(init, degree: np.ndarray, ev: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """(keep, reliable) (M,) bool: the moving points that become dynamic Gaussians (all but the
+    still ones with a static point within DUPLICATE_VOXELS), and those of them with a reliable
+    track fit (within RELIABLE_FIT_PX)."""
+    M = init.num_dynamic
     fit = np.asarray(init.dyn_fit_px, np.float64)
     keep = np.ones(M, bool)
     if M and init.num_static:
@@ -191,33 +215,40 @@ def decide_effects(init, config: EffectsConfig | None = None) -> EffectsDecision
         d, _ = cKDTree(init.static_points).query(init.dyn_points, k=1)
         still = degree == 0
         keep = ~(still & (d <= DUPLICATE_VOXELS * FUSION_VOXEL_REL * init.scene_scale))
-    n_dyn = int(keep.sum())
-    ev["duplicates_of_static"] = int(M - n_dyn)
+    ev["duplicates_of_static"] = int(M - int(keep.sum()))
     reliable = keep & (degree >= 0) & (fit <= RELIABLE_FIT_PX)
     ev["reliable_tracks"] = int(reliable.sum())
-    has_dynamic = n_dyn >= MIN_DYNAMIC_POINTS
+    return keep, reliable
 
-    # -- motion degree ----------------------------------------------------------------------------
+
+def _motion_degree(degree: np.ndarray, reliable: np.ndarray, n_dyn: int, has_dynamic: bool,
+                   ev: dict[str, Any], reasons: dict[str, str]) -> int:
+    """The scene's motion degree: the smallest that fits MOTION_DEGREE_COVERAGE of the reliable
+    tracks, at least 1 with dynamic content, 0 without."""
     if not has_dynamic:
-        motion = 0
         reasons["motion_degree"] = f"{n_dyn} moving point(s) after dropping static duplicates (< {MIN_DYNAMIC_POINTS}): static scene"
-    elif reliable.sum() == 0:
-        motion = 1
+        return 0
+    if reliable.sum() == 0:
         reasons["motion_degree"] = "moving points but no reliable track: linear motion, learned from the images"
-    else:
-        hist = np.bincount(degree[reliable], minlength=MAX_MOTION_DEGREE + 1)
-        cum = np.cumsum(hist) / hist.sum()
-        vote = int(np.argmax(cum >= MOTION_DEGREE_COVERAGE - 1e-12))
-        # the masks say these points move over the clip; a short track (a few frames) can be too
-        # short to resolve slow motion, so a scene with dynamic content gets at least linear motion
-        motion = max(vote, 1)
-        ev["track_degree_histogram"] = hist.tolist()
-        reasons["motion_degree"] = (f"degree {vote} fits {100 * cum[vote]:.0f}% of {int(reliable.sum())} reliable "
-                                    f"tracks (histogram deg 0..3: {hist.tolist()}; needed {100 * MOTION_DEGREE_COVERAGE:.0f}%)"
-                                    + ("; at least 1 because the moving masks show motion" if vote == 0 else ""))
-    point_degree = np.clip(degree, 0, motion)
+        return 1
+    hist = np.bincount(degree[reliable], minlength=MAX_MOTION_DEGREE + 1)
+    cum = np.cumsum(hist) / hist.sum()
+    vote = int(np.argmax(cum >= MOTION_DEGREE_COVERAGE - 1e-12))
+    ev["track_degree_histogram"] = hist.tolist()
+    reasons["motion_degree"] = (f"degree {vote} fits {100 * cum[vote]:.0f}% of {int(reliable.sum())} reliable "
+                                f"tracks (histogram deg 0..3: {hist.tolist()}; needed {100 * MOTION_DEGREE_COVERAGE:.0f}%)"
+                                + ("; at least 1 because the moving masks show motion" if vote == 0 else ""))
+    # the masks say these points move over the clip; a short track (a few frames) can be too
+    # short to resolve slow motion, so a scene with dynamic content gets at least linear motion
+    return max(vote, 1)
 
-    # -- rotation velocity ------------------------------------------------------------------------
+
+def _rotation(init, keep: np.ndarray, degree: np.ndarray, moving: bool, ev: dict[str, Any],
+              reasons: dict[str, str]) -> tuple[bool, np.ndarray]:
+    """(the scene gets omega, (M,) points seeded with it): ROTATION_MIN_ANGLE per temporal std,
+    ROTATION_MIN_GAIN of the neighbourhood's motion, ROTATION_MIN_SHARE of the tracked points.
+    moving: the scene has dynamic Gaussians with motion."""
+    M = init.num_dynamic
     life = _lifetime(init)
     angle = np.linalg.norm(np.asarray(init.dyn_omega, np.float64), axis=1) * life if M else np.zeros(0)
     gain = np.asarray(getattr(init, "dyn_rot_gain", np.zeros(M)), np.float64)
@@ -225,50 +256,43 @@ def decide_effects(init, config: EffectsConfig | None = None) -> EffectsDecision
     tracked = keep & (degree >= 1)
     rot_share = float(rotates.sum() / max(tracked.sum(), 1))
     ev["rotating_share"] = rot_share
-    rotation = bool(has_dynamic and motion > 0 and rot_share >= ROTATION_MIN_SHARE)
     reasons["rotation_velocity"] = (f"{100 * rot_share:.1f}% of the moving tracked points turn by >= {ROTATION_MIN_ANGLE} rad "
                                     f"per temporal std ({life:.3f}) with rotation explaining >= {ROTATION_MIN_GAIN:.0%} of "
                                     f"their neighbourhood's motion; threshold {100 * ROTATION_MIN_SHARE:.0f}%")
-    temporal = has_dynamic
-    reasons["temporal_opacity"] = (f"{n_dyn} time-local dynamic Gaussians" if temporal else "no dynamic Gaussians")
-    static_dynamic = False
+    return bool(moving and rot_share >= ROTATION_MIN_SHARE), rotates
 
-    if config.mode == "all":
-        motion, rotation, temporal, sh = MAX_MOTION_DEGREE, True, True, SH_MAX_SUPPORTED
-        keep = np.ones(M, bool)
-        point_degree = np.clip(degree, 0, motion)
-        rotates = degree >= 1
-        static_dynamic = True
+
+def _apply_mode(sw: _Switches, mode: str, degree: np.ndarray, M: int, reasons: dict[str, str]) -> None:
+    """Mode "all": every effect on every Gaussian; "static": no time terms; "auto": as decided.
+    degree: (M,) the moving points' track degrees."""
+    if mode == "all":
+        sw.motion, sw.rotation, sw.temporal, sw.sh = MAX_MOTION_DEGREE, True, True, SH_MAX_SUPPORTED
+        sw.keep = np.ones(M, bool)
+        sw.point_degree = np.clip(degree, 0, sw.motion)
+        sw.rotates = degree >= 1
+        sw.static_dynamic = True
         for k in ("motion_degree", "rotation_velocity", "temporal_opacity", "sh_degree"):
             reasons[k] = "mode 'all': every effect on every Gaussian"
-    elif config.mode == "static":
-        motion, rotation, temporal = 0, False, False
-        keep = np.zeros(M, bool)
+    elif mode == "static":
+        sw.motion, sw.rotation, sw.temporal = 0, False, False
+        sw.keep = np.zeros(M, bool)
         for k in ("motion_degree", "rotation_velocity", "temporal_opacity"):
             reasons[k] = "mode 'static': no time terms; the static cloud only"
 
-    forced = config.forced
+
+def _apply_forced(sw: _Switches, forced: dict[str, Any], reasons: dict[str, str]) -> None:
+    """The config's forced switches win over every decision."""
     if "motion_degree" in forced:
-        motion = int(forced["motion_degree"])
-        point_degree = np.clip(point_degree, 0, motion)
+        sw.motion = int(forced["motion_degree"])
+        sw.point_degree = np.clip(sw.point_degree, 0, sw.motion)
     if "sh_degree" in forced:
-        sh = int(forced["sh_degree"])
+        sw.sh = int(forced["sh_degree"])
     if "rotation_velocity" in forced:
-        rotation = bool(forced["rotation_velocity"])
+        sw.rotation = bool(forced["rotation_velocity"])
     if "temporal_opacity" in forced:
-        temporal = bool(forced["temporal_opacity"])
+        sw.temporal = bool(forced["temporal_opacity"])
     for k, v in forced.items():
         reasons[k] = f"forced to {v} by the config ({reasons.get(k, '')})"
-    if not rotation:
-        rotates = np.zeros(M, bool)
-    cfg = ModelConfig(motion_degree=motion, rotation_velocity=rotation, temporal_opacity=temporal, sh_degree=sh)
-    if not cfg.has_time_terms:
-        keep = np.zeros(M, bool)
-        if M and config.mode != "static":
-            reasons["dynamic"] = "the model has no time terms: moving points are left out (they would be ghosts)"
-    return EffectsDecision(mode=config.mode, model_config=cfg, dynamic_keep=keep, point_degree=point_degree,
-                           rotates=rotates & keep, static_dynamic=static_dynamic and cfg.has_time_terms,
-                           reasons=reasons, evidence=ev, forced=forced)
 
 
 def model_from_decomposed(init, decision: EffectsDecision, *, opacity: float, max_points: int,
@@ -282,8 +306,6 @@ def model_from_decomposed(init, decision: EffectsDecision, *, opacity: float, ma
     from 3-NN within their frame. At most ``max_points`` (moving points first, up to
     DYNAMIC_CAP_SHARE of the cap; seeded uniform subsamples).
     """
-    from fixer4d.model.spacetime import knn_scales
-
     rng = np.random.default_rng(seed)
     cfg = decision.model_config
     dyn_idx = np.nonzero(decision.dynamic_keep)[0]
@@ -362,122 +384,3 @@ def effects_report(model: SpacetimeGaussians, decision: EffectsDecision | None,
 def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
     return {k: (v.tolist() if isinstance(v, np.ndarray) else float(v) if isinstance(v, np.floating)
                 else int(v) if isinstance(v, np.integer) else v) for k, v in d.items()}
-
-
-# ---- revisions during training ------------------------------------------------------------------
-@dataclass
-class TemporalStats:
-    """Per-Gaussian view-space gradient statistics per time bin (between two density steps).
-
-    grad: (N, B) summed NDC gradient norms; count: (N, B) views that drew the Gaussian.
-    """
-
-    grad: torch.Tensor
-    count: torch.Tensor
-
-    @classmethod
-    def zeros(cls, n: int, bins: int = TEMPORAL_BINS, device: torch.device | str = "cpu") -> "TemporalStats":
-        return cls(torch.zeros(n, bins, device=device), torch.zeros(n, bins, device=device))
-
-    def __len__(self) -> int:
-        return int(self.grad.shape[0])
-
-    @torch.no_grad()
-    def update(self, means2d_grad: torch.Tensor, radii: torch.Tensor, width: int, height: int, t: float) -> None:
-        """Add one view rendered at clip time t (same conventions as DensifyStats.update)."""
-        vis = radii.reshape(-1) > 0
-        if not bool(vis.any()):
-            return
-        b = min(int(float(t) * self.grad.shape[1]), self.grad.shape[1] - 1)
-        scale = torch.tensor([width * 0.5, height * 0.5], dtype=means2d_grad.dtype, device=means2d_grad.device)
-        g = (means2d_grad.detach() * scale).norm(dim=-1).to(self.grad.dtype)
-        self.grad[vis, b] += g[vis]
-        self.count[vis, b] += 1.0
-
-    def state_dict(self) -> dict[str, torch.Tensor]:
-        return {"grad": self.grad.clone(), "count": self.count.clone()}
-
-    @classmethod
-    def from_state_dict(cls, d: dict[str, torch.Tensor]) -> "TemporalStats":
-        return cls(d["grad"].clone(), d["count"].clone())
-
-
-@torch.no_grad()
-def demote_candidates(model: SpacetimeGaussians) -> torch.Tensor:
-    """(N,) bool: dynamic Gaussians that render like static ones over the clip t in [0, 1]."""
-    cfg = model.config
-    dyn = model.dynamic.clone()
-    if not cfg.has_time_terms or not bool(dyn.any()):
-        return torch.zeros_like(dyn)
-    tc = model.t_center.detach()
-    far = torch.maximum(tc.abs(), (1.0 - tc).abs())  # largest |dt| within the clip
-    ok = dyn.clone()
-    if cfg.temporal_opacity:
-        s = torch.exp(model.t_log_scale.detach())
-        ok &= (1.0 - torch.exp(-(far / s) ** 2)) < DEMOTE_OPACITY_VARIATION
-    if cfg.motion_degree > 0:
-        coeff = model.motion.detach().view(-1, cfg.motion_degree, 3)
-        disp = torch.zeros(model.num_gaussians, dtype=coeff.dtype)
-        for dt_sign in (-1.0, 1.0):
-            dt = (far * dt_sign).unsqueeze(-1)
-            acc = sum(coeff[:, k] * dt ** (k + 1) for k in range(cfg.motion_degree))
-            disp = torch.maximum(disp, acc.norm(dim=-1))
-        size = torch.exp(model.log_scales.detach()).max(dim=1).values
-        ok &= disp <= DEMOTE_MOTION_SCALES * size
-    if cfg.rotation_velocity:
-        qn = model.quats.detach().norm(dim=-1).clamp_min(1e-12)
-        ok &= (model.omega.detach().norm(dim=-1) * far / qn) < DEMOTE_MOTION_SCALES * 0.5
-    return ok
-
-
-@torch.no_grad()
-def promote_candidates(model: SpacetimeGaussians, stats: TemporalStats, grad_threshold: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """(N,) bool static Gaussians whose gradient is concentrated in one time bin, and (N,) that bin."""
-    mean = torch.where(stats.count >= PROMOTE_MIN_VIEWS, stats.grad / stats.count.clamp_min(1.0),
-                       torch.zeros_like(stats.grad))
-    hot, b = mean.max(dim=1)
-    bins = mean.shape[1]
-    others = (mean.sum(dim=1) - hot) / max(bins - 1, 1)
-    cand = (~model.dynamic) & (hot >= PROMOTE_GRAD_FACTOR * grad_threshold) & (hot >= PROMOTE_CONCENTRATION * others)
-    return cand, b
-
-
-@torch.no_grad()
-def revise_effects(model: SpacetimeGaussians, optimizer, stats: TemporalStats, *, grad_threshold: float,
-                   max_gaussians: int) -> dict[str, int]:
-    """One revision step (module docstring): demote, then split hot static Gaussians into a
-    time-local dynamic copy (within the ``max_gaussians`` budget, hottest first). Needs a model
-    with temporal opacity to split; returns {"demoted": n, "split_dynamic": m}."""
-    from fixer4d.model.densify import append_gaussians
-
-    counts = {"demoted": 0, "split_dynamic": 0}
-    cfg = model.config
-    if not cfg.has_time_terms:
-        return counts
-    demote = demote_candidates(model) & ~model.frozen
-    if bool(demote.any()):
-        model.set_dynamic(model.dynamic & ~demote)
-        counts["demoted"] = int(demote.sum())
-    if not cfg.temporal_opacity or len(stats) != model.num_gaussians:
-        return counts
-    cand, b = promote_candidates(model, stats, grad_threshold)
-    idx = torch.nonzero(cand).reshape(-1)
-    budget = int(max_gaussians) - model.num_gaussians
-    if idx.numel() == 0 or budget <= 0:
-        return counts
-    if idx.numel() > budget:
-        hot = (stats.grad / stats.count.clamp_min(1.0)).max(dim=1).values[idx]
-        idx = idx[torch.argsort(hot, descending=True, stable=True)[:budget]]
-        idx = torch.sort(idx).values
-    bins = stats.grad.shape[1]
-    rows = {name: p.detach()[idx].clone() for name, p in model.named_parameters()}
-    rows["t_center"] = (b[idx].to(rows["t_center"].dtype) + 0.5) / bins
-    rows["t_log_scale"] = torch.full_like(rows["t_log_scale"], math.log(1.0 / bins))
-    if "motion" in rows:
-        rows["motion"].zero_()
-    if "omega" in rows:
-        rows["omega"].zero_()
-    rows["dynamic"] = torch.ones(idx.numel(), dtype=torch.bool)
-    append_gaussians(model, optimizer, rows)
-    counts["split_dynamic"] = int(idx.numel())
-    return counts

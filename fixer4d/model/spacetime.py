@@ -6,7 +6,7 @@ At time t, with dt = t - t_center (per Gaussian):
     q(t)       = q + omega dt                            (``rotation_velocity``; renderers normalize)
     opacity(t) = sigmoid(o) * exp(-(dt / exp(s_t))^2)    (``temporal_opacity``)
     scale      = exp(log_scales)                         (time-independent)
-    colour     = max(0.5 + SH(dir) . coeffs, 0)          (degree 0 = RGB, no view dependence)
+    colour     = max(0.5 + SH(dir) . coeffs, 0)          (degree 0 = RGB, no view dependence; sh.py)
 
 An effect that is switched off in the ``ModelConfig`` has no Parameter at all, so the optimizer
 and ``at(t)`` pay nothing for it. Per Gaussian, the bool buffer ``dynamic`` marks which
@@ -29,6 +29,8 @@ import torch
 from torch import nn
 
 from fixer4d.errors import InputError, NumericalError
+from fixer4d.model.initial_scales import point_scales, point_temporal_std
+from fixer4d.model.sh import MAX_SH_DEGREE, rgb_to_sh_dc, sh_colors
 from fixer4d.model.snapshot import Snapshot
 
 # Largest |coordinate|, time or colour from_points accepts: the model is float32 (max 3.4e38);
@@ -40,42 +42,12 @@ FLOAT32_SAFE_LIMIT = 1e30
 # unit-order coefficients and its gradient finite; beyond, positions head for overflow.
 TIME_LIMIT = 1e6
 
-# Real spherical-harmonics constants (the 3DGS / graphics convention), degree 0..3.
-SH_C0 = 0.28209479177387814
-SH_C1 = 0.4886025119029199
-SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
-SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
-         -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
-
 MAX_MOTION_DEGREE = 3  # cubic motion, as in STGS lite
-MAX_SH_DEGREE = 3  # the 3DGS maximum; higher bands overfit 4 views
 
 # exp(-s_t) overflows float32 for s_t < -88 and then 0 * inf poisons the gradient. A temporal
 # std of exp(-20) ~ 2e-9 is six orders of magnitude below one frame of a 1000-frame clip, so no
 # useful Gaussian lives there; clamping s_t below it only keeps values and gradients finite.
 T_LOG_SCALE_MIN = -20.0
-
-# Directions for view-dependent colour: a Gaussian at the camera centre has no direction; the
-# eps turns that 0/0 into a zero direction (DC colour only) instead of NaN.
-DIRECTION_EPS = 1e-12
-
-# 3DGS floors the squared mean 3-NN distance at 1e-7 so that duplicate points still get a
-# positive, trainable scale.
-KNN_DIST2_FLOOR = 1e-7
-# Number of neighbours whose distances set the initial scale (3DGS / the issue text).
-KNN_NEIGHBOURS = 3
-# A cloud of one point has no neighbour to measure; 0.01 is ~1% of a unit-scale scene.
-SINGLE_POINT_SCALE = 0.01
-
-# Initial temporal std in units of the init cloud spacing (the median gap between distinct point
-# times, i.e. one frame when every frame has a cloud, k frames when every k-th frame has one).
-# At 1 spacing a Gaussian keeps exp(-0.25) = 78% of its opacity halfway to the next cloud (so
-# consecutive clouds overlap and no instant between them is empty) and fades to exp(-4) < 2% two
-# clouds away (so a moving object leaves little ghosting before the optimizer adapts s_t).
-INIT_TEMPORAL_SPACINGS = 1.0
-# With points at a single time there is no spacing; the Gaussians should then cover the clip
-# (t in [0, 1)): a temporal std of 1 keeps >= exp(-1) = 37% opacity across it.
-SINGLE_TIME_TEMPORAL_STD = 1.0
 
 # Order of the Parameters (also the order of param_names() and of saved files).
 _ALL_PARAMS = ("means", "log_scales", "quats", "opacity_logits", "colors", "sh_rest",
@@ -143,49 +115,6 @@ class ModelConfig:
         return {k: shapes[k] for k in _ALL_PARAMS if k in shapes}
 
 
-def rgb_to_sh_dc(rgb: torch.Tensor | np.ndarray) -> torch.Tensor | np.ndarray:
-    """RGB in [0, 1] -> SH DC coefficients (inverse of 0.5 + C0 * dc)."""
-    return (rgb - 0.5) / SH_C0
-
-
-def sh_basis(dirs: torch.Tensor, degree: int) -> torch.Tensor:
-    """Real SH basis without the DC term: (M, 3) unit directions -> (M, (degree+1)^2 - 1)."""
-    x, y, z = dirs.unbind(-1)
-    out = [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
-    if degree > 1:
-        xx, yy, zz = x * x, y * y, z * z
-        out += [SH_C2[0] * x * y, SH_C2[1] * y * z, SH_C2[2] * (2.0 * zz - xx - yy),
-                SH_C2[3] * x * z, SH_C2[4] * (xx - yy)]
-        if degree > 2:
-            out += [SH_C3[0] * y * (3.0 * xx - yy), SH_C3[1] * x * y * z, SH_C3[2] * y * (4.0 * zz - xx - yy),
-                    SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy), SH_C3[4] * x * (4.0 * zz - xx - yy),
-                    SH_C3[5] * z * (xx - yy), SH_C3[6] * x * (xx - 3.0 * yy)]
-    return torch.stack(out, -1)
-
-
-def knn_scales(points: np.ndarray) -> np.ndarray:
-    """Isotropic initial scales (N,) = sqrt(mean squared distance to the 3 nearest neighbours)."""
-    from scipy.spatial import cKDTree
-
-    n = points.shape[0]
-    if n == 0:
-        return np.zeros(0)
-    if n == 1:
-        return np.full(1, SINGLE_POINT_SCALE)
-    k = min(KNN_NEIGHBOURS, n - 1)
-    dist, _ = cKDTree(points).query(points, k=k + 1, workers=-1)
-    d2 = np.mean(np.asarray(dist).reshape(n, k + 1)[:, 1:] ** 2, axis=1)
-    return np.sqrt(np.maximum(d2, KNN_DIST2_FLOOR))
-
-
-def initial_temporal_std(times: np.ndarray) -> float:
-    """Initial temporal std from the point times' spacing (see INIT_TEMPORAL_SPACINGS)."""
-    uniq = np.unique(times)
-    if uniq.size < 2:
-        return SINGLE_TIME_TEMPORAL_STD
-    return float(INIT_TEMPORAL_SPACINGS * np.median(np.diff(uniq)))
-
-
 class SpacetimeGaussians(nn.Module):
     """N spacetime Gaussians (see the module docstring for the equations).
 
@@ -220,8 +149,10 @@ class SpacetimeGaussians(nn.Module):
         """Gaussians centred on points (N,3) with colours (N,3) in [0,1] born at times (N,).
 
         Identity rotation, zero motion/omega, t_center = the point's time, opacity ``opacity``.
-        scales: (N,) isotropic or (N,3) std devs; default from 3-NN distances (``knn_scales``).
-        t_scale: initial temporal std (clip time units); default ``initial_temporal_std(times)``.
+        scales: (N,) isotropic or (N,3) std devs; default from 3-NN distances
+        (``initial_scales.knn_scales``).
+        t_scale: initial temporal std (clip time units); default from the times' spacing
+        (``initial_scales.initial_temporal_std``).
         dynamic: (N,) bool; default all dynamic.
         """
         config = ModelConfig() if config is None else config
@@ -240,33 +171,8 @@ class SpacetimeGaussians(nn.Module):
                                  f"float32 model holds (|value| <= {FLOAT32_SAFE_LIMIT:g}); rescale the scene")
         if not (0.0 < opacity < 1.0):
             raise InputError(f"from_points: opacity must be in (0, 1), got {opacity}")
-        if scales is None:
-            with np.errstate(over="ignore", invalid="ignore"):
-                sc = np.repeat(knn_scales(pts)[:, None], 3, axis=1)
-            if not np.all(np.isfinite(sc)):
-                raise InputError("from_points: the points' nearest-neighbour distances overflow; rescale the scene "
-                                 "to unit order (or pass scales)")
-        else:
-            try:
-                sc = np.asarray(scales, dtype=np.float64)
-            except (TypeError, ValueError):
-                raise InputError(f"from_points: scales must be {n} positive finite numbers (or rows of 3)") from None
-            sc = np.repeat(sc.reshape(-1, 1), 3, axis=1) if sc.ndim == 1 else sc.reshape(-1, 3)
-            if sc.shape[0] != n or not np.all(np.isfinite(sc)) or np.any(sc <= 0):
-                raise InputError(f"from_points: scales must be {n} positive finite values (or rows of 3)")
-        if t_scale is None:
-            with np.errstate(over="ignore", invalid="ignore"):
-                std_t = initial_temporal_std(tms)
-            if not (std_t > 0 and math.isfinite(std_t)):
-                raise InputError(f"from_points: the spacing of the point times ({std_t}) is no usable temporal std; "
-                                 "pass t_scale or times in clip units")
-        else:
-            try:
-                std_t = float(t_scale)
-            except (TypeError, ValueError):
-                std_t = math.nan
-            if not (std_t > 0 and math.isfinite(std_t)):
-                raise InputError(f"from_points: t_scale must be positive and finite, got {t_scale!r}")
+        sc = point_scales(pts, scales)
+        std_t = point_temporal_std(tms, t_scale)
         model = cls(config, n)
         with torch.no_grad():
             model.means.copy_(torch.from_numpy(pts))
@@ -483,15 +389,8 @@ class SpacetimeGaussians(nn.Module):
         return means, quats, opacities
 
     def _colors(self, means: torch.Tensor, camera_center: np.ndarray | None) -> torch.Tensor:
-        rgb = SH_C0 * self.colors
-        if self.config.sh_degree > 0 and camera_center is not None:
-            c = torch.as_tensor(np.asarray(camera_center, dtype=np.float64).reshape(3),
-                                dtype=means.dtype, device=means.device)
-            d = means - c
-            d = d / torch.sqrt((d * d).sum(-1, keepdim=True) + DIRECTION_EPS)
-            basis = sh_basis(d, self.config.sh_degree)  # (N, K)
-            rgb = rgb + torch.einsum("nk,nkc->nc", basis, self.sh_rest)
-        return torch.clamp_min(rgb + 0.5, 0.0)
+        rest = self.sh_rest if self.config.sh_degree > 0 else None
+        return sh_colors(self.colors, rest, self.config.sh_degree, means, camera_center)
 
     @torch.no_grad()
     def snapshot(self, t: float, camera_center: np.ndarray | None = None) -> Snapshot:

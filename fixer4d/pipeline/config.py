@@ -81,7 +81,9 @@ class TrajectoryConfig:
 
 @dataclass
 class EvalConfig:
-    """Held-out evaluation (every ``stride``-th frame of every held-out camera)."""
+    """Held-out evaluation (every ``stride``-th frame of every held-out camera): the one set of
+    evaluation settings. ``fixer4d.eval.evaluate.evaluate`` takes ``stride`` as its
+    ``frame_stride`` and ``examples`` as its ``save_examples``; the other fields choose the rows."""
 
     stride: int = 5
     restoration_rows: bool = True    # also evaluate restored renders at the held-out cameras

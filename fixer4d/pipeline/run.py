@@ -65,40 +65,10 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
     if ctx.progress:
         print(f"[fixer4d] {ctx.scene.describe()}", flush=True)
     rec = ctx.run.records
-    rows: list[dict[str, Any]] = []
+    report = _Report(ctx)
     method = config.init_method
-
-    def add(row: dict[str, Any]) -> None:
-        rows.append(row)
-        R.write_report(ctx.path, ctx.scene.describe(), _ordered(rows), rec.as_seconds(), extra())
-
-    checks: dict[str, Any] = {}
-
-    def extra() -> dict[str, Any]:
-        out = {"restorer": S.restorer_summary(ctx), "peak_rss_mb": peak_rss_mb(), **checks}
-        effects = ctx.path / S.EFFECTS_NAME
-        if effects.is_file():  # the main model's effects and why
-            out["model"] = json.loads(effects.read_text())
-        return out
-
-    def seconds(*stages: str) -> dict[str, float]:
-        return {"prep": rec.seconds(f"init_{method}"), "train": rec.seconds(*stages)}
-
-    # -- baseline: STGS from the sparse (COLMAP) init; its failure never stops the main method --
     if config.baseline_sparse and method != "sparse":
-        try:
-            clouds = S.init_stage(ctx, "sparse")
-            base = S.stage1(ctx, "sparse", clouds, ctx.path / "baseline_sparse" / "model_stage1.ply", "stage1_sparse")
-            m = S.evaluate_stage(ctx, R.ROW_COLMAP, model_render_fn(base, ctx.backend, config.stage1.background),
-                                 S.stage1_key(config, "sparse"),
-                                 {"prep": rec.seconds("init_sparse"), "train": rec.seconds("stage1_sparse")})
-            add(R.metrics_row(R.ROW_COLMAP, m, rec.seconds("init_sparse", "stage1_sparse")))
-            del base
-        except Exception as exc:  # noqa: BLE001 - any baseline failure becomes its row's reason
-            log.warning("baseline %s failed: %s", R.ROW_COLMAP, exc)
-            if ctx.progress:
-                print(f"[fixer4d] {R.ROW_COLMAP} failed ({exc}); continuing with the main method", flush=True)
-            add(R.failed_row(R.ROW_COLMAP, str(exc)))
+        _baseline_sparse_row(ctx, report)
 
     # -- ours: dense init + stage 1 ------------------------------------------------------------
     clouds = S.init_stage(ctx, method)
@@ -108,62 +78,133 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
     # the held-out pixels no train camera explains, from the stage-1 model: one region for every row
     unobserved = UnobservedMasks(model, ctx.scene, config.stage2.visibility, ctx.backend)
     m = S.evaluate_stage(ctx, main_row, model_render_fn(model, ctx.backend, config.stage1.background), s1_key,
-                         seconds("stage1"), unobserved)
-    add(R.metrics_row(main_row, m, rec.seconds(f"init_{method}", "stage1")))
+                         report.seconds("stage1"), unobserved)
+    report.add(R.metrics_row(main_row, m, rec.seconds(f"init_{method}", "stage1")))
     final_metrics = m
 
     needs_restorer = config.eval.restoration_rows or config.stage2.rounds > 0
     restorer = S.restorer_stage(ctx, clouds, model) if needs_restorer else None
     del clouds
-    r_key = S.restorer_key(config)
     # restored renders replace the render only where the train cameras leave a pixel unobserved
     # (eval.gate_restoration; None: the paper's restoration rows, every pixel)
     gate = config.stage2.visibility if config.eval.gate_restoration else None
     if restorer is not None and config.eval.restoration_rows:
-        add(R.copied_row(R.ROW_IDENTITY, m))
-        blur = blur_render_fn(model, config.eval.blur_sigma_px, ctx.backend, config.stage1.background)
-        mb = S.evaluate_stage(ctx, R.ROW_BLUR, blur, stage_key(s1_key, "blur", config.eval.blur_sigma_px),
-                              seconds("stage1"), unobserved)
-        add(R.metrics_row(R.ROW_BLUR, mb, rec.seconds(f"init_{method}", "stage1")))
-        m = S.evaluate_stage(ctx, R.ROW_RESTORED_INIT,
-                             restoration_render_fn(model, ctx.scene, restorer, ctx.backend, gate),
-                             stage_key(s1_key, r_key, gate is not None), seconds("stage1", "restorer"), unobserved)
-        add(R.metrics_row(R.ROW_RESTORED_INIT, m, rec.seconds(f"init_{method}", "stage1", "restorer")
-                          + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_INIT)}")))
+        _stage1_restoration_rows(ctx, report, model, restorer, gate, unobserved, m, s1_key)
 
     # -- stage 2: (restore -> refine) x R, checked on a held-back train camera, and its matched-
     # iterations control
     if config.stage2.rounds > 0:
         if config.eval.matched_row:
-            matched = S.matched_stage1(ctx, model)
-            m = S.evaluate_stage(ctx, R.ROW_MATCHED, model_render_fn(matched, ctx.backend, config.stage1.background),
-                                 S.matched_key(config), seconds("stage1", "matched"), unobserved)
-            add(R.metrics_row(R.ROW_MATCHED, m, rec.seconds(f"init_{method}", "stage1", "matched")))
-            del matched
+            _matched_row(ctx, report, model, unobserved)
         check = S.self_check_stage(ctx, restorer)
-        checks["self_check"] = check
+        report.checks["self_check"] = check
         model = S.final_stage(ctx, model, check["decision"])
         if check["decision"] == "refine":
-            checks["pseudo_views"] = pseudo_view_summary(ctx.path / "cache")
-        # what the final model cost: the continued model is the matched control's training
-        trained = ("matched",) if check["decision"] == "continue" else ()
-        full_secs = rec.seconds(f"init_{method}", "stage1", "restorer", "self_check", *trained, "stage2")
-        s2_key = stage_key(S.stage2_key(config), check["decision"])
-        m = S.evaluate_stage(ctx, R.ROW_FULL, model_render_fn(model, ctx.backend, config.stage1.background), s2_key,
-                             seconds("stage1", "restorer", "self_check", "stage2"), unobserved)
-        add(R.metrics_row(R.ROW_FULL, m, full_secs))
-        final_metrics = m
-        if restorer is not None and config.eval.restoration_rows:
-            m = S.evaluate_stage(ctx, R.ROW_RESTORED_REFINED,
-                                 restoration_render_fn(model, ctx.scene, restorer, ctx.backend, gate),
-                                 stage_key(s2_key, r_key, gate is not None), seconds("stage1", "restorer", "stage2"),
-                                 unobserved)
-            add(R.metrics_row(R.ROW_RESTORED_REFINED, m, full_secs
-                              + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_REFINED)}")))
+            report.checks["pseudo_views"] = pseudo_view_summary(ctx.path / "cache")
+        final_metrics = _final_rows(ctx, report, model, check["decision"], restorer, gate, unobserved)
     else:
         S.retire_stage2(ctx)
     atomic.write_json(ctx.path / "metrics.json", final_metrics)
-    return R.write_report(ctx.path, ctx.scene.describe(), _ordered(rows), rec.as_seconds(), extra())
+    return report.write()
+
+
+class _Report:
+    """The rows computed so far; RUN/report.json is rewritten after each one."""
+
+    def __init__(self, ctx: S.StageContext) -> None:
+        self.ctx = ctx
+        self.rows: list[dict[str, Any]] = []
+        self.checks: dict[str, Any] = {}  # the stage-2 self-check and pseudo-view summaries
+
+    def add(self, row: dict[str, Any]) -> None:
+        self.rows.append(row)
+        self.write()
+
+    def write(self) -> dict[str, Any]:
+        ctx = self.ctx
+        return R.write_report(ctx.path, ctx.scene.describe(), _ordered(self.rows), ctx.run.records.as_seconds(),
+                              self.extra())
+
+    def extra(self) -> dict[str, Any]:
+        out = {"restorer": S.restorer_summary(self.ctx), "peak_rss_mb": peak_rss_mb(), **self.checks}
+        effects = self.ctx.path / S.EFFECTS_NAME
+        if effects.is_file():  # the main model's effects and why
+            out["model"] = json.loads(effects.read_text())
+        return out
+
+    def seconds(self, *stages: str) -> dict[str, float]:
+        """A row's evaluate seconds: the main init as preparation, ``stages`` as training."""
+        rec = self.ctx.run.records
+        return {"prep": rec.seconds(f"init_{self.ctx.config.init_method}"), "train": rec.seconds(*stages)}
+
+
+def _baseline_sparse_row(ctx: S.StageContext, report: _Report) -> None:
+    """STGS from the sparse (COLMAP) init; its failure becomes its row's reason and never stops
+    the main method."""
+    config, rec = ctx.config, ctx.run.records
+    try:
+        clouds = S.init_stage(ctx, "sparse")
+        base = S.stage1(ctx, "sparse", clouds, ctx.path / "baseline_sparse" / "model_stage1.ply", "stage1_sparse")
+        m = S.evaluate_stage(ctx, R.ROW_COLMAP, model_render_fn(base, ctx.backend, config.stage1.background),
+                             S.stage1_key(config, "sparse"),
+                             {"prep": rec.seconds("init_sparse"), "train": rec.seconds("stage1_sparse")})
+        report.add(R.metrics_row(R.ROW_COLMAP, m, rec.seconds("init_sparse", "stage1_sparse")))
+        del base
+    except Exception as exc:  # noqa: BLE001 - any baseline failure becomes its row's reason
+        log.warning("baseline %s failed: %s", R.ROW_COLMAP, exc)
+        if ctx.progress:
+            print(f"[fixer4d] {R.ROW_COLMAP} failed ({exc}); continuing with the main method", flush=True)
+        report.add(R.failed_row(R.ROW_COLMAP, str(exc)))
+
+
+def _stage1_restoration_rows(ctx: S.StageContext, report: _Report, model, restorer, gate, unobserved,
+                             stage1_metrics: dict[str, Any], s1_key: str) -> None:
+    """The rows around the restorer on the stage-1 model: identity (the render itself), a blur
+    of it, and its restoration."""
+    config, rec = ctx.config, ctx.run.records
+    method = config.init_method
+    report.add(R.copied_row(R.ROW_IDENTITY, stage1_metrics))
+    blur = blur_render_fn(model, config.eval.blur_sigma_px, ctx.backend, config.stage1.background)
+    mb = S.evaluate_stage(ctx, R.ROW_BLUR, blur, stage_key(s1_key, "blur", config.eval.blur_sigma_px),
+                          report.seconds("stage1"), unobserved)
+    report.add(R.metrics_row(R.ROW_BLUR, mb, rec.seconds(f"init_{method}", "stage1")))
+    m = S.evaluate_stage(ctx, R.ROW_RESTORED_INIT,
+                         restoration_render_fn(model, ctx.scene, restorer, ctx.backend, gate),
+                         stage_key(s1_key, S.restorer_key(config), gate is not None),
+                         report.seconds("stage1", "restorer"), unobserved)
+    report.add(R.metrics_row(R.ROW_RESTORED_INIT, m, rec.seconds(f"init_{method}", "stage1", "restorer")
+                             + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_INIT)}")))
+
+
+def _matched_row(ctx: S.StageContext, report: _Report, model, unobserved) -> None:
+    """Stage 1 continued as long as stage 2 trains, without pseudo-views (the control row)."""
+    config, rec = ctx.config, ctx.run.records
+    matched = S.matched_stage1(ctx, model)
+    m = S.evaluate_stage(ctx, R.ROW_MATCHED, model_render_fn(matched, ctx.backend, config.stage1.background),
+                         S.matched_key(config), report.seconds("stage1", "matched"), unobserved)
+    report.add(R.metrics_row(R.ROW_MATCHED, m, rec.seconds(f"init_{config.init_method}", "stage1", "matched")))
+    del matched
+
+
+def _final_rows(ctx: S.StageContext, report: _Report, model, decision: str, restorer, gate,
+                unobserved) -> dict[str, Any]:
+    """The final model's row and its restoration row; returns the final model's metrics."""
+    config, rec = ctx.config, ctx.run.records
+    # what the final model cost: the continued model is the matched control's training
+    trained = ("matched",) if decision == "continue" else ()
+    full_secs = rec.seconds(f"init_{config.init_method}", "stage1", "restorer", "self_check", *trained, "stage2")
+    s2_key = stage_key(S.stage2_key(config), decision)
+    final = S.evaluate_stage(ctx, R.ROW_FULL, model_render_fn(model, ctx.backend, config.stage1.background), s2_key,
+                             report.seconds("stage1", "restorer", "self_check", "stage2"), unobserved)
+    report.add(R.metrics_row(R.ROW_FULL, final, full_secs))
+    if restorer is not None and config.eval.restoration_rows:
+        m = S.evaluate_stage(ctx, R.ROW_RESTORED_REFINED,
+                             restoration_render_fn(model, ctx.scene, restorer, ctx.backend, gate),
+                             stage_key(s2_key, S.restorer_key(config), gate is not None),
+                             report.seconds("stage1", "restorer", "stage2"), unobserved)
+        report.add(R.metrics_row(R.ROW_RESTORED_REFINED, m, full_secs
+                                 + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_REFINED)}")))
+    return final
 
 
 def peak_rss_mb() -> float:

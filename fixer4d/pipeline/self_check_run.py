@@ -38,7 +38,8 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
     from fixer4d.restore.cache import RestoreCache
     from fixer4d.scene.train_view import TrainOnlyView
     from fixer4d.train.config import matched_config
-    from fixer4d.train.trainer import Trainer, model_from_init
+    from fixer4d.train.model_init import model_from_init
+    from fixer4d.train.trainer import Trainer
 
     sc = config.self_check
     out_dir = Path(out_dir)

@@ -159,7 +159,8 @@ def stage1_trainer(ctx: StageContext, init, run_dir: Path | None):
     every effect on), the run's Stage1Config with its scaled schedule, effect revisions during
     training. For callers that step the trainer themselves too (the viewer's live training).
     run_dir: where checkpoints go (None: none)."""
-    from fixer4d.train.trainer import Trainer, model_from_init
+    from fixer4d.train.model_init import model_from_init
+    from fixer4d.train.trainer import Trainer
 
     cfg = ctx.stage1_config()
     model, decision = model_from_init(init, ctx.train_scene, cfg, ctx.config.effects)

@@ -3,9 +3,9 @@
     out = render(snapshot, camera, background=(0, 0, 0), backend="auto")
     out.rgb (H, W, 3), out.alpha (H, W), out.depth (H, W), out.radii (N,), out.means2d (N, 2)
 
-Backends: "reference" (pure torch oracle, fixer4d/render/reference.py), "cpu" (numba kernel with
-a hand-written backward, fixer4d/render/cpu.py), "gsplat" (CUDA, optional) and "auto" (gsplat for
-CUDA tensors when it is installed, else cpu, else reference).
+Backends: "reference" (pure torch oracle, fixer4d/render/reference.py), "cpu" (numba kernels with
+a hand-written backward, fixer4d/render/cpu.py and cpu_kernels.py), "gsplat" (CUDA, optional) and
+"auto" (gsplat for CUDA tensors when it is installed, else cpu, else reference).
 """
 from __future__ import annotations
 
@@ -105,7 +105,6 @@ def render(snapshot: Snapshot, camera: Camera, background: torch.Tensor | tuple 
         raise BackendUnavailable(f"render backend {name!r} runs on CPU tensors; the snapshot is on {device}")
     if name == "cpu" or snapshot.means.dtype not in (torch.float32, torch.float64):
         snapshot = snapshot.to(dtype=torch.float32)
-    dtype = snapshot.means.dtype
     if name == "cpu":  # the same projection as numba loops with a hand-written backward
         from fixer4d.render.project_cpu import project_gaussians_cpu
 

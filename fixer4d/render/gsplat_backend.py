@@ -4,6 +4,14 @@ gsplat and CUDA are looked up on first use and their absence raises BackendUnava
 gsplat's threshold set is the same as fixer4d/render/constants.py for the low-pass (eps2d),
 near plane, alpha clamp/skip and early stop; its extent test is per tile rather than per pixel,
 so images differ from the CPU backends by at most the faint 3-sigma fringe.
+
+Conventions handed to ``gsplat.rasterization`` (its documented API): one camera (C = 1), the
+world-to-camera ``viewmats`` (1, 4, 4) in OpenCV axes (x right, y down, z forward, as
+``Camera.w2c``) and pixel intrinsics ``Ks`` (1, 3, 3); the snapshot's activated values
+(quaternions wxyz, unnormalized; scales as standard deviations; opacities in [0, 1]; colours
+(N, 3) already view-dependent, so ``sh_degree`` None); ``packed=False`` so per-Gaussian outputs
+keep the (1, N, ...) layout; "RGB+ED" for colour plus expected depth (gsplat pads the
+background with a zero depth channel).
 """
 from __future__ import annotations
 
@@ -29,14 +37,22 @@ def unavailable_reason() -> str | None:
     return None
 
 
-def render(snapshot: Snapshot, camera: Camera, background: torch.Tensor):
-    """Rasterize with ``gsplat.rasterization``; returns fixer4d.render.output.RenderOutput."""
+def _device_problem(device: torch.device) -> str | None:
+    """None when gsplat's kernels take tensors on ``device`` (CUDA), else why not."""
+    if device.type != "cuda":
+        return (f"render backend 'gsplat' needs CUDA tensors; the snapshot is on {device} "
+                f"(use snapshot.to('cuda') or backend='cpu')")
+    return None
+
+
+def render(snapshot: Snapshot, camera: Camera, background: torch.Tensor) -> RenderOutput:
+    """Rasterize with ``gsplat.rasterization``; background: (3,) RGB."""
     reason = unavailable_reason()
     if reason is not None:
         raise BackendUnavailable(f"render backend 'gsplat' unavailable: {reason}")
-    if snapshot.means.device.type != "cuda":
-        raise BackendUnavailable(f"render backend 'gsplat' needs CUDA tensors; the snapshot is on "
-                                 f"{snapshot.means.device} (use snapshot.to('cuda') or backend='cpu')")
+    problem = _device_problem(snapshot.means.device)
+    if problem is not None:
+        raise BackendUnavailable(problem)
     from gsplat import rasterization
 
     snap = snapshot.to(dtype=torch.float32)
@@ -47,11 +63,26 @@ def render(snapshot: Snapshot, camera: Camera, background: torch.Tensor):
         snap.means, snap.quats, snap.scales, snap.opacities, snap.colors, viewmat, K,
         camera.width, camera.height, near_plane=NEAR_PLANE, eps2d=LOWPASS_2D, render_mode="RGB+ED",
         backgrounds=background.to(torch.float32)[None], packed=False, rasterize_mode="classic")
-    means2d = meta["means2d"]
-    if means2d.requires_grad:
-        means2d.retain_grad()
     radii = meta["radii"][0]
     if radii.dim() == 2:  # gsplat >= 1.5 stores per-axis radii
         radii = radii.max(dim=-1).values
     return RenderOutput(rgb=colors[0, ..., :3], alpha=alphas[0, ..., 0], depth=colors[0, ..., 3],
-                        radii=radii.to(torch.int32), means2d=means2d[0], n_fragments=-1, backend="gsplat")
+                        radii=radii.to(torch.int32), means2d=_means2d_with_grad(meta["means2d"]),
+                        n_fragments=-1, backend="gsplat")
+
+
+def _means2d_with_grad(full: torch.Tensor) -> torch.Tensor:
+    """(N, 2) projected centres of gsplat's (1, N, 2) ``means2d``, whose ``.grad`` receives
+    dL/dmeans2d (N, 2) on backward, as the CPU backends' means2d does (densification statistics).
+
+    gsplat rasterizes from the (1, N, 2) tensor itself, so a view of it is off the loss's graph
+    and would never get a gradient: a hook on the full tensor passes its gradient on (added up
+    over several backward passes, as a retained gradient is). The returned tensor is detached.
+    """
+    carrier = full.detach()[0]
+    if full.requires_grad:
+        def pass_on(grad: torch.Tensor) -> None:
+            carrier.grad = grad[0].clone() if carrier.grad is None else carrier.grad + grad[0]
+
+        full.register_hook(pass_on)
+    return carrier

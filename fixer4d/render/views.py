@@ -15,7 +15,8 @@ from fixer4d.render.api import render
 
 
 def render_views(model, cameras: list[Camera], t: float, backend: str = "auto",
-                 background: torch.Tensor | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 background: "torch.Tensor | tuple[float, float, float] | None" = None,
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Render ``model`` at time ``t`` from every camera: rgb (F,H,W,3), depth (F,H,W), alpha (F,H,W).
 
     Cameras that coincide (same size, intrinsics and pose within 1e-9) are rendered once: a pair

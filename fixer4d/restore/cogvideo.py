@@ -104,8 +104,9 @@ class CogVideoV2VRestorer:
                 import torch
                 from diffusers import CogVideoXVideoToVideoPipeline
 
+                # local_files_only: the weights directory is the whole source; never reach the Hub
                 pipe = CogVideoXVideoToVideoPipeline.from_pretrained(
-                    str(self.weights_path()), torch_dtype=getattr(torch, self.config.dtype))
+                    str(self.weights_path()), torch_dtype=getattr(torch, self.config.dtype), local_files_only=True)
                 self._pipe = pipe.to(self.config.device)
             return self._pipe
 
@@ -129,9 +130,10 @@ class CogVideoV2VRestorer:
                                           .clip(0, 1) * 255).astype(np.uint8)) for k in order]
         steps = max(1, cfg.num_inference_steps)
 
-        def on_step(_pipe: Any, step: int, _timestep: Any, callback_kwargs: dict) -> dict:
+        def on_step(pipe_: Any, step: int, _timestep: Any, callback_kwargs: dict) -> dict:
+            # the pipeline denoises only the last ``strength`` share of the steps (its num_timesteps)
             if progress is not None:
-                progress(min(1.0, (step + 1) / steps))
+                progress(min(1.0, (step + 1) / max(1, int(pipe_.num_timesteps))))
             return callback_kwargs
 
         # a RestoreCancelled raised by ``progress`` (job cancellation) propagates out of the pipeline

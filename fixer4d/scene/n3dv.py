@@ -125,92 +125,22 @@ class Neural3DVScene(MultiViewVideo):
         if scale <= 0 or not np.isfinite(scale):
             raise InputError(f"{self.root}: scale must be > 0, got {scale}")
         meta = self._read_meta()
-        videos = {int(m.group(1)): self.root / p.name for p in sorted(self.root.iterdir())
-                  if (m := _CAM_RE.match(p.name))}
-        if not videos:
-            raise InputError(f"{self.root}: no camXX.mp4 videos found; a Neural3DV folder holds cam00.mp4, cam01.mp4, ...")
+        videos = _camera_videos(self.root)
         pb_path = self.root / "poses_bounds.npy"
-        pb = read_poses_bounds(pb_path)
-        row_ids = [int(i) for i in meta.get("pose_cameras", sorted(videos))]
-        if pb.ndim == 2 and pb.shape[0] != len(row_ids):
-            if "pose_cameras" in meta:
-                raise InputError(f"{pb_path}: {pb.shape[0]} rows but scene.json lists {len(row_ids)} pose_cameras; "
-                                 f"make them agree")
-            missing = sorted(videos)[pb.shape[0]:]
-            raise InputError(f"{pb_path}: {pb.shape[0]} pose rows for {len(videos)} camera videos, so "
-                             f"{', '.join(f'cam{i:02d}.mp4' for i in missing) or 'some rows'} cannot be matched to a pose: "
-                             f"add the missing rows (one per camXX.mp4, sorted) or remove the extra videos")
-        all_cams, near_far = llff_to_cameras(pb, [f"cam{i:02d}" for i in row_ids], str(pb_path))
-        by_id = dict(zip(row_ids, range(len(row_ids))))
-        for vid in videos:
-            if vid not in by_id:
-                raise InputError(f"{videos[vid]}: camera id {vid} is absent from {pb_path} "
-                                 f"(scene.json pose_cameras = {row_ids}); add its pose or remove the video")
-
-        if train_ids is not None or test_ids is not None:
-            want = sorted(set(train_ids or []) | set(test_ids or []))
-        else:
-            want = sorted(videos)
-        absent = [i for i in want if i not in videos]
-        if absent:
-            raise InputError(f"{self.root}: camera ids {absent} requested but there is no "
-                             f"{', '.join(f'cam{i:02d}.mp4' for i in absent)}; available ids: {sorted(videos)}")
+        all_cams, near_far, by_id = _rig_poses(pb_path, meta, videos)
+        want = _requested_ids(self.root, videos, train_ids, test_ids)
         self.camera_ids = want
         infos = [probe_video(videos[i]) for i in want]
-        counts = [inf.num_frames for inf in infos]
-        total = min(counts)
-        if frame_range is None:
-            if len(set(counts)) > 1:
-                short = want[int(np.argmin(counts))]
-                raise InputError(f"{videos[short]}: {min(counts)} frames, but other cameras have up to {max(counts)} "
-                                 f"({dict(zip((f'cam{i:02d}' for i in want), counts))}); trim the videos to the same "
-                                 f"length or pass frame_range=(a, b) with b <= {min(counts)}")
-            frame_range = (0, total)
-        a, b = int(frame_range[0]), int(frame_range[1])
-        if not 0 <= a < b <= total:
-            raise InputError(f"{self.root}: frame_range {frame_range} must satisfy 0 <= a < b <= {total} "
-                             f"(the shortest video's frame count)")
-        self.frame_offset = a
-        self.num_frames = b - a
+        self.frame_offset, self.num_frames = _frame_window(self.root, videos, want, infos, frame_range)
         self.fps = float(meta.get("fps", infos[0].fps))
-
-        self.cameras = []
-        for i, inf in zip(want, infos):
-            cam = all_cams[by_id[i]]
-            if abs(inf.width / inf.height - cam.width / cam.height) > ASPECT_RTOL * cam.width / cam.height:
-                raise InputError(f"{videos[i]}: video is {inf.width}x{inf.height} but {pb_path} says "
-                                 f"{cam.width}x{cam.height} (different aspect ratio); use the matching poses_bounds.npy")
-            if (inf.width, inf.height) != (cam.width, cam.height):
-                cam = cam.resized(inf.width, inf.height)
-            self.cameras.append(cam.scaled(scale) if scale != 1.0 else cam)
+        self.cameras = [_video_camera(all_cams[by_id[i]], inf, videos[i], pb_path, scale)
+                        for i, inf in zip(want, infos)]
         self.scale = float(scale)
         self._near_far = near_far[[by_id[i] for i in want]]
         self._videos = [videos[i] for i in want]
         self._readers: dict[int, VideoReader] = {}
         self._readers_lock = threading.Lock()
-
-        index_of = {cid: k for k, cid in enumerate(want)}
-        if train_ids is not None:
-            tr = [int(i) for i in train_ids]
-        elif "train_ids" in meta:
-            tr = [int(i) for i in meta["train_ids"]]
-        elif want == list(range(N3DV_FULL_RIG)):
-            tr = list(N3DV_DEFAULT_TRAIN)
-        else:
-            tr = [want[k] for k in most_separated(self.cameras, 4, exclude=(centre_camera(self.cameras),))]
-        if test_ids is not None:
-            te = [int(i) for i in test_ids]
-        elif "test_ids" in meta and train_ids is None:
-            te = [int(i) for i in meta["test_ids"]]
-        else:
-            te = [i for i in want if i not in tr]
-        for i in tr + te:
-            if i not in index_of:
-                raise InputError(f"{self.root}: camera id {i} (scene.json or arguments) has no loaded camXX.mp4; "
-                                 f"loaded ids: {want}")
-        self.train_ids = [index_of[i] for i in tr]
-        self.test_ids = [index_of[i] for i in te]  # a train id listed here too: load_scene refuses it (validate.check_ids)
-
+        self.train_ids, self.test_ids = _split(self.root, meta, want, self.cameras, train_ids, test_ids)
         self._depth_dir = self.root / meta["depth"] if meta.get("depth") else None
         self._depth_cache: OrderedDict[int, np.ndarray] = OrderedDict()
         self._depth_lock = threading.Lock()
@@ -285,3 +215,108 @@ class Neural3DVScene(MultiViewVideo):
                 pts.append(c.backproject(corners, np.full(4, z)))
         pts = np.concatenate(pts)
         return SceneBounds(near, far, pts.min(0), pts.max(0))
+
+
+# ---------------------------------------------------------------------------- opening a folder
+def _camera_videos(root: Path) -> dict[int, Path]:
+    """Camera id -> camXX.mp4 of the folder; InputError when there is none."""
+    videos = {int(m.group(1)): root / p.name for p in sorted(root.iterdir()) if (m := _CAM_RE.match(p.name))}
+    if not videos:
+        raise InputError(f"{root}: no camXX.mp4 videos found; a Neural3DV folder holds cam00.mp4, cam01.mp4, ...")
+    return videos
+
+
+def _rig_poses(pb_path: Path, meta: dict, videos: dict[int, Path]) -> tuple[list[Camera], np.ndarray, dict[int, int]]:
+    """(cameras at the hwf resolution, near/far (R, 2), camera id -> row) of poses_bounds.npy,
+    whose rows follow scene.json's ``pose_cameras`` or else the sorted video ids; InputError
+    when rows and videos do not match up."""
+    pb = read_poses_bounds(pb_path)
+    row_ids = [int(i) for i in meta.get("pose_cameras", sorted(videos))]
+    if pb.ndim == 2 and pb.shape[0] != len(row_ids):
+        if "pose_cameras" in meta:
+            raise InputError(f"{pb_path}: {pb.shape[0]} rows but scene.json lists {len(row_ids)} pose_cameras; "
+                             f"make them agree")
+        missing = sorted(videos)[pb.shape[0]:]
+        raise InputError(f"{pb_path}: {pb.shape[0]} pose rows for {len(videos)} camera videos, so "
+                         f"{', '.join(f'cam{i:02d}.mp4' for i in missing) or 'some rows'} cannot be matched to a pose: "
+                         f"add the missing rows (one per camXX.mp4, sorted) or remove the extra videos")
+    all_cams, near_far = llff_to_cameras(pb, [f"cam{i:02d}" for i in row_ids], str(pb_path))
+    by_id = dict(zip(row_ids, range(len(row_ids))))
+    for vid in videos:
+        if vid not in by_id:
+            raise InputError(f"{videos[vid]}: camera id {vid} is absent from {pb_path} "
+                             f"(scene.json pose_cameras = {row_ids}); add its pose or remove the video")
+    return all_cams, near_far, by_id
+
+
+def _requested_ids(root: Path, videos: dict[int, Path], train_ids: list[int] | None,
+                   test_ids: list[int] | None) -> list[int]:
+    """The camera ids to load, sorted: the named ones when a split is given, else every video."""
+    if train_ids is not None or test_ids is not None:
+        want = sorted(set(train_ids or []) | set(test_ids or []))
+    else:
+        want = sorted(videos)
+    absent = [i for i in want if i not in videos]
+    if absent:
+        raise InputError(f"{root}: camera ids {absent} requested but there is no "
+                         f"{', '.join(f'cam{i:02d}.mp4' for i in absent)}; available ids: {sorted(videos)}")
+    return want
+
+
+def _frame_window(root: Path, videos: dict[int, Path], want: list[int], infos: list,
+                  frame_range: tuple[int, int] | None) -> tuple[int, int]:
+    """(first video frame, frame count) of ``frame_range`` (default: all, when the videos of
+    ``want`` agree in length); InputError otherwise."""
+    counts = [inf.num_frames for inf in infos]
+    total = min(counts)
+    if frame_range is None:
+        if len(set(counts)) > 1:
+            short = want[int(np.argmin(counts))]
+            raise InputError(f"{videos[short]}: {min(counts)} frames, but other cameras have up to {max(counts)} "
+                             f"({dict(zip((f'cam{i:02d}' for i in want), counts))}); trim the videos to the same "
+                             f"length or pass frame_range=(a, b) with b <= {min(counts)}")
+        frame_range = (0, total)
+    a, b = int(frame_range[0]), int(frame_range[1])
+    if not 0 <= a < b <= total:
+        raise InputError(f"{root}: frame_range {frame_range} must satisfy 0 <= a < b <= {total} "
+                         f"(the shortest video's frame count)")
+    return a, b - a
+
+
+def _video_camera(cam: Camera, info, video: Path, pb_path: Path, scale: float) -> Camera:
+    """The poses_bounds camera resized to its video's resolution (same aspect ratio within
+    ASPECT_RTOL, else InputError), then scaled by ``scale``."""
+    if abs(info.width / info.height - cam.width / cam.height) > ASPECT_RTOL * cam.width / cam.height:
+        raise InputError(f"{video}: video is {info.width}x{info.height} but {pb_path} says "
+                         f"{cam.width}x{cam.height} (different aspect ratio); use the matching poses_bounds.npy")
+    if (info.width, info.height) != (cam.width, cam.height):
+        cam = cam.resized(info.width, info.height)
+    return cam.scaled(scale) if scale != 1.0 else cam
+
+
+def _split(root: Path, meta: dict, want: list[int], cameras: list[Camera], train_ids: list[int] | None,
+           test_ids: list[int] | None) -> tuple[list[int], list[int]]:
+    """(train, held-out) indices into the loaded cameras: the arguments, else scene.json's split,
+    else 1,10,13,20 vs the rest of the full rig, else the 4 most separated cameras (the centre
+    one held out) vs the rest."""
+    index_of = {cid: k for k, cid in enumerate(want)}
+    if train_ids is not None:
+        tr = [int(i) for i in train_ids]
+    elif "train_ids" in meta:
+        tr = [int(i) for i in meta["train_ids"]]
+    elif want == list(range(N3DV_FULL_RIG)):
+        tr = list(N3DV_DEFAULT_TRAIN)
+    else:
+        tr = [want[k] for k in most_separated(cameras, 4, exclude=(centre_camera(cameras),))]
+    if test_ids is not None:
+        te = [int(i) for i in test_ids]
+    elif "test_ids" in meta and train_ids is None:
+        te = [int(i) for i in meta["test_ids"]]
+    else:
+        te = [i for i in want if i not in tr]
+    for i in tr + te:
+        if i not in index_of:
+            raise InputError(f"{root}: camera id {i} (scene.json or arguments) has no loaded camXX.mp4; "
+                             f"loaded ids: {want}")
+    # a train id listed as held out too: load_scene refuses it (validate.check_ids)
+    return [index_of[i] for i in tr], [index_of[i] for i in te]

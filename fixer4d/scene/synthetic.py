@@ -17,7 +17,7 @@ import numpy as np
 from fixer4d.errors import InputError
 from fixer4d.geometry import quaternion
 from fixer4d.geometry.camera import Camera
-from fixer4d.scene import raycast
+from fixer4d.scene import motion, raycast, shapes, textures
 from fixer4d.scene.base import FRAME_CACHE_MB, MultiViewVideo, SceneBounds, read_json_object
 
 # Default supersampling (k x k rays per pixel) of ground-truth frames: 2 removes the staircase
@@ -78,16 +78,16 @@ class _Spec:
             raise self.fail(key, f"must be {cond}, got {v!r}")
         return x
 
-    def texture(self, d: Any, key: str) -> raycast.Texture:
+    def texture(self, d: Any, key: str) -> textures.Texture:
         if d is None:
-            return raycast.Texture("solid", colors=np.array([[0.7, 0.7, 0.7], [0.7, 0.7, 0.7]]))
+            return textures.Texture("solid", colors=np.array([[0.7, 0.7, 0.7], [0.7, 0.7, 0.7]]))
         if not isinstance(d, dict) or d.get("kind") not in TEXTURES:
             raise self.fail(key, f"a texture needs \"kind\" in {TEXTURES}, got {d!r}")
         kind = d["kind"]
         if kind == "blend":
-            return raycast.Texture("blend", a=self.texture(d.get("a"), f"{key}.a"),
-                                   b=self.texture(d.get("b"), f"{key}.b"),
-                                   weight=self.num(d, "weight", 0.5, minimum=0.0))
+            return textures.Texture("blend", a=self.texture(d.get("a"), f"{key}.a"),
+                                    b=self.texture(d.get("b"), f"{key}.b"),
+                                    weight=self.num(d, "weight", 0.5, minimum=0.0))
         cols = d.get("colors", d.get("color"))
         if cols is None:
             raise self.fail(f"{key}.colors", "required: one colour [r,g,b] (solid) or two [[r,g,b],[r,g,b]]")
@@ -96,7 +96,7 @@ class _Spec:
             arr = np.stack([arr, arr])
         if arr.shape != (2, 3) or not np.all((arr >= 0) & (arr <= 1)):
             raise self.fail(f"{key}.colors", f"expected two RGB colours in [0, 1], got {cols!r}")
-        return raycast.Texture(
+        return textures.Texture(
             kind, colors=arr, scale=self.num(d, "scale", 1.0, positive=True),
             direction=self.vec(d, "direction", default=[1.0, 0.0, 0.0], unit=True),
             duty=self.num(d, "duty", 0.5, minimum=0.0), octaves=int(self.num(d, "octaves", 3, minimum=1)),
@@ -125,14 +125,14 @@ class _Spec:
                 interp = m.get("interp", "linear")
                 if interp not in ("linear", "smooth"):
                     raise self.fail(f"{k}.interp", f"\"linear\" or \"smooth\", got {interp!r}")
-                out.append(raycast.PathMotion(keys[:, 0].copy(), keys[:, 1:].copy(), interp == "smooth"))
+                out.append(motion.PathMotion(keys[:, 0].copy(), keys[:, 1:].copy(), interp == "smooth"))
             elif m["kind"] == "spin":
-                out.append(raycast.SpinMotion(self.vec(m, "axis", default=[0, 1, 0], unit=True),
-                                              self.num(m, "deg_per_s")))
+                out.append(motion.SpinMotion(self.vec(m, "axis", default=[0, 1, 0], unit=True),
+                                             self.num(m, "deg_per_s")))
             else:
-                out.append(raycast.BounceMotion(self.vec(m, "axis", default=[0, 1, 0], unit=True),
-                                                self.num(m, "height", positive=True),
-                                                self.num(m, "period", positive=True)))
+                out.append(motion.BounceMotion(self.vec(m, "axis", default=[0, 1, 0], unit=True),
+                                               self.num(m, "height", positive=True),
+                                               self.num(m, "period", positive=True)))
         return tuple(out)
 
     def obj(self, d: Any, i: int) -> raycast.SceneObject:
@@ -153,22 +153,22 @@ class _Spec:
             half = None
             if "size" in d:
                 half = 0.5 * self.vec(d, "size", 2)
-            shape = raycast.Shape("plane", half=half)
+            shape = shapes.Shape("plane", half=half)
             center = self.vec(d, "point")
         else:
             R = self.rotation(d, key)
             center = self.vec(d, "center")
             if kind == "sphere":
-                shape = raycast.Shape("sphere", radius=self.num(d, "radius", positive=True))
+                shape = shapes.Shape("sphere", radius=self.num(d, "radius", positive=True))
             elif kind == "box":
                 size = self.vec(d, "size")
                 if np.any(size <= 0):
                     raise self.fail(f"{key}.size", f"box sizes must be > 0, got {d['size']!r}")
-                shape = raycast.Shape("box", half=0.5 * size)
+                shape = shapes.Shape("box", half=0.5 * size)
             else:
                 h = self.num(d, "height", positive=True)
-                shape = raycast.Shape("cylinder", radius=self.num(d, "radius", positive=True),
-                                      half=np.array([0.0, 0.5 * h, 0.0]))
+                shape = shapes.Shape("cylinder", radius=self.num(d, "radius", positive=True),
+                                     half=np.array([0.0, 0.5 * h, 0.0]))
         spec = None
         if d.get("specular") is not None:
             s = d["specular"]

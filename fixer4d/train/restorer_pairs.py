@@ -40,6 +40,7 @@ import torch
 
 from fixer4d.atomic import atomic_path, write_json
 from fixer4d.errors import InputError
+from fixer4d.eval.metrics import psnr
 from fixer4d.geometry.camera import Camera
 from fixer4d.render.api import render
 from fixer4d.restore.base import RestoreRequest
@@ -49,7 +50,8 @@ from fixer4d.restore.reference_warp import ReferenceWarpRestorer
 from fixer4d.scene.base import MultiViewVideo
 from fixer4d.scene.train_view import TrainOnlyView
 from fixer4d.train.config import SCHEDULE_KEYS, Stage1Config
-from fixer4d.train.trainer import Trainer, model_from_clouds
+from fixer4d.train.model_init import model_from_clouds, model_from_init
+from fixer4d.train.trainer import Trainer
 
 log = logging.getLogger("fixer4d.train")
 
@@ -57,6 +59,8 @@ PAIRS_FORMAT = 2
 # Stage-1 fields that ``Stage1Config.for_iterations`` derives from the iteration count (the
 # leave-one-out trainings get their own short schedule) or that do not change a result.
 _SCHEDULE_FIELDS = ("iterations", *SCHEDULE_KEYS, "progress")
+# Cap of the validation PSNRs (MSE 1e-12): validation.json cannot hold the inf of a perfect restoration.
+_REPORT_MAX_DB = 120.0
 
 
 def _render(model, cam: Camera, t: float, backend: str, background) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -96,8 +100,6 @@ def _init_model(init: Any, views: TrainOnlyView, cfg: Stage1Config):
     (static + moving parts, fixer4d.init.decompose) built with the default effects."""
     if isinstance(init, (list, tuple)):
         return model_from_clouds(list(init), views, cfg)
-    from fixer4d.train.trainer import model_from_init
-
     return model_from_init(init, views, cfg)[0]
 
 
@@ -149,12 +151,6 @@ def build_fold(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Confi
             "loo": np.array([s[4] for s in samples], bool)}
 
 
-def _psnr(a: np.ndarray, b: np.ndarray) -> float:
-    from fixer4d.eval.metrics import psnr  # the one PSNR; capped at 120 dB (MSE 1e-12) for the JSON report
-
-    return psnr(a, b, max_db=120.0)
-
-
 def _init_digest(init: Any) -> str:
     """SHA-1 of the arrays an init is made of (per-frame clouds, or the fields of a decomposed init)."""
     h = hashlib.sha1()
@@ -201,6 +197,57 @@ def seen_samples(model, scene: MultiViewVideo, config: RestoreConfig, background
             "loo": np.zeros(len(rows), bool)}
 
 
+def _fold_pairs(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Config, config: RestoreConfig,
+                out_dir: Path, key: str, progress: bool) -> tuple[dict[int, dict[str, np.ndarray]], float]:
+    """{train camera: its fold's pairs (``build_fold``)} and the CPU seconds they cost: a fold saved
+    in ``out_dir``/pairs under the same ``key`` is read back, any other is built and saved."""
+    folds: dict[int, dict[str, np.ndarray]] = {}
+    pair_cpu = 0.0
+    for cam in scene.train_ids:
+        path = out_dir / "pairs" / f"fold_{cam}.npz"
+        key_path = path.with_suffix(".json")
+        if path.is_file() and key_path.is_file() and json.loads(key_path.read_text()).get("key") == key:
+            with np.load(path, allow_pickle=False) as data:
+                folds[cam] = {k: np.array(data[k]) for k in data.files}
+            pair_cpu += float(json.loads(key_path.read_text()).get("cpu_seconds", 0.0))
+            continue
+        if progress:
+            print(f"[fixer4d] learned restorer: leave-one-out fold without camera {cam}", flush=True)
+        c0 = time.process_time()
+        folds[cam] = build_fold(scene, clouds, stage1, cam, config, progress=progress)
+        with atomic_path(path, suffix=".npz") as tmp:
+            np.savez_compressed(tmp, **folds[cam])
+        pair_cpu += time.process_time() - c0
+        write_json(key_path, {"key": key, "cpu_seconds": time.process_time() - c0})
+    return folds, pair_cpu
+
+
+def _fold_samples(folds: dict[int, dict[str, np.ndarray]], cams: Sequence[int],
+                  loo_only: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(features (C, H, W), target (H, W, 3)) float32 pairs of the folds of ``cams``; ``loo_only``:
+    the left-out camera's renders only."""
+    out = []
+    for cam in cams:
+        d = folds[cam]
+        for n in range(len(d["cams"])):
+            if loo_only and not d["loo"][n]:
+                continue
+            out.append((d["feats"][n].astype(np.float32), d["targets"][n].astype(np.float32)))
+    return out
+
+
+def _validation_psnrs(net, val: Sequence[tuple[np.ndarray, np.ndarray]]) -> dict[str, list[float]]:
+    """PSNR (dB) vs the real frame of each validation pair's render, warp restoration and learned
+    restoration (features 0:3 and 12:15 are the render and the warp, ``request_features``)."""
+    scores: dict[str, list[float]] = {"render": [], "warp": [], "learned": []}
+    for feats, target in val:
+        restored, _ = restore_features(net, feats)
+        scores["render"].append(psnr(feats[0:3].transpose(1, 2, 0), target, max_db=_REPORT_MAX_DB))
+        scores["warp"].append(psnr(feats[12:15].transpose(1, 2, 0), target, max_db=_REPORT_MAX_DB))
+        scores["learned"].append(psnr(restored, target, max_db=_REPORT_MAX_DB))
+    return scores
+
+
 def train_scene_restorer(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Config, out_dir: str | Path,
                          config: RestoreConfig, progress: bool = True, model=None) -> LearnedRestorer:
     """Build the leave-one-camera-out pairs, train the learned restorer, validate it on the held-back
@@ -225,56 +272,23 @@ def train_scene_restorer(scene: MultiViewVideo, clouds: Sequence[Any], stage1: S
                          "use --restorer warp")
     held = train_ids[lc.validation_fold % len(train_ids)]
     cpu0, wall0 = time.process_time(), time.perf_counter()
-    folds: dict[int, dict[str, np.ndarray]] = {}
-    pair_cpu = 0.0
-    for cam in train_ids:
-        path = out_dir / "pairs" / f"fold_{cam}.npz"
-        key_path = path.with_suffix(".json")
-        if path.is_file() and key_path.is_file() and json.loads(key_path.read_text()).get("key") == key:
-            with np.load(path, allow_pickle=False) as data:
-                folds[cam] = {k: np.array(data[k]) for k in data.files}
-            pair_cpu += float(json.loads(key_path.read_text()).get("cpu_seconds", 0.0))
-            continue
-        if progress:
-            print(f"[fixer4d] learned restorer: leave-one-out fold without camera {cam}", flush=True)
-        c0 = time.process_time()
-        folds[cam] = build_fold(scene, clouds, stage1, cam, config, progress=progress)
-        with atomic_path(path, suffix=".npz") as tmp:
-            np.savez_compressed(tmp, **folds[cam])
-        pair_cpu += time.process_time() - c0
-        write_json(key_path, {"key": key, "cpu_seconds": time.process_time() - c0})
-
+    folds, pair_cpu = _fold_pairs(scene, clouds, stage1, config, out_dir, key, progress)
+    seen = None
     if model is not None:
         c0 = time.process_time()
         with torch.no_grad():
-            folds[-1] = seen_samples(model, scene, config, torch.tensor(stage1.background, dtype=torch.float32))
+            seen = seen_samples(model, scene, config, torch.tensor(stage1.background, dtype=torch.float32))
         pair_cpu += time.process_time() - c0
 
-    def samples(cams: Sequence[int], loo_only: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
-        out = []
-        for cam in cams:
-            d = folds[cam]
-            for n in range(len(d["cams"])):
-                if loo_only and not d["loo"][n]:
-                    continue
-                out.append((d["feats"][n].astype(np.float32), d["targets"][n].astype(np.float32)))
-        return out
-
-    train_set = samples([c for c in train_ids if c != held])
-    if model is not None:  # the stage-1 model's renders of the train cameras, the held-back one excepted
-        seen = folds.pop(-1)
+    train_set = _fold_samples(folds, [c for c in train_ids if c != held])
+    if seen is not None:  # the stage-1 model's renders of the train cameras, the held-back one excepted
         train_set += [(seen["feats"][n].astype(np.float32), seen["targets"][n].astype(np.float32))
                       for n in range(len(seen["cams"])) if seen["cams"][n] != held]
     if progress:
         print(f"[fixer4d] learned restorer: training on {len(train_set)} pairs ({lc.steps} steps)", flush=True)
     net, stats = train_network(train_set, lc)
-    val = samples([held], loo_only=True)
-    scores = {"render": [], "warp": [], "learned": []}
-    for feats, target in val:
-        restored, _ = restore_features(net, feats)
-        scores["render"].append(_psnr(feats[0:3].transpose(1, 2, 0), target))
-        scores["warp"].append(_psnr(feats[12:15].transpose(1, 2, 0), target))
-        scores["learned"].append(_psnr(restored, target))
+    val = _fold_samples(folds, [held], loo_only=True)
+    scores = _validation_psnrs(net, val)
     mean = {k: float(np.mean(v)) for k, v in scores.items()}
     validation = {
         "held_out_fold_camera": int(held), "validation_pairs": len(val), "training_pairs": len(train_set),

@@ -1,196 +1,61 @@
-"""Stage 1 (STGS on the observed views) and stage 2 (restoration-guided refinement).
+"""The training loop of stage 1 (STGS on the observed views) and stage 2 (restoration-guided refinement).
 
-    model = model_from_clouds(clouds, scene, Stage1Config())
+    model = model_from_clouds(clouds, scene, Stage1Config())   # fixer4d.train.model_init
     trainer = Trainer(model, scene, Stage1Config(), run_dir="runs/demo")
     trainer.train()                      # or trainer.step() in a loop, e.g. from a viewer thread
     trainer.snapshot(t)                  # a detached Snapshot, safe to read between steps
 
 Stage 2 is the same trainer with a ``Stage2Config``, a restoration cache and (optionally) a
 refresh callback: L = mean over the observed views of L_STG + lambda_gen * mean over the cached
-pseudo-views of the confidence-weighted L1(render, restored frame), each pseudo-view rendered at
-its clip's time; a clip's frames at the train cameras themselves (alpha = 0 and 1) are skipped.
+pseudo-views of the confidence-weighted L1(render, restored frame) (fixer4d.train.pseudo_targets).
+What differs between the stages (length, position learning rate, densification window, opacity
+resets, pseudo-views, refreshes) is the trainer's ``StageSchedule`` (fixer4d.train.schedule).
 
 Everything random draws from the trainer's own generators (numpy for frames/views/pseudo
-batches, a torch.Generator for split sampling) whose states live in the checkpoints, so a run
-killed and resumed from its last checkpoint reproduces the uninterrupted run exactly.
+batches, a torch.Generator for split sampling) whose states live in the checkpoints
+(fixer4d.train.checkpoints), so a run killed and resumed from its last checkpoint reproduces the
+uninterrupted run exactly.
 """
 from __future__ import annotations
 
 import logging
 import math
-import re
 import threading
 import time
-from collections import OrderedDict
 from pathlib import Path
-from typing import Any, Callable, Protocol, Sequence
+from typing import Any, Callable
 
 import numpy as np
 import torch
 
-from fixer4d.atomic import atomic_path
 from fixer4d.errors import InputError, NumericalError
-from fixer4d.geometry.camera import Camera, rig_extent
+from fixer4d.geometry.camera import Camera
+from fixer4d.model.camera_response import RESPONSE_LR, RESPONSE_REG, CameraResponse
 from fixer4d.model.densify import DensifyStats, densify_and_prune, make_adam, reset_parameter
-from fixer4d.model.effects import EffectsConfig, EffectsDecision, TemporalStats, revise_effects
+from fixer4d.model.effect_revisions import TemporalStats, revise_effects
+from fixer4d.model.effects import EffectsConfig
 from fixer4d.model.snapshot import Snapshot
-from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians, knn_scales
+from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians
 from fixer4d.render.api import RenderOutput, render
 from fixer4d.render.constants import ALPHA_MIN
 from fixer4d.render.views import model_render_fn
 from fixer4d.scene.base import MultiViewVideo
+from fixer4d.train.checkpoints import (CHECKPOINT_FORMAT, check_resumable, list_checkpoints, read_checkpoint,
+                                       remove_partial_checkpoints, training_settings, write_checkpoint)
 from fixer4d.train.config import Stage1Config, Stage2Config
-from fixer4d.train.losses import masked_l1, psnr_torch, stg_loss
-from fixer4d.train.schedule import exponential_lr
+from fixer4d.train.losses import psnr_torch, stg_loss
+from fixer4d.train.model_init import scene_extent
+from fixer4d.train.pseudo_targets import PseudoCache, PseudoTargets, RefreshFn
+from fixer4d.train.schedule import StageSchedule
 
 log = logging.getLogger("fixer4d.train")
 
-# Version of the checkpoint layout (the keys of Trainer.state_dict()), bumped when they change meaning.
-# Checkpoints hold tensors, numbers, strings and containers only, so that they load with
-# torch.load(weights_only=True).
-CHECKPOINT_FORMAT = 1
-_CKPT_NAME = re.compile(r"^stage(\d)_(\d{7})\.pt$")
-# The temporary that fixer4d.atomic.atomic_path writes a checkpoint to before the rename.
-_CKPT_TEMP = re.compile(r"^\.stage(\d)_\d{7}\.pt\..+$")
-# 3DGS's scene radius is 1.1 x the largest camera distance from the rig centre.
-EXTENT_MARGIN = 1.1
-# Floor of the extent (a single point seen by coincident cameras).
-_DEGENERATE_RIG = 1e-6
-# Percentile of point distances from the cloud median used as the cloud's radius (robust to
-# the stray far points MVS and SfM leave).
-_CLOUD_RADIUS_PERCENTILE = 90.0
-# Fewer points than this cannot give a 3-NN scale; such an init is topped up with random points.
-MIN_INIT_POINTS = 4
-# Random points used when an init is degenerate (empty or < MIN_INIT_POINTS points): enough to
-# cover a small scene coarsely; densification refines from there.
-FALLBACK_POINTS = 2000
-# Colour of fallback points: mid grey, the least-biased guess.
-FALLBACK_COLOR = 0.5
 # Adam epsilon of 3DGS: position gradients are tiny and the default 1e-8 would damp them.
 ADAM_EPS = 1e-15
-
-
-class PseudoEntry(Protocol):
-    """What stage 2 reads from a restoration cache entry (fixer4d.restore.cache.CacheEntry)."""
-
-    key: str
-    cameras: list[Camera]
-    time: float
-
-    def rgb(self) -> np.ndarray: ...
-
-    def confidence(self) -> np.ndarray: ...
-
-    def unobserved(self) -> np.ndarray | None: ...
-
-
-class PseudoCache(Protocol):
-    def entries(self, round: int | None = None) -> list[PseudoEntry]: ...
-
-    def latest_round(self) -> int | None: ...
-
-
-RefreshFn = Callable[[SpacetimeGaussians, int], None]
-
-
-# ---- initialization ------------------------------------------------------------------------
-
-def model_from_clouds(clouds: Sequence[Any], scene: MultiViewVideo, config: Stage1Config,
-                      model_config: ModelConfig | None = None) -> SpacetimeGaussians:
-    """Spacetime Gaussians from per-frame clouds (fixer4d.init.cloud.FrameCloud: frame, time,
-    points (N,3), colors (N,3)).
-
-    Each point becomes a Gaussian with time centre = its frame's time, isotropic scale = the RMS
-    distance to its 3 nearest neighbours *within its frame* (points of different frames
-    coincide on static content and would give degenerate scales), opacity ``config.init_opacity``.
-    At most ``config.init_max_points`` points are kept (seeded uniform subsample). An empty or
-    nearly empty init (< MIN_INIT_POINTS points) is topped up with FALLBACK_POINTS random points
-    inside the scene bounds (logged); without known bounds it raises InputError.
-    """
-    pts_l, col_l, t_l, fid_l = [], [], [], []
-    for i, c in enumerate(clouds):
-        p = np.asarray(c.points, dtype=np.float64).reshape(-1, 3)
-        ok = np.all(np.isfinite(p), axis=1)
-        pts_l.append(p[ok])
-        col_l.append(np.clip(np.asarray(c.colors, dtype=np.float64).reshape(-1, 3)[ok], 0.0, 1.0))
-        t_l.append(np.full(int(ok.sum()), float(c.time)))
-        fid_l.append(np.full(int(ok.sum()), i))
-    points = np.concatenate(pts_l) if pts_l else np.zeros((0, 3))
-    colors = np.concatenate(col_l) if col_l else np.zeros((0, 3))
-    times = np.concatenate(t_l) if t_l else np.zeros(0)
-    group = np.concatenate(fid_l) if fid_l else np.zeros(0, np.int64)
-    rng = np.random.default_rng(config.seed)
-
-    if points.shape[0] > config.init_max_points:
-        keep = np.sort(rng.choice(points.shape[0], size=config.init_max_points, replace=False))
-        points, colors, times, group = points[keep], colors[keep], times[keep], group[keep]
-
-    scales = np.zeros(points.shape[0])
-    for g in np.unique(group):
-        sel = group == g
-        scales[sel] = knn_scales(points[sel]) if sel.sum() >= 2 else np.nan
-    if points.shape[0] < MIN_INIT_POINTS:
-        fb_points, fb_times = _fallback_points(scene, rng)
-        log.warning("init has %d point(s) (< %d): adding %d random points inside the scene bounds; "
-                    "the reconstruction will rely on densification", points.shape[0], MIN_INIT_POINTS, len(fb_points))
-        points = np.concatenate([points, fb_points])
-        colors = np.concatenate([colors, np.full_like(fb_points, FALLBACK_COLOR)])
-        times = np.concatenate([times, fb_times])
-        # every scale is recomputed over the whole set: a lone point has no neighbour in its frame
-        scales = knn_scales(points)
-    return SpacetimeGaussians.from_points(points, colors, times, model_config,
-                                          opacity=config.init_opacity, scales=scales)
-
-
-def _fallback_points(scene: MultiViewVideo, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    bounds = scene.bounds()
-    if bounds is None:
-        raise InputError(f"{scene.name}: the init point clouds are empty and the scene has no known bounds to "
-                         "place random points in; re-run `fixer4d init` with the other method (--init mvs|sparse) "
-                         "or check the cameras")
-    lo = np.asarray(bounds.bbox_min, np.float64)
-    hi = np.asarray(bounds.bbox_max, np.float64)
-    pts = lo + rng.random((FALLBACK_POINTS, 3)) * (hi - lo)
-    frames = rng.integers(0, scene.num_frames, FALLBACK_POINTS)
-    return pts, frames / float(scene.num_frames)
-
-
-def model_from_init(init: Any, scene: MultiViewVideo, config: Stage1Config,
-                    effects: EffectsConfig | None = None) -> tuple[SpacetimeGaussians, EffectsDecision | None]:
-    """The model of an init and the effect decision behind it.
-
-    init: a DecomposedInit (fixer4d.init.decompose) -> effects decided by evidence
-    (fixer4d.model.effects.decide_effects; ``effects`` picks auto | all | static and forced
-    switches), or per-frame clouds -> ``model_from_clouds`` with the default effects on every
-    Gaussian (decision None; e.g. the sparse baseline). A decomposed init with fewer than
-    MIN_INIT_POINTS points takes the per-frame path too (random points, decision None).
-    """
-    from fixer4d.model.effects import decide_effects, model_from_decomposed
-
-    if isinstance(init, (list, tuple)):
-        return model_from_clouds(init, scene, config), None
-    if init.num_static + init.num_dynamic < MIN_INIT_POINTS:
-        # nothing to decide effects from (e.g. a textureless capture): the per-frame path, whose
-        # degenerate init is topped up with random points like any other
-        log.warning("the decomposed init has %d point(s): training from random points with every effect on",
-                    init.num_static + init.num_dynamic)
-        return model_from_clouds(init.frame_clouds(), scene, config), None
-    decision = decide_effects(init, effects)
-    model = model_from_decomposed(init, decision, opacity=config.init_opacity, max_points=config.init_max_points,
-                                  seed=config.seed)
-    return model, decision
-
-
-def scene_extent(cameras: Sequence[Camera], means: torch.Tensor) -> float:
-    """The length every size threshold and the position learning rate scale with:
-    EXTENT_MARGIN x the larger of the rig radius (3DGS's camera extent) and the init cloud's
-    radius. The cloud term matters for narrow, forward-facing rigs (cameras 1 m apart filming a
-    scene 4 m away), where the rig alone would call every background Gaussian "too large"."""
-    r = rig_extent(list(cameras))
-    pts = means.detach().cpu().double().numpy()
-    if pts.shape[0]:
-        r = max(r, float(np.percentile(np.linalg.norm(pts - np.median(pts, 0), axis=1), _CLOUD_RADIUS_PERCENTILE)))
-    return EXTENT_MARGIN * max(r, _DEGENERATE_RIG)
+# Seconds of each part of a step, reported by ``Trainer.step``.
+TIMING_KEYS = ("t_at", "t_render", "t_loss", "t_backward", "t_optim", "t_densify", "t_refresh")
+# A rendered view of a step: its render, camera and ``_drawn`` radii (densification statistics).
+RenderedView = tuple[RenderOutput, Camera, torch.Tensor]
 
 
 def _drawn(snap: Snapshot, out: RenderOutput) -> torch.Tensor:
@@ -201,8 +66,6 @@ def _drawn(snap: Snapshot, out: RenderOutput) -> torch.Tensor:
     densified, however badly it fits its own frames)."""
     return torch.where(snap.opacities.detach() >= ALPHA_MIN, out.radii, torch.zeros_like(out.radii))
 
-
-# ---- the trainer ---------------------------------------------------------------------------
 
 class Trainer:
     """Optimizes a SpacetimeGaussians model on a scene (stage 1, or stage 2 with ``stage2``).
@@ -218,13 +81,14 @@ class Trainer:
 
     ``step()`` runs one iteration and returns scalars; ``train(n)`` runs up to ``n`` more (default:
     to the end) with a progress bar and checkpoints; ``stop()`` ends ``train`` after the current
-    step; ``snapshot(t)`` reads the model at time t between steps (thread-safe).
+    step; ``snapshot(t)`` reads the model at time t between steps (thread-safe). ``schedule`` is
+    the stage's StageSchedule; ``pseudo`` stage 2's PseudoTargets (None in stage 1).
     """
 
     def __init__(self, model: SpacetimeGaussians, scene: MultiViewVideo, config: Stage1Config, *,
                  run_dir: str | Path | None = None, stage2: Stage2Config | None = None,
                  cache: PseudoCache | None = None, refresh_cache: RefreshFn | None = None,
-                 effects: EffectsConfig | None = None) -> None:
+                 effects: EffectsConfig | None = None, camera_response: CameraResponse | None = None) -> None:
         if len(scene.train_ids) < 1:
             raise InputError(f"{scene.name}: no train cameras to optimize on")
         if stage2 is not None and cache is None:
@@ -235,14 +99,15 @@ class Trainer:
         self.scene = scene
         self.config = config
         self.stage2 = stage2
-        self.cache = cache
-        self.refresh_cache = refresh_cache
+        self.schedule = StageSchedule.stage1(config) if stage2 is None else StageSchedule.stage2(config, stage2)
+        # stage 2's restored frames (None in stage 1)
+        self.pseudo = None if stage2 is None else PseudoTargets(stage2, cache, refresh_cache, scene.train_cameras)
         self.run_dir = Path(run_dir) if run_dir is not None else None
-        self.stage = 2 if stage2 is not None else 1
+        self.stage = self.schedule.stage
         self.train_ids = list(scene.train_ids)
         self.extent = scene_extent(scene.train_cameras, model.means)
         self.background = torch.tensor(config.background, dtype=torch.float32)
-        seed = config.seed if stage2 is None else stage2.seed
+        seed = self.schedule.seed
         self._seed = int(seed)
         self._frame_pass: tuple[int, np.ndarray] | None = None  # (pass index, frame order) of "shuffled"
         self.rng = np.random.default_rng(seed)
@@ -251,19 +116,19 @@ class Trainer:
             # CUDA scatter kernels are nondeterministic by default; CPU ones are deterministic.
             torch.use_deterministic_algorithms(True, warn_only=True)
         self.step_count = 0
-        self.round = -1  # stage 2: index of the cache round in use (-1 = none loaded yet)
         self.optimizer = self._make_optimizer()
+        # per-train-camera colour response (None: the cameras agree on colour)
+        self.response = camera_response
+        self.response_optimizer = (None if camera_response is None else
+                                   torch.optim.Adam(camera_response.parameters(), lr=RESPONSE_LR))
         self.stats = DensifyStats.zeros(model.num_gaussians, model.means.device)
-        # effects revised during stage 1 (auto mode): demote / split on the density schedule
-        self.revise = stage2 is None and effects is not None and effects.mode == "auto" and effects.revise
+        # effects revised on the density schedule (auto mode, stage 1): demote / split
+        self.revise = (self.schedule.revises_effects and effects is not None and effects.mode == "auto"
+                       and effects.revise)
         self.temporal_stats = TemporalStats.zeros(model.num_gaussians if self.revise else 0, device=model.means.device)
         self.revisions: dict[str, int] = {"demoted": 0, "split_dynamic": 0}
         self.history: list[dict[str, float]] = []
         self.train_seconds = 0.0  # wall time spent in train(), summed over resumed sessions
-        self._entries: list[PseudoEntry] = []
-        self._entry_offsets = np.zeros(1, np.int64)
-        self._entry_frames: list[np.ndarray] = []  # per entry: the clip frames used as pseudo-views
-        self._clips: OrderedDict[str, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
         self._moving_packed: np.ndarray | None = None  # (V, T, H, ceil(W/8)) train-view moving masks, bit-packed
         self._lock = threading.RLock()
         self._stop = threading.Event()
@@ -271,15 +136,17 @@ class Trainer:
     # -- configuration ------------------------------------------------------------------------
     @property
     def total_iterations(self) -> int:
-        return self.stage2.total_iterations if self.stage2 is not None else self.config.iterations
+        return self.schedule.iterations
+
+    @property
+    def round(self) -> int:
+        """Stage 2: index of the cache round in use (-1 = none loaded yet, and always in stage 1)."""
+        return -1 if self.pseudo is None else self.pseudo.round
 
     def learning_rates(self, step: int) -> dict[str, float]:
         """Per-parameter learning rates at ``step`` (positions and motion decay; the rest are constant)."""
         c = self.config
-        if self.stage2 is None:
-            pos = exponential_lr(step, c.lr_means_init, c.lr_means_final, c.iterations)
-        else:
-            pos = exponential_lr(step, self.stage2.lr_means_init, self.stage2.lr_means_final, self.total_iterations)
+        pos = self.schedule.position_lr(step)
         pos *= self.extent
         return {"means": pos, "motion": pos * c.lr_motion_factor, "log_scales": c.lr_scales, "quats": c.lr_quats,
                 "opacity_logits": c.lr_opacity, "colors": c.lr_colors, "sh_rest": c.lr_sh_rest,
@@ -293,13 +160,6 @@ class Trainer:
         for group in self.optimizer.param_groups:
             group["lr"] = lrs[group["name"]]
 
-    def _densify_window(self) -> tuple[int, int]:
-        """[from, until) steps of this stage during which densification statistics are gathered."""
-        if self.stage2 is None:
-            return self.config.densify_from, self.config.densify_until
-        until = int(self.stage2.densify_until_fraction * self.total_iterations)
-        return min(self.config.densify_every, until), until
-
     # -- one iteration ------------------------------------------------------------------------
     def step(self) -> dict[str, float]:
         """One optimization step. Returns loss, loss_stg, loss_gen (stage 2), psnr (train views),
@@ -309,38 +169,18 @@ class Trainer:
             return self._step()
 
     def _step(self) -> dict[str, float]:
-        cfg = self.config
-        timing = dict.fromkeys(("t_at", "t_render", "t_loss", "t_backward", "t_optim", "t_densify", "t_refresh"), 0.0)
-        if self.stage2 is not None:
+        timing = dict.fromkeys(TIMING_KEYS, 0.0)
+        if self.pseudo is not None:
             tic = time.perf_counter()
-            self._maybe_refresh()
+            self.pseudo.update(self.model, self.schedule.refresh_round(self.step_count))
             timing["t_refresh"] = time.perf_counter() - tic
         self._set_learning_rates()
         frame = self._next_frame()
-        k = min(cfg.views_per_step, len(self.train_ids))
+        k = min(self.config.views_per_step, len(self.train_ids))
         views = self.rng.choice(len(self.train_ids), size=k, replace=False)
         t = self.scene.time(frame)
-        shared = self.model.config.sh_degree == 0  # colours do not depend on the camera
-
-        outputs: list[tuple[RenderOutput, Camera, torch.Tensor]] = []
-        loss_stg = torch.zeros(())
-        psnrs = []
-        snap = None
-        for v in views:
-            cam_id = self.train_ids[int(v)]
-            cam = self.scene.cameras[cam_id]
-            tic = time.perf_counter()
-            if snap is None or not shared:
-                snap = self.model.at(t, camera_center=None if shared else cam.center)
-            timing["t_at"] += time.perf_counter() - tic
-            out, dt = self._render(snap, cam)
-            timing["t_render"] += dt
-            tic = time.perf_counter()
-            target = torch.from_numpy(np.ascontiguousarray(self.scene.frame(frame, cam_id)))
-            loss_stg = loss_stg + stg_loss(out.rgb, target, self._pixel_weight(int(v), frame))
-            psnrs.append(psnr_torch(out.rgb, target))
-            timing["t_loss"] += time.perf_counter() - tic
-            outputs.append((out, cam, _drawn(snap, out)))
+        outputs: list[RenderedView] = []
+        loss_stg, psnrs = self._observed_loss(frame, t, views, outputs, timing)
 
         # L = mean_v L_STG(view v) + lambda_gen * mean_p L1(pseudo p): both per-view means, as the
         # paper states it. The gradient taken is that of V x L: Adam is invariant to the overall
@@ -348,38 +188,29 @@ class Trainer:
         # densification threshold (3DGS: one view per step) is calibrated.
         n_views = max(len(views), 1)
         loss_stg = loss_stg / n_views
+        if self.response is not None:
+            loss_stg = loss_stg + RESPONSE_REG * self.response.regularizer()
         loss_gen = torch.zeros(())
-        if self.stage2 is not None and self.stage2.lambda_gen > 0 and self.stage2.batch_pseudo > 0:
-            loss_gen = self._pseudo_loss(outputs, timing)
-            loss = loss_stg + self.stage2.lambda_gen * loss_gen
+        if self.pseudo is not None and self.schedule.draws_pseudo_views:
+            loss_gen = self.pseudo.loss(self.model, self.rng,
+                                        lambda snap, cam: self._render_view(snap, cam, outputs, timing), timing)
+            loss = loss_stg + self.schedule.lambda_gen * loss_gen
         else:
             loss = loss_stg
-        if not bool(torch.isfinite(loss)):
-            raise NumericalError(f"stage {self.stage} step {self.step_count}: the loss is {float(loss)}; "
-                                 "lower the learning rates or resume from the last checkpoint")
-        tic = time.perf_counter()
-        (loss * n_views).backward()
-        self._hold_frozen_rows()
-        timing["t_backward"] = time.perf_counter() - tic
-
-        tic = time.perf_counter()
-        d_from, d_until = self._densify_window()
-        if self.step_count < d_until:
-            for out, cam, drawn in outputs:
-                if out.means2d.grad is not None:
-                    self.stats.update(out.means2d.grad, drawn, cam.width, cam.height)
-                    if self.revise:
-                        self.temporal_stats.update(out.means2d.grad, drawn, cam.width, cam.height, t)
-        timing["t_densify"] = time.perf_counter() - tic
+        self._backward(loss, n_views, timing)
+        self._gather_stats(outputs, t, timing)
 
         tic = time.perf_counter()
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
+        if self.response_optimizer is not None:
+            self.response_optimizer.step()
+            self.response_optimizer.zero_grad(set_to_none=True)
         timing["t_optim"] = time.perf_counter() - tic
         self.step_count += 1
 
         tic = time.perf_counter()
-        counts = self._density_control(d_from, d_until)
+        counts = self._density_control()
         timing["t_densify"] += time.perf_counter() - tic
         self.model.check(f"stage {self.stage} step {self.step_count}")
 
@@ -390,6 +221,52 @@ class Trainer:
                **{f"densify_{k}": float(v) for k, v in counts.items()}}
         self.history.append({k: rec[k] for k in ("step", "loss", "psnr", "num_gaussians")})
         return rec
+
+    def _observed_loss(self, frame: int, t: float, views: np.ndarray, outputs: list[RenderedView],
+                       timing: dict[str, float]) -> tuple[torch.Tensor, list[float]]:
+        """Sum over the train views ``views`` (indices into train_ids) at ``frame`` (time ``t``) of
+        L_STG, and each view's PSNR; the renders go to ``outputs``."""
+        shared = self.model.config.sh_degree == 0  # colours do not depend on the camera
+        loss_stg = torch.zeros(())
+        psnrs = []
+        snap = None
+        for v in views:
+            cam_id = self.train_ids[int(v)]
+            cam = self.scene.cameras[cam_id]
+            tic = time.perf_counter()
+            if snap is None or not shared:
+                snap = self.model.at(t, camera_center=None if shared else cam.center)
+            timing["t_at"] += time.perf_counter() - tic
+            out = self._render_view(snap, cam, outputs, timing)
+            tic = time.perf_counter()
+            target = torch.from_numpy(np.ascontiguousarray(self.scene.frame(frame, cam_id)))
+            recorded = out.rgb if self.response is None else self.response.apply(out.rgb, int(v))
+            loss_stg = loss_stg + stg_loss(recorded, target, self._pixel_weight(int(v), frame))
+            psnrs.append(psnr_torch(recorded, target))
+            timing["t_loss"] += time.perf_counter() - tic
+        return loss_stg, psnrs
+
+    def _backward(self, loss: torch.Tensor, n_views: int, timing: dict[str, float]) -> None:
+        """Backpropagate ``n_views`` x ``loss`` (refusing a non-finite loss) and hold the frozen rows."""
+        if not bool(torch.isfinite(loss)):
+            raise NumericalError(f"stage {self.stage} step {self.step_count}: the loss is {float(loss)}; "
+                                 "lower the learning rates or resume from the last checkpoint")
+        tic = time.perf_counter()
+        (loss * n_views).backward()
+        self._hold_frozen_rows()
+        timing["t_backward"] = time.perf_counter() - tic
+
+    def _gather_stats(self, outputs: list[RenderedView], t: float, timing: dict[str, float]) -> None:
+        """Add the screen-space gradients of this step's renders (at time ``t``) to the
+        densification (and effect-revision) statistics while the schedule densifies."""
+        tic = time.perf_counter()
+        if self.schedule.gathers_stats(self.step_count):
+            for out, cam, drawn in outputs:
+                if out.means2d.grad is not None:
+                    self.stats.update(out.means2d.grad, drawn, cam.width, cam.height)
+                    if self.revise:
+                        self.temporal_stats.update(out.means2d.grad, drawn, cam.width, cam.height, t)
+        timing["t_densify"] = time.perf_counter() - tic
 
     def _next_frame(self) -> int:
         """The frame of this step (``Stage1Config.frame_order``)."""
@@ -429,43 +306,41 @@ class Trainer:
         m = np.unpackbits(self._moving_packed[view, frame], axis=-1, count=width).astype(np.float32)
         return torch.from_numpy(1.0 + w * m)
 
-    def _render(self, snap: Snapshot, cam: Camera) -> tuple[RenderOutput, float]:
+    def _render_view(self, snap: Snapshot, cam: Camera, outputs: list[RenderedView],
+                     timing: dict[str, float]) -> RenderOutput:
+        """Render ``snap`` at ``cam`` (seconds into ``timing["t_render"]``) and record the view in
+        ``outputs`` for the densification statistics."""
         tic = time.perf_counter()
         out = render(snap, cam, background=self.background, backend=self.config.backend)
-        return out, time.perf_counter() - tic
+        timing["t_render"] += time.perf_counter() - tic
+        outputs.append((out, cam, _drawn(snap, out)))
+        return out
 
     @torch.no_grad()
-    def _density_control(self, d_from: int, d_until: int) -> dict[str, int]:
+    def _density_control(self) -> dict[str, int]:
         """Densify/prune and reset opacities on the schedule (``step_count`` is 1-based here, as 3DGS)."""
         cfg = self.config
         s = self.step_count
         counts: dict[str, int] = {}
-        if d_from < s < d_until and s % cfg.densify_every == 0:
-            # the size prunes (off by default) apply only after the first opacity reset, as in
-            # 3DGS; stage 2 never applies them (its pseudo-views are less trustworthy than the
-            # real views that shaped the model).
-            first_reset_done = self.stage2 is None and s > cfg.opacity_reset_every
+        if self.schedule.densifies(s, cfg.densify_every):
+            # the size prunes (off by default) apply after the first opacity reset, as in 3DGS;
+            # stage 2 never resets and so never applies them (its pseudo-views are less
+            # trustworthy than the real views that shaped the model)
+            size_prunes = self.schedule.size_prunes_apply(s)
             if self.revise:
-                rev = revise_effects(self.model, self.optimizer, self.temporal_stats,
-                                     grad_threshold=cfg.densify_grad_threshold, max_gaussians=cfg.max_gaussians)
-                for k, v in rev.items():
-                    self.revisions[k] += v
-                    counts[k] = v
-                if rev["split_dynamic"]:  # the new rows have no statistics yet
-                    self.stats = DensifyStats(*(torch.cat([x, x.new_zeros(rev["split_dynamic"])])
-                                                for x in (self.stats.grad_accum, self.stats.denom, self.stats.max_radii)))
+                counts.update(self._revise_effects())
             counts.update(densify_and_prune(
                 self.model, self.optimizer, self.stats, extent=self.extent,
                 grad_threshold=cfg.densify_grad_threshold, percent_dense=cfg.percent_dense,
                 max_gaussians=cfg.max_gaussians, prune_opacity=cfg.prune_opacity,
-                prune_world_scale=cfg.prune_world_scale if first_reset_done else None,
-                prune_screen_fraction=cfg.prune_screen_fraction if first_reset_done else None,
+                prune_world_scale=cfg.prune_world_scale if size_prunes else None,
+                prune_screen_fraction=cfg.prune_screen_fraction if size_prunes else None,
                 generator=self.generator, split_children=cfg.split_children,
                 split_scale_divisor=cfg.split_scale_divisor))
             self.stats = DensifyStats.zeros(self.model.num_gaussians, self.model.means.device)
             if self.revise:
                 self.temporal_stats = TemporalStats.zeros(self.model.num_gaussians, device=self.model.means.device)
-        if self.stage2 is None and s < d_until and s % cfg.opacity_reset_every == 0:
+        if self.schedule.resets_opacity(s):
             cap = math.log(cfg.opacity_reset_value / (1.0 - cfg.opacity_reset_value))
             logits = self.model.opacity_logits
             reset_parameter(self.model, self.optimizer, "opacity_logits",
@@ -473,107 +348,18 @@ class Trainer:
             counts["opacity_reset"] = 1
         return counts
 
-    # -- stage 2: pseudo-views ----------------------------------------------------------------
-    def _maybe_refresh(self) -> None:
-        """At step 0 and every refresh_every steps (until ``rounds`` rounds), refresh the cache with
-        the current model and load that round's entries; after a resume, reload the round in use."""
-        s2 = self.stage2
-        assert s2 is not None and self.cache is not None
-        due = self.step_count % s2.refresh_every == 0 and self.step_count // s2.refresh_every < s2.rounds
-        if due:
-            r = self.step_count // s2.refresh_every
-            if self.refresh_cache is not None:
-                with torch.no_grad():
-                    self.refresh_cache(self.model, r)
-                self._load_round(r)
-            elif self.round < 0:
-                self._load_round(self.cache.latest_round())
-        elif not self._entries:
-            self._load_round(self.round if self.round >= 0 else self.cache.latest_round())
-
-    def _load_round(self, r: int | None) -> None:
-        """Load round ``r``'s entries; only their novel frames are pseudo-views (a trajectory's
-        endpoints at alpha = 0 and 1 are the train cameras themselves, supervised by real frames)."""
-        from fixer4d.geometry.trajectory import novel_frame_mask
-
-        train_cams = self.scene.train_cameras
-        entries, frames = [], []
-        for e in ([] if r is None else self.cache.entries(r)):
-            novel = np.flatnonzero(novel_frame_mask(e.cameras, train_cams)) if len(e.cameras) else []
-            if len(novel):
-                entries.append(e)
-                frames.append(novel.astype(np.int64))
-        if not entries:
-            raise InputError(f"stage 2: the restoration cache has no entries with novel views for round {r}; run "
-                             "the restore step (`fixer4d run`, or a refresh callback) before refining")
-        self.round = int(r)
-        self._entries = entries
-        self._entry_frames = frames
-        self._entry_offsets = np.concatenate([[0], np.cumsum([len(f) for f in frames])]).astype(np.int64)
-        self._clips.clear()
-
-    def _clip(self, entry: PseudoEntry) -> tuple[torch.Tensor, torch.Tensor]:
-        """(F,H,W,3) restored frames and (F,H,W) per-pixel weight of an entry's pseudo-loss,
-        decoded on first use and kept in a small LRU (``max_cached_clips``)."""
-        key = entry.key
-        if key in self._clips:
-            self._clips.move_to_end(key)
-            return self._clips[key]
-        rgb = torch.from_numpy(np.ascontiguousarray(entry.rgb(), dtype=np.float32))
-        conf = torch.from_numpy(np.ascontiguousarray(self._pseudo_weight(entry), dtype=np.float32))
-        self._clips[key] = (rgb, conf)
-        assert self.stage2 is not None
-        while len(self._clips) > max(self.stage2.max_cached_clips, 1):
-            self._clips.popitem(last=False)
-        return rgb, conf
-
-    def _pseudo_weight(self, entry: PseudoEntry) -> np.ndarray:
-        """(F, H, W) weight of the pseudo L1 (``Stage2Config``): the restorer's confidence (when
-        ``confidence_weighting``) times, with ``pseudo_mask = "unobserved"``, observed_weight +
-        (1 - observed_weight) x how unobserved the pixel is by the train cameras."""
-        s2 = self.stage2
-        assert s2 is not None
-        weight = entry.confidence() if s2.confidence_weighting else None
-        if s2.pseudo_mask == "unobserved":
-            hidden = entry.unobserved()
-            if hidden is None:
-                raise InputError(f"cache entry {entry.key} has no unobserved-pixel map (written with "
-                                 "stage2.pseudo_mask=all); refresh the cache or set stage2.pseudo_mask=all")
-            mask = s2.observed_weight + (1.0 - s2.observed_weight) * hidden
-            weight = mask if weight is None else weight * mask
-        if weight is None:
-            weight = np.ones_like(entry.confidence())
-        return weight
-
-    def _pseudo_loss(self, outputs: list[tuple[RenderOutput, Camera, torch.Tensor]], timing: dict[str, float]) -> torch.Tensor:
-        """Mean over ``batch_pseudo`` cached novel frames of the (confidence-weighted) L1 between the
-        model rendered at the frame's camera *and its clip's time* and the restored frame."""
-        s2 = self.stage2
-        assert s2 is not None
-        total = int(self._entry_offsets[-1])
-        picks = self.rng.integers(0, total, size=s2.batch_pseudo)
-        loss = torch.zeros(())
-        for flat in picks:
-            e_idx = int(np.searchsorted(self._entry_offsets, flat, side="right") - 1)
-            entry = self._entries[e_idx]
-            f = int(self._entry_frames[e_idx][int(flat - self._entry_offsets[e_idx])])
-            cam = entry.cameras[f]
-            tic = time.perf_counter()
-            snap = self.model.at(float(entry.time), camera_center=cam.center)
-            timing["t_at"] += time.perf_counter() - tic
-            out, dt = self._render(snap, cam)
-            timing["t_render"] += dt
-            tic = time.perf_counter()
-            rgb, conf = self._clip(entry)
-            target = rgb[f]
-            if tuple(target.shape[:2]) != (cam.height, cam.width):
-                raise InputError(f"cache entry {entry.key}: frame {f} is {tuple(target.shape[:2])} but its camera is "
-                                 f"{cam.height}x{cam.width}; the cache is stale, refresh it")
-            weight = conf[f] if s2.confidence_weighting or s2.pseudo_mask != "all" else None
-            loss = loss + masked_l1(out.rgb, target, weight)
-            timing["t_loss"] += time.perf_counter() - tic
-            outputs.append((out, cam, _drawn(snap, out)))
-        return loss / max(len(picks), 1)
+    def _revise_effects(self) -> dict[str, int]:
+        """Demote / split effects (``fixer4d.model.effect_revisions.revise_effects``); the split rows get
+        empty densification statistics. Returns the counts of this round."""
+        cfg = self.config
+        rev = revise_effects(self.model, self.optimizer, self.temporal_stats,
+                             grad_threshold=cfg.densify_grad_threshold, max_gaussians=cfg.max_gaussians)
+        for k, v in rev.items():
+            self.revisions[k] += v
+        if rev["split_dynamic"]:  # the new rows have no statistics yet
+            self.stats = DensifyStats(*(torch.cat([x, x.new_zeros(rev["split_dynamic"])])
+                                        for x in (self.stats.grad_accum, self.stats.denom, self.stats.max_radii)))
+        return dict(rev)
 
     # -- loops and reading --------------------------------------------------------------------
     def stop(self) -> None:
@@ -626,10 +412,8 @@ class Trainer:
         each render takes its snapshot under the trainer's lock."""
         return model_render_fn(_Snapshots(self), self.config.backend, self.background)
 
-    # -- checkpoints --------------------------------------------------------------------------
-    @property
-    def checkpoint_dir(self) -> Path | None:
-        return None if self.run_dir is None else self.run_dir / "checkpoints"
+    # -- checkpoints (fixer4d.train.checkpoints) ----------------------------------------------
+    list_checkpoints = staticmethod(list_checkpoints)
 
     def state_dict(self) -> dict[str, Any]:
         with self._lock:
@@ -643,31 +427,21 @@ class Trainer:
                 "temporal_stats": self.temporal_stats.state_dict(), "revisions": dict(self.revisions),
                 "numpy_rng": self.rng.bit_generator.state,
                 "torch_generator": self.generator.get_state(),
-                "config": _comparable(self.config.to_dict()),
-                "stage2": None if self.stage2 is None else self.stage2.to_dict(),
+                **training_settings(self.config, self.stage2),
                 "history": list(self.history),
                 "train_seconds": self.train_seconds,
+                **({} if self.response is None else {
+                    "camera_response": {k: v.detach().clone() for k, v in self.response.state_dict().items()},
+                    "camera_response_optimizer": self.response_optimizer.state_dict()}),
             }
 
     def load_state_dict(self, state: dict[str, Any], source: str = "checkpoint") -> None:
         """Restore a ``state_dict()`` (model, optimizer, statistics, RNG states, step)."""
-        fmt = state.get("format")
-        if fmt != CHECKPOINT_FORMAT:
-            raise InputError(f"{source}: checkpoint format {fmt!r}, but this fixer4d reads format "
-                             f"{CHECKPOINT_FORMAT}; delete RUN/checkpoints to retrain this stage, or use the "
-                             "fixer4d version that wrote it")
-        if state.get("stage") != self.stage:
-            raise InputError(f"{source}: a stage-{state.get('stage')} checkpoint where stage {self.stage} was "
-                             "expected; delete it or train into a new run folder")
-        mine = (_comparable(self.config.to_dict()), None if self.stage2 is None else self.stage2.to_dict())
-        if (state["config"], state["stage2"]) != mine:
-            raise InputError(f"{source}: written with another training config; resume with the same options, "
-                             "or delete RUN/checkpoints to start over")
+        check_resumable(state, self.stage, training_settings(self.config, self.stage2), source)
         with self._lock:
             model = SpacetimeGaussians.from_state_dict(state["model"], ModelConfig.from_dict(state["model_config"]))
             self.model = model.to(self.model.means.device)
             self.step_count = int(state["step"])
-            self.round = int(state["round"])
             self.extent = float(state["extent"])
             self.optimizer = self._make_optimizer()
             self.optimizer.load_state_dict(state["optimizer"])
@@ -679,99 +453,36 @@ class Trainer:
             self.generator.set_state(state["torch_generator"])
             self.history = list(state.get("history", []))
             self.train_seconds = float(state.get("train_seconds", 0.0))
-            self._entries = []
-            self._clips.clear()
+            if self.response is not None and "camera_response" in state:
+                self.response.load_state_dict(state["camera_response"])
+                self.response_optimizer.load_state_dict(state["camera_response_optimizer"])
+            if self.pseudo is not None:
+                self.pseudo.forget(int(state["round"]))
 
     def save_checkpoint(self) -> Path:
         """Write RUN/checkpoints/stage{S}_{STEP}.pt atomically; keep the newest ``keep_checkpoints``."""
-        if self.checkpoint_dir is None:
+        if self.run_dir is None:
             raise InputError("save_checkpoint: this trainer has no run_dir")
-        path = self.checkpoint_dir / f"stage{self.stage}_{self.step_count:07d}.pt"
-        state = self.state_dict()
-        with atomic_path(path) as tmp:
-            torch.save(state, tmp)
-        for old in self.list_checkpoints(self.run_dir, self.stage)[:-max(self.config.keep_checkpoints, 1)]:
-            old.unlink(missing_ok=True)
-        return path
-
-    @staticmethod
-    def list_checkpoints(run_dir: str | Path, stage: int) -> list[Path]:
-        """Complete checkpoints of ``stage`` in RUN/checkpoints, oldest first."""
-        d = Path(run_dir) / "checkpoints"
-        if not d.is_dir():
-            return []
-        found = [(int(m.group(2)), p) for p in d.iterdir()
-                 if (m := _CKPT_NAME.match(p.name)) and int(m.group(1)) == stage]
-        return [p for _, p in sorted(found)]
+        return write_checkpoint(self.state_dict(), self.run_dir, self.stage, self.step_count,
+                                self.config.keep_checkpoints)
 
     def load_checkpoint(self, path: str | Path) -> None:
         """Load ``path`` with ``torch.load(weights_only=True)``: only tensors and plain containers
         are rebuilt, so a checkpoint that carries pickled code or objects is refused, never run."""
         self.load_state_dict(read_checkpoint(path), source=str(path))
 
-    def _remove_partial_checkpoints(self) -> int:
-        """Delete this stage's checkpoint temporaries (``.stage{S}_{STEP}.pt.*``) that a process
-        killed inside ``save_checkpoint`` left; the complete checkpoints are never touched."""
-        d = self.checkpoint_dir
-        if d is None or not d.is_dir():
-            return 0
-        partial = [p for p in d.iterdir() if (m := _CKPT_TEMP.match(p.name)) and int(m.group(1)) == self.stage]
-        for p in partial:
-            p.unlink(missing_ok=True)
-        return len(partial)
-
     def resume(self) -> bool:
-        """Load the newest checkpoint of this stage from ``run_dir`` if there is one."""
+        """Load the newest checkpoint of this stage from ``run_dir`` if there is one (after deleting
+        the partial ones a killed save left)."""
         if self.run_dir is None:
             return False
-        self._remove_partial_checkpoints()
-        found = self.list_checkpoints(self.run_dir, self.stage)
+        remove_partial_checkpoints(self.run_dir, self.stage)
+        found = list_checkpoints(self.run_dir, self.stage)
         if not found:
             return False
         self.load_checkpoint(found[-1])
         log.info("resumed stage %d from %s (step %d)", self.stage, found[-1], self.step_count)
         return True
-
-
-def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """The state dict stored in checkpoint ``path``, read without unpickling code.
-
-    ``torch.load(weights_only=True)`` rebuilds tensors, numbers, strings and containers only; a
-    file whose pickle names any other global (a ``__reduce__`` payload, a pickled class) is
-    refused with an InputError before anything in it runs. Truncated or foreign files get an
-    InputError naming the file and the fix.
-    """
-    import pickle
-
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such checkpoint; list RUN/checkpoints or start the stage over")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as exc:
-        # torch wraps the unpickler's complaint in a long advisory; keep its "WeightsUnpickler error"
-        detail = str(exc).partition("WeightsUnpickler error:")[2].partition("Check the documentation")[0]
-        detail = " ".join(detail.split()) or type(exc).__name__
-        if "Unsupported global" in detail:  # a global other than tensors/containers: code or an object
-            name = detail.partition("GLOBAL ")[2].partition(" ")[0] or "?"
-            raise InputError(f"{path}: refused to load: the checkpoint contains pickled code or objects ({name}), "
-                             "not only tensors; fixer4d never executes a checkpoint; delete it (fixer4d did not "
-                             "write it) to resume from an older one") from None
-        raise InputError(f"{path}: unreadable checkpoint ({detail[:200]}); delete it to resume from an older "
-                         "one") from None
-    except Exception as exc:  # a truncated or foreign file: say which and what to do
-        raise InputError(f"{path}: unreadable checkpoint ({type(exc).__name__}: {str(exc)[:200]}); delete it to "
-                         "resume from an older one") from None
-    if not isinstance(state, dict):
-        raise InputError(f"{path}: not a fixer4d checkpoint (holds a {type(state).__name__}, not a state dict); "
-                         "delete it to resume from an older one")
-    return state
-
-
-def _comparable(cfg: dict[str, Any]) -> dict[str, Any]:
-    """A stage config without the fields that do not change the result (progress display,
-    checkpoint cadence)."""
-    return {k: v for k, v in cfg.items() if k not in ("progress", "checkpoint_every", "keep_checkpoints")}
 
 
 class _Snapshots:

@@ -98,7 +98,7 @@ def test_segmented_run_plays_along_one_timeline(gl_ctx, segmented_run, tmp_path,
             t_local = to_local_time(f / scene.num_frames, scene.num_frames, ranges[k])
             with torch.no_grad():
                 want = render(arrays[k].to_model().snapshot(t_local, cam.center), cam, background=tuple(st.background))
-            got = v.model_render_fn()(cam, f / scene.num_frames)["rgb"]
+            got = v.gaussians_render_fn()(cam, f / scene.num_frames)["rgb"]
             assert np.allclose(got, want.rgb.clamp(0, 1).numpy(), atol=1e-6)
         # an edit of a segment saves into that segment's folder and reopens there
         st.set_frame(3)

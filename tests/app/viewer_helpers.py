@@ -136,7 +136,7 @@ def make_viewer(gl_ctx, tmp_path):
 def scene_gaussians(scene, frame: int = 0, stride: int = 2) -> GaussianArrays:
     """Static Gaussians on the scene's ground-truth surfaces: every ``stride``-th pixel of each
     train view at ``frame`` back-projected with its depth and coloured by its pixel."""
-    from fixer4d.model.spacetime import SH_C0
+    from fixer4d.model.sh import SH_C0
 
     pts, cols, sizes = [], [], []
     for i in scene.train_ids:

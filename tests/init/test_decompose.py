@@ -9,6 +9,7 @@ import pytest
 from fixer4d.geometry.camera import Camera
 from fixer4d.init import InitConfig, run_init
 from fixer4d.init import decompose as D
+from fixer4d.init import tracks as T
 
 
 def _rig(n: int = 3) -> list[Camera]:
@@ -23,7 +24,7 @@ def test_triangulate_recovers_points_and_rejects_single_views():
     uvs = np.stack([c.project(X)[0] for c in cams])
     ok = np.ones((3, 50), bool)
     ok[1:, :5] = False  # only one view for the first 5 points
-    Y, good = D.triangulate(uvs, ok, cams)
+    Y, good = T.triangulate(uvs, ok, cams)
     assert not good[:5].any() and good[5:].all()
     assert np.allclose(Y[5:], X[5:], atol=1e-6)
 
@@ -36,7 +37,7 @@ def test_fit_tracks_picks_the_smallest_sufficient_degree():
     acc = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, -30.0, 0.0]])
     X = x0[None] + dts[:, None, None] * vel[None] + dts[:, None, None] ** 2 * acc[None]
     obs = np.stack([np.stack([c.project(X[s])[0] for c in cams]) for s in range(len(dts))])
-    coeffs, degree, rms = D.fit_tracks(dts, X, np.ones((len(dts), 3), bool), obs, np.ones(obs.shape[:3], bool), cams)
+    coeffs, degree, rms = T.fit_tracks(dts, X, np.ones((len(dts), 3), bool), obs, np.ones(obs.shape[:3], bool), cams)
     assert degree.tolist() == [0, 1, 2]
     assert np.all(rms < 1e-3)
     assert np.allclose(coeffs[1, 1], vel[1], atol=1e-6) and np.allclose(coeffs[2, 2], acc[2], atol=1e-4)
@@ -55,7 +56,7 @@ def test_static_median_ignores_moving_pixels():
 
 
 def test_crop_camera_and_roi_boxes():
-    from fixer4d.init.mvs import crop_camera, roi_boxes
+    from fixer4d.init.sweep_regions import crop_camera, roi_boxes
 
     cam = _rig(1)[0]
     crop = crop_camera(cam, (10, 5, 50, 45))
@@ -77,9 +78,9 @@ def test_local_angular_velocity_of_a_spinning_blob():
     pts = rng.normal(0, 0.2, (200, 3))
     w = np.array([0.0, 3.0, 0.0])
     spin = np.cross(w, pts)
-    omega, gain = D.local_angular_velocity(pts, spin, np.ones(200, bool), np.zeros(200, int))
+    omega, gain = T.local_angular_velocity(pts, spin, np.ones(200, bool), np.zeros(200, int))
     assert np.allclose(np.median(omega, 0), w, atol=0.05) and np.median(gain) > 0.95
-    omega, gain = D.local_angular_velocity(pts, np.tile([1.0, 0, 0], (200, 1)), np.ones(200, bool), np.zeros(200, int))
+    omega, gain = T.local_angular_velocity(pts, np.tile([1.0, 0, 0], (200, 1)), np.ones(200, bool), np.zeros(200, int))
     assert np.abs(omega).max() < 1e-6 and gain.max() <= 1e-6
 
 

@@ -150,4 +150,4 @@ def test_fast_medians_equal_numpy():
         ex = rng.random((F, 7, 9)) > 0.5
         ex[0] = False  # at least one sample kept per pixel
         ref = np.nanmedian(np.where(ex[..., None], np.nan, x), axis=0)
-        assert np.allclose(M._median_without(x, ex), ref, rtol=0, atol=1e-7)
+        assert np.allclose(M.median_without(x, ex), ref, rtol=0, atol=1e-7)

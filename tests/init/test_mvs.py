@@ -2,8 +2,11 @@ import numpy as np
 import pytest
 
 from fixer4d.errors import BackendUnavailable, InputError
-from fixer4d.init.mvs import (DepthEstimator, MVSAnywhereEstimator, PlaneSweepConfig, PlaneSweepMVS,
-                              default_depth_ranges, depth_ranges_from_points, make_estimator)
+from fixer4d.init.depth_estimator import DepthEstimator
+from fixer4d.init.depth_range import default_depth_ranges, depth_ranges_from_points
+from fixer4d.init.mvs import make_estimator
+from fixer4d.init.mvsanywhere import MVSAnywhereEstimator
+from fixer4d.init.plane_sweep import PlaneSweepConfig, PlaneSweepMVS
 from planescene import PLANE_Z, plane_cameras, render_plane
 
 
@@ -154,7 +157,7 @@ def test_box_filter_is_the_border_shrinking_mean():
     import torch
     import torch.nn.functional as F
 
-    from fixer4d.init.mvs import _box
+    from fixer4d.init.matching_cost import _box
 
     rng = np.random.default_rng(0)
     for shape, k in [((2, 3, 17, 23), 7), ((1, 1, 5, 4), 7), ((3, 2, 9, 9), 3)]:
@@ -174,18 +177,18 @@ def test_tile_planes_cover_every_pixels_band():
     import torch
 
     from fixer4d.init import constants as C
-    from fixer4d.init.mvs import _tile_axis, _tile_planes
+    from fixer4d.init.sweep_regions import tile_axis, tile_planes
 
     centre = torch.tensor([[10, 10, 11], [12, -1, 40]])
-    planes = _tile_planes(centre, 2, 64).tolist()
+    planes = tile_planes(centre, 2, 64).tolist()
     assert planes == list(range(8, 15)) + list(range(38, 43))  # -1 needs none
-    assert _tile_planes(torch.full((2, 2), -1), 3, 64).numel() == 0
-    assert _tile_planes(torch.tensor([0, 63]), 3, 64).tolist() == [0, 1, 2, 3, 60, 61, 62, 63]
+    assert tile_planes(torch.full((2, 2), -1), 3, 64).numel() == 0
+    assert tile_planes(torch.tensor([0, 63]), 3, 64).tolist() == [0, 1, 2, 3, 60, 61, 62, 63]
     many = torch.arange(0, 128, 4).reshape(4, 8)  # noisy centres: the cap keeps the most needed
-    assert _tile_planes(many, 3, 128).numel() == C.MVS_TILE_MAX_PLANES
+    assert tile_planes(many, 3, 128).numel() == C.MVS_TILE_MAX_PLANES
     # tiles cover the axis; padded extents stay inside it and hold the margin
     for n in (7, 40, 41, 100):
-        tiles = _tile_axis(n, 16, 4)
+        tiles = tile_axis(n, 16, 4)
         assert tiles[0][0] == 0 and tiles[-1][1] == n
         assert all(a[1] == b[0] for a, b in zip(tiles, tiles[1:]))
         size = min(n, 24)

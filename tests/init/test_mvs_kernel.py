@@ -6,8 +6,9 @@ import pytest
 import torch
 
 from fixer4d.init import mvs_kernel
-from fixer4d.init.mvs import (PlaneSweepConfig, PlaneSweepMVS, _homography_terms, _pixel_grid, _RefView,
-                              _Source, crop_camera)
+from fixer4d.init.matching_cost import RefView, SourceView, homography_terms, pixel_grid
+from fixer4d.init.plane_sweep import PlaneSweepConfig, PlaneSweepMVS
+from fixer4d.init.sweep_regions import crop_camera
 
 pytestmark = pytest.mark.skipif(mvs_kernel.unavailable_reason() is not None, reason="numba unavailable")
 
@@ -30,9 +31,9 @@ def _gray(img):
 def test_kernel_scores_match_torch_on_whole_images(toy_views, topk, aggregation):
     images, _, cams = toy_views
     cfg = PlaneSweepConfig(topk=topk, aggregation=aggregation, window=7)
-    ref = _RefView(_gray(images[0])[None, None], cfg.window, cfg.min_patch_std)
-    sources = [_Source(_gray(im)[None, None], c) for im, c in zip(images[1:], cams[1:])]
-    geo = [_homography_terms(cams[0], s.cam, _pixel_grid(0, 0, ref.height, ref.width)) for s in sources]
+    ref = RefView(_gray(images[0])[None, None], cfg.window, cfg.min_patch_std)
+    sources = [SourceView(_gray(im)[None, None], c) for im, c in zip(images[1:], cams[1:])]
+    geo = [homography_terms(cams[0], s.cam, pixel_grid(0, 0, ref.height, ref.width)) for s in sources]
     # inverse depths from behind the cameras' far range to very near: warps leave the image
     ws = torch.linspace(0.05, 1.2, 9, dtype=torch.float32)[:, None]
     est_t, est_k = PlaneSweepMVS(cfg, kernel=False), PlaneSweepMVS(cfg, kernel=True)
@@ -49,11 +50,11 @@ def test_kernel_scores_match_torch_on_tiles_with_their_own_planes(toy_views):
     full = _gray(images[1])
     boxes = [(0, 0), (30, 20), (72, 48)]  # (x, y) of 24 x 24 tiles, one at the image corner
     tiles = torch.stack([full[y:y + 24, x:x + 24][None] for x, y in boxes])
-    ref = _RefView(tiles, cfg.window, cfg.min_patch_std)
+    ref = RefView(tiles, cfg.window, cfg.min_patch_std)
     others = [0, 2, 3]
-    sources = [_Source(_gray(images[i])[None, None], cams[i]) for i in others]
-    grid = torch.cat([_pixel_grid(x, y, 24, 24) for x, y in boxes], 1)
-    geo = [_homography_terms(cams[1], s.cam, grid) for s in sources]
+    sources = [SourceView(_gray(images[i])[None, None], cams[i]) for i in others]
+    grid = torch.cat([pixel_grid(x, y, 24, 24) for x, y in boxes], 1)
+    geo = [homography_terms(cams[1], s.cam, grid) for s in sources]
     ws = torch.stack([torch.linspace(0.15, 0.6, 6) + 0.01 * b for b in range(3)], 1).to(torch.float32)
     a = PlaneSweepMVS(cfg, kernel=False)._scores(ref, sources, geo, ws)
     b = PlaneSweepMVS(cfg, kernel=True)._scores(ref, sources, geo, ws)
@@ -80,9 +81,9 @@ def test_kernel_scores_of_a_crop_camera_match(toy_views):
     cfg = PlaneSweepConfig()
     box = (20, 10, 70, 50)
     cam_r = crop_camera(cams[0], box)
-    ref = _RefView(_gray(images[0])[box[1]:box[3], box[0]:box[2]][None, None], cfg.window, cfg.min_patch_std)
-    sources = [_Source(_gray(im)[None, None], c) for im, c in zip(images[1:], cams[1:])]
-    geo = [_homography_terms(cam_r, s.cam, _pixel_grid(0, 0, ref.height, ref.width)) for s in sources]
+    ref = RefView(_gray(images[0])[box[1]:box[3], box[0]:box[2]][None, None], cfg.window, cfg.min_patch_std)
+    sources = [SourceView(_gray(im)[None, None], c) for im, c in zip(images[1:], cams[1:])]
+    geo = [homography_terms(cam_r, s.cam, pixel_grid(0, 0, ref.height, ref.width)) for s in sources]
     ws = torch.linspace(0.2, 0.5, 5, dtype=torch.float32)[:, None]
     a = PlaneSweepMVS(cfg, kernel=False)._scores(ref, sources, geo, ws)
     b = PlaneSweepMVS(cfg, kernel=True)._scores(ref, sources, geo, ws)

@@ -9,6 +9,7 @@ import torch
 
 from fixer4d.errors import InputError
 from fixer4d.init.decompose import DecomposedInit
+from fixer4d.model import effect_revisions as revisions
 from fixer4d.model import effects as E
 from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians
 
@@ -172,8 +173,8 @@ def test_demotion_of_gaussians_that_neither_move_nor_fade():
         model.t_log_scale[:] = math.log(10.0)  # fades by < 1% across the clip
         model.motion[1] = torch.tensor([1.0, 0.0, 0.0])  # moves 0.5 >> 0.05 (half its size)
         model.t_log_scale[2] = math.log(0.1)  # time-local
-    assert E.demote_candidates(model).tolist() == [True, False, False]
-    counts = E.revise_effects(model, None, E.TemporalStats.zeros(3), grad_threshold=2e-4, max_gaussians=100)
+    assert revisions.demote_candidates(model).tolist() == [True, False, False]
+    counts = revisions.revise_effects(model, None, revisions.TemporalStats.zeros(3), grad_threshold=2e-4, max_gaussians=100)
     assert counts == {"demoted": 1, "split_dynamic": 0}
     assert model.dynamic.tolist() == [False, True, True]
 
@@ -183,7 +184,7 @@ def test_static_gaussian_with_a_time_local_residual_is_split():
     model.set_dynamic(torch.tensor([False, False, True, True]))
     with torch.no_grad():
         model.t_log_scale[:] = math.log(0.1)
-    stats = E.TemporalStats.zeros(4)
+    stats = revisions.TemporalStats.zeros(4)
     grad = torch.zeros(4, 2)
     grad[0] = torch.tensor([1e-2, 0.0])  # hot, only at t in bin 2
     grad[1] = torch.tensor([1e-2, 0.0])  # hot at every time: not a temporal residual
@@ -191,13 +192,13 @@ def test_static_gaussian_with_a_time_local_residual_is_split():
         for _ in range(4):
             stats.update(grad * (1.0 if t == 0.6 else 0.0) + torch.tensor([[0.0, 0.0], [1e-2, 0.0], [0, 0], [0, 0]]),
                          torch.ones(4), 100, 100, t)
-    counts = E.revise_effects(model, None, stats, grad_threshold=2e-4, max_gaussians=100)
+    counts = revisions.revise_effects(model, None, stats, grad_threshold=2e-4, max_gaussians=100)
     assert counts["split_dynamic"] == 1
     assert model.num_gaussians == 5 and model.dynamic.tolist() == [False, False, True, True, True]
-    assert float(model.t_center.detach()[4]) == pytest.approx(2.5 / E.TEMPORAL_BINS)
+    assert float(model.t_center.detach()[4]) == pytest.approx(2.5 / revisions.TEMPORAL_BINS)
     assert torch.equal(model.means[4], model.means[0])
     # no budget left: nothing is split
     full = _dyn_model(4)
     full.set_dynamic(torch.tensor([False, False, True, True]))
-    counts = E.revise_effects(full, None, stats, grad_threshold=2e-4, max_gaussians=4)
+    counts = revisions.revise_effects(full, None, stats, grad_threshold=2e-4, max_gaussians=4)
     assert counts["split_dynamic"] == 0 and full.num_gaussians == 4

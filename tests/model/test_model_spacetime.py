@@ -8,7 +8,9 @@ import pytest
 import torch
 
 from fixer4d.errors import InputError
-from fixer4d.model.spacetime import SH_C0, SH_C1, ModelConfig, SpacetimeGaussians, knn_scales
+from fixer4d.model.initial_scales import knn_scales
+from fixer4d.model.sh import SH_C0, SH_C1
+from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians
 
 FIELDS = ("means", "quats", "scales", "opacities", "colors")
 

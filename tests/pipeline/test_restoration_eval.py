@@ -10,7 +10,7 @@ from fixer4d.pipeline.restoration import restoration_render_fn
 from fixer4d.restore.reference_warp import ReferenceWarpRestorer
 from fixer4d.scene import load_scene
 from fixer4d.train.config import Stage1Config
-from fixer4d.train.trainer import model_from_clouds
+from fixer4d.train.model_init import model_from_clouds
 
 
 def test_a_held_out_camera_on_a_train_cameras_pose_is_restored():

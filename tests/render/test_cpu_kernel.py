@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from fixer4d.render import cpu
+from fixer4d.render import cpu_kernels as kernels
 from fixer4d.render.api import render
 
 from .scenes import front_camera, leaf, random_snapshot
@@ -15,7 +16,7 @@ pytestmark = pytest.mark.skipif(cpu.unavailable_reason() is not None, reason="nu
 
 def test_exp_neg_error_bound():
     """The kernels' explicit float32 exp(-power) (vectorizable, no libm call) stays within its
-    stated bound (cpu.EXP_MAX_ULP, measured exhaustively) on a dense sample of the whole range
+    stated bound (cpu_kernels.EXP_MAX_ULP, measured exhaustively) on a dense sample of the whole range
     the blending uses, power in [0, POWER_MAX] and up to the clamp at 6, and is mostly
     correctly rounded. (Threshold decisions can then differ from the oracle's exp in rare
     fragments; the parity tests show they stay within their tolerances.)"""
@@ -24,19 +25,19 @@ def test_exp_neg_error_bound():
     @njit
     def run(x, out):
         for i in range(x.shape[0]):
-            out[i] = cpu._exp_neg(x[i])
+            out[i] = kernels._exp_neg(x[i])
 
     x = np.linspace(0.0, 6.0, 2_000_001, dtype=np.float32)
     tiny = np.float32(2.0) ** -np.arange(1, 150, dtype=np.float32)  # down to subnormal powers
-    x = np.concatenate([x, np.nextafter(x, np.float32(7)), tiny, np.float32([0.0, -0.0, cpu._POWER_MAX])])
+    x = np.concatenate([x, np.nextafter(x, np.float32(7)), tiny, np.float32([0.0, -0.0, kernels._POWER_MAX])])
     x = x[x <= 6.0]  # beyond, the argument is clamped (results there are never used)
     got = np.empty_like(x)
     run(x, got)
     exact = np.exp(-x.astype(np.float64))
     ulp = np.exp2(np.floor(np.log2(exact)) - 23)  # float32 spacing in the exact value's binade
     err = np.abs(got.astype(np.float64) - exact) / ulp
-    assert err.max() <= cpu.EXP_MAX_ULP
-    assert cpu.EXP_MAX_ULP < 1.0  # faithful: the result is one of the two floats around exp(-power)
+    assert err.max() <= kernels.EXP_MAX_ULP
+    assert kernels.EXP_MAX_ULP < 1.0  # faithful: the result is one of the two floats around exp(-power)
     # 89.9 % of this sample is correctly rounded (the rest 1 ulp off, within the bound)
     assert (got == exact.astype(np.float32)).mean() > 0.85
 
@@ -86,25 +87,26 @@ def test_row_test_never_skips_a_blending_pixel():
                        torch.tensor(rng.uniform(1, 5, n), dtype=torch.float32))
     radii = np.full(n, 10 ** 6, np.int64)
     order = np.arange(n, dtype=np.int64)
-    offsets, ids = cpu._bin_tiles(rec, radii, order, width, height, cpu._TILE, 2)
-    n_tx = (width + cpu._TILE - 1) // cpu._TILE
-    gate = np.full(cpu._TILE, cpu._GATE_OPEN, np.float32)
-    act = np.zeros(cpu._TILE, np.bool_)
+    offsets, ids = kernels.bin_tiles(rec, radii, order, width, height, kernels._TILE, 2)
+    n_tx = (width + kernels._TILE - 1) // kernels._TILE
+    gate = np.full(kernels._TILE, kernels._GATE_OPEN, np.float32)
+    act = np.zeros(kernels._TILE, np.bool_)
     checked = skipped = 0
     f = np.float32
     for t in range(len(offsets) - 1):
-        x0, y0 = (t % n_tx) * cpu._TILE, (t // n_tx) * cpu._TILE
-        px = np.arange(x0, x0 + cpu._TILE, dtype=f) + f(0.5)
+        x0, y0 = (t % n_tx) * kernels._TILE, (t // n_tx) * kernels._TILE
+        px = np.arange(x0, x0 + kernels._TILE, dtype=f) + f(0.5)
         for g in ids[offsets[t]:offsets[t + 1]]:
-            cpu._active_rows(rec, g, f(0), x0, y0, min(cpu._TILE, height - y0), gate, act)
-            mx, my, a, r, q, o = (rec[g, k] for k in (cpu._R_MX, cpu._R_MY, cpu._R_A, cpu._R_R, cpu._R_Q, cpu._R_O))
-            for row in range(min(cpu._TILE, height - y0)):
+            kernels._active_rows(rec, g, f(0), x0, y0, min(kernels._TILE, height - y0), gate, act)
+            mx, my, a, r, q, o = (rec[g, k] for k in (kernels.R_MX, kernels.R_MY, kernels.R_A, kernels.R_R,
+                                                      kernels.R_Q, kernels.R_O))
+            for row in range(min(kernels._TILE, height - y0)):
                 dx = px - mx
                 dy = f(y0 + row) + f(0.5) - my
                 e = dx + r * dy
                 power = f(0.5) * (a * e * e + q * dy * dy)
                 alpha = np.minimum(o * np.exp(-power.astype(np.float64)).astype(f), f(0.99))
-                blends = (power <= cpu._POWER_MAX) & (alpha >= cpu._ALPHA_MIN)
+                blends = (power <= kernels._POWER_MAX) & (alpha >= kernels.ALPHA_MIN32)
                 checked += 1
                 skipped += not act[row]
                 assert act[row] or not blends.any(), (t, g, row)
@@ -112,7 +114,7 @@ def test_row_test_never_skips_a_blending_pixel():
 
 
 def test_parallel_binning_keeps_the_depth_order_for_any_thread_count():
-    """_bin_tiles splits the depth order into chunks over threads: every tile's list must still be
+    """bin_tiles splits the depth order into chunks over threads: every tile's list must still be
     the depth order restricted to the splats whose box touches the tile, whatever the count."""
     rng = np.random.default_rng(11)
     n, width, height = 700, 96, 72
@@ -126,7 +128,7 @@ def test_parallel_binning_keeps_the_depth_order_for_any_thread_count():
     results = []
     for threads in (1, 2, 3, 8):
         rec = cpu._records(means, conic, op, torch.rand(n, 3), depth)
-        results.append(cpu._bin_tiles(rec, radii, order, width, height, cpu._TILE, threads))
+        results.append(kernels.bin_tiles(rec, radii, order, width, height, kernels._TILE, threads))
     offsets, ids = results[0]
     for o, i in results[1:]:
         np.testing.assert_array_equal(o, offsets)

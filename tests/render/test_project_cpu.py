@@ -2,7 +2,6 @@
 projection (project.py, autograd): values, radii and gradients, ordinary and culled cases."""
 from __future__ import annotations
 
-import numpy as np
 import pytest
 import torch
 

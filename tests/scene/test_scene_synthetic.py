@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from fixer4d.errors import InputError
-from fixer4d.scene import MultiViewVideo, SyntheticScene, load_scene, raycast
+from fixer4d.scene import MultiViewVideo, SyntheticScene, load_scene, motion, raycast
 from fixer4d.scene.synthetic import builtin_spec_path, centre_camera
 
 
@@ -108,7 +108,7 @@ def test_true_bounds_contain_the_content(tiny_scene):
         assert b.near <= d.min() and d.max() <= b.far
     ball = tiny_scene.world.objects[-1]
     for f in range(tiny_scene.num_frames):
-        c, _ = raycast.apply_motion(ball.center, ball.rotation, ball.motions, tiny_scene.seconds(tiny_scene.time(f)))
+        c, _ = motion.apply_motion(ball.center, ball.rotation, ball.motions, tiny_scene.seconds(tiny_scene.time(f)))
         assert np.all(b.bbox_min <= c) and np.all(c <= b.bbox_max)
 
 

@@ -61,7 +61,8 @@ def heldout_psnr(scene, render_fn) -> float:
 @pytest.fixture(scope="session")
 def stage1_run(small_scene, small_clouds):
     """(trainer after STAGE1_ITERATIONS, held-out PSNR of the init, held-out PSNR after)."""
-    from fixer4d.train.trainer import Trainer, model_from_clouds
+    from fixer4d.train.model_init import model_from_clouds
+    from fixer4d.train.trainer import Trainer
 
     before = torch.get_num_threads()
     torch.set_num_threads(_TEST_THREADS)

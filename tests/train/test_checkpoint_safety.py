@@ -8,7 +8,9 @@ import pytest
 import torch
 
 from fixer4d.errors import InputError
-from fixer4d.train.trainer import CHECKPOINT_FORMAT, Trainer, model_from_clouds, read_checkpoint
+from fixer4d.train.checkpoints import CHECKPOINT_FORMAT, read_checkpoint
+from fixer4d.train.model_init import model_from_clouds
+from fixer4d.train.trainer import Trainer
 
 
 class _Payload:

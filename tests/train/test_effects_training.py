@@ -8,7 +8,8 @@ import torch
 
 from fixer4d.init.decompose import DecomposedInit
 from fixer4d.model.effects import EffectsConfig
-from fixer4d.train.trainer import Trainer, model_from_init
+from fixer4d.train.model_init import model_from_init
+from fixer4d.train.trainer import Trainer
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,8 @@ from fixer4d.errors import InputError
 from fixer4d.init.masks import moving_masks_for_scene
 from fixer4d.model.spacetime import SpacetimeGaussians
 from fixer4d.train import losses
-from fixer4d.train.trainer import Trainer, model_from_clouds
+from fixer4d.train.model_init import model_from_clouds
+from fixer4d.train.trainer import Trainer
 
 
 def _pair(h=24, w=32, seed=0):

@@ -12,7 +12,8 @@ from fixer4d.errors import InputError
 from fixer4d.init.cloud import FrameCloud
 from fixer4d.train.config import Stage1Config
 from fixer4d.train.schedule import exponential_lr
-from fixer4d.train.trainer import Trainer, model_from_clouds
+from fixer4d.train.model_init import model_from_clouds
+from fixer4d.train.trainer import Trainer
 
 
 def test_training_raises_heldout_psnr(stage1_run):
@@ -212,7 +213,7 @@ def test_an_empty_decomposed_init_trains_from_random_points(small_scene, make_co
     """A textureless capture gives a decomposed init without points: stage 1 starts from random
     points (as the per-frame path does), not an error."""
     from fixer4d.init.decompose import DecomposedInit
-    from fixer4d.train.trainer import model_from_init
+    from fixer4d.train.model_init import model_from_init
 
     z3 = np.zeros((0, 3), np.float32)
     empty = DecomposedInit(frames=np.array([0, 2]), times=np.array([0.0, small_scene.time(2)]), static_points=z3,

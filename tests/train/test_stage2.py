@@ -14,7 +14,8 @@ from fixer4d.geometry.camera import Camera
 from fixer4d.geometry.trajectory import interpolate_pair
 from fixer4d.model.spacetime import SpacetimeGaussians
 from fixer4d.train.config import Stage2Config
-from fixer4d.train.trainer import Trainer, model_from_clouds
+from fixer4d.train.model_init import model_from_clouds
+from fixer4d.train.trainer import Trainer
 
 # Pseudo-view positions along each train pair (the restorer's trajectories sample the same).
 ALPHAS = (0.25, 0.5, 0.75)
@@ -190,8 +191,8 @@ def test_real_restore_cache_plugs_in(small_scene, small_clouds, make_config, tmp
     trainer = Trainer(model, small_scene, cfg, stage2=Stage2Config(refresh_every=3, rounds=1), cache=cache)
     rec = trainer.step()
     assert trainer.round == 0 and rec["loss_gen"] > 0
-    assert trainer._pseudo_weight(entry) == pytest.approx(np.full((3, h, w), 0.5))
+    assert trainer.pseudo.weight(entry) == pytest.approx(np.full((3, h, w), 0.5))
     masked = Trainer(model, small_scene, cfg, stage2=Stage2Config(refresh_every=3, rounds=1, pseudo_mask="unobserved"),
                      cache=cache)
-    assert masked._pseudo_weight(entry) == pytest.approx(np.full((3, h, w), 0.125))
+    assert masked.pseudo.weight(entry) == pytest.approx(np.full((3, h, w), 0.125))
     assert rec["loss"] == pytest.approx(rec["loss_stg"] + 0.5 * rec["loss_gen"], rel=1e-5)

@@ -12,7 +12,8 @@ from fixer4d.geometry.camera import Camera
 from fixer4d.geometry.trajectory import interpolate_pair
 from fixer4d.train import trainer as trainer_module
 from fixer4d.train.config import Stage2Config
-from fixer4d.train.trainer import Trainer, model_from_clouds
+from fixer4d.train.model_init import model_from_clouds
+from fixer4d.train.trainer import Trainer
 
 
 
@@ -87,7 +88,7 @@ def test_pseudo_views_skip_the_train_cameras(small_scene, small_clouds, make_con
     for _ in range(8):  # 16 picks: with the endpoints in the pool one would be drawn (p = 1 - (1/3)^16)
         rec = trainer.step()
         assert np.isfinite(rec["loss"]) and rec["loss_gen"] > 0
-    assert [list(f) for f in trainer._entry_frames] == [[1]]
+    assert [list(f) for f in trainer.pseudo.entry_frames] == [[1]]
 
 
 def test_a_round_of_endpoints_only_is_refused(small_scene, small_clouds, make_config):
@@ -135,7 +136,7 @@ def _pseudo_weight(scene, clouds, make_config, entry, **stage2):
     model, cfg = _model(scene, clouds, make_config)
     trainer = Trainer(model, scene, cfg, stage2=Stage2Config(refresh_every=5, rounds=1, **stage2),
                       cache=FakeCache({0: [entry]}))
-    return trainer._pseudo_weight(entry)
+    return trainer.pseudo.weight(entry)
 
 
 def test_paper_switch_gives_the_confidence_weighted_loss_exactly(small_scene, small_clouds, make_config):

@@ -74,7 +74,7 @@ def test_a_fold_must_leave_out_a_train_camera(small_scene, small_clouds, make_co
 
 
 def test_the_stage1_model_adds_its_train_camera_renders(small_scene, small_clouds, make_config, tmp_path):
-    from fixer4d.train.trainer import model_from_clouds
+    from fixer4d.train.model_init import model_from_clouds
 
     scene = GuardedScene(small_scene)
     cfg = RestoreConfig(kind="learned", learned=TINY)

@@ -48,7 +48,8 @@ from fixer4d.atomic import atomic_path
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
 from fixer4d.model.snapshot import Snapshot
-from fixer4d.model.spacetime import SH_C0, ModelConfig, SpacetimeGaussians, rgb_to_sh_dc
+from fixer4d.model.sh import SH_C0, rgb_to_sh_dc
+from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians
 
 MAGIC = 0x674B
 TEXWIDTH = 4096  # texels per texture row: the viewer's shader addresses 1024 Gaussians per row
@@ -103,7 +104,6 @@ def reduce(model: SpacetimeGaussians) -> SplatvFields:
     """What of ``model`` the format can hold (see the module docstring); Gaussians whose 8-bit
     opacity is 0 are left out."""
     cfg = model.config
-    n = model.num_gaussians
     logits = model.opacity_logits.detach().double().cpu().numpy()
     opacity = 1.0 / (1.0 + np.exp(-logits))
     log_scales = model.log_scales.detach().double().cpu().numpy()

@@ -31,7 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from fixer4d.errors import InputError
-from fixer4d.model.spacetime import MAX_MOTION_DEGREE, ModelConfig, SpacetimeGaussians, rgb_to_sh_dc
+from fixer4d.model.sh import rgb_to_sh_dc
+from fixer4d.model.spacetime import MAX_MOTION_DEGREE, ModelConfig, SpacetimeGaussians
 
 # The fields whose presence marks an STGS (spacetime) PLY rather than a static 3DGS one.
 TIME_FIELDS = ("trbf_center", "trbf_scale", *[f"motion_{i}" for i in range(3 * MAX_MOTION_DEGREE)],
