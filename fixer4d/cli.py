@@ -20,7 +20,7 @@ VERBS: dict[str, tuple[str, str]] = {
     "eval": ("fixer4d.pipeline.cli_eval", "evaluate a run folder on the held-out cameras"),
     "init": ("fixer4d.init.cli", "per-frame point clouds: sparse (COLMAP) or dense (MVS)"),
     "trajectories": ("fixer4d.geometry.trajectory_cli", "pair trajectories and arcs of a scene's train cameras -> presets"),
-    "calibrate": ("fixer4d.calib.cli", "the rig of a capture folder (videos, no calibration) from its own frames -> rig.json"),
+    "calibrate": ("fixer4d.calib.cli", "the rig of a capture folder: from a ChArUco board filmed by its cameras, else from its own frames -> rig.json"),
     "make-scene": ("fixer4d.scene.cli", "write a synthetic scene spec to disk in the Neural3DV layout"),
     "study": ("fixer4d.study_cli", "accuracy vs time: sweep the pipeline's knobs, draw the Pareto front"),
     "bench": ("fixer4d.bench.cli", "benchmarks that print and save their numbers (raycast, raster, train-step, ...)"),

@@ -27,7 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 from fixer4d.calib.board import MIN_VIEW_CORNERS, BoardSpec, CornerDetector
-from fixer4d.calib.gate import MAX_FOV_DEG, MAX_REPROJECTION_PX, MIN_FOV_DEG
+from fixer4d.calib.gate import MAX_REPROJECTION_PX, field_of_view_problems
 from fixer4d.calib.rig import Rig, RigCamera, distort_points
 from fixer4d.calib.sfm import spread_frames
 from fixer4d.errors import InputError
@@ -392,10 +392,7 @@ def calibrate_board(files: CaptureFiles, spec: BoardSpec, names: list[str] | Non
     found += [f"camera {n}'s focal is uncertain to {lens.focal_std_rel:.1%} from {len(lens.views)} board views (at "
               f"most {MAX_FOCAL_STD_REL:.0%}: more views, tilted more, the board larger in the image)"
               for n, lens in zip(names, lenses) if lens.focal_std_rel > MAX_FOCAL_STD_REL]
-    for c in cameras:
-        fov = float(np.degrees(2 * np.arctan(c.width / (2 * c.K[0, 0]))))
-        if not MIN_FOV_DEG <= fov <= MAX_FOV_DEG:
-            found.append(f"camera {c.name} came out with a {fov:.1f} degree field of view (focal {c.K[0, 0]:.1f} px)")
+    found += field_of_view_problems(cameras)
     if found:
         raise _refuse(label, found, names, views, shared)
     pairs = [{"cameras": [names[a], names[b]], "shared_frames": len(ks),

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fixer4d.calib.rig import Rig
+from fixer4d.calib.rig import Rig, RigCamera
 from fixer4d.errors import InputError
 
 # SIFT keypoints of a correct rig reproject within about half a pixel to one pixel; past 1.5 px
@@ -37,16 +37,28 @@ MIN_FOCAL_SENSITIVITY_PX = 0.25
 MIN_FOV_DEG = 5.0
 MAX_FOV_DEG = 150.0
 
-ADVICE = ("give the focal length if you know it (`fixer4d calibrate CAPTURE --focal PX --out rig.json`), or "
-          "calibrate the cameras another way (a calibration board filmed through the volume, COLMAP) and put the file "
-          "beside the videos (rig.json, a COLMAP sparse model, transforms.json, poses_bounds.npy) or pass it with "
-          "--calibration")
+ADVICE = ("give the focal length if you know it (`fixer4d calibrate CAPTURE --focal PX --out rig.json`), or film a "
+          "ChArUco board through the volume with every camera (print it with `fixer4d calibrate --write-board "
+          "board.png`) and put the board videos, named like the capture's, with its board.json in CAPTURE/board/, or "
+          "put a calibration from another method (COLMAP, ...) beside the videos (rig.json, a COLMAP sparse model, "
+          "transforms.json, poses_bounds.npy) or pass it with --calibration")
 
 
 def pair_table(rig: Rig) -> str:
     """'cam01-cam09 95 verified/205 raw, 92 shared points; ...'."""
     return "; ".join(f"{p['cameras'][0]}-{p['cameras'][1]} {p['verified_matches']} verified/{p['raw_matches']} raw, "
                      f"{p['shared_points']} shared points" for p in rig.pairs)
+
+
+def field_of_view_problems(cameras: list[RigCamera]) -> list[str]:
+    """One phrase per camera whose horizontal field of view (degrees, from its width and focal)
+    lies outside [``MIN_FOV_DEG``, ``MAX_FOV_DEG``]."""
+    found = []
+    for c in cameras:
+        fov = float(np.degrees(2 * np.arctan(c.width / (2 * c.K[0, 0]))))
+        if not MIN_FOV_DEG <= fov <= MAX_FOV_DEG:
+            found.append(f"camera {c.name} came out with a {fov:.1f} degree field of view (focal {c.K[0, 0]:.1f} px)")
+    return found
 
 
 def problems(rig: Rig, expected: list[str], focal_given: bool = False) -> list[str]:
@@ -90,11 +102,7 @@ def problems(rig: Rig, expected: list[str], focal_given: bool = False) -> list[s
         found.append(f"the frames do not determine the focal length (a 10 % focal change moves the reprojection "
                      f"error by {sens:.3f} px, need >= {MIN_FOCAL_SENSITIVITY_PX}; cameras that all face the same way "
                      f"or see little depth cause this)")
-    for c in rig.cameras:
-        fov = float(np.degrees(2 * np.arctan(c.width / (2 * c.K[0, 0]))))
-        if not MIN_FOV_DEG <= fov <= MAX_FOV_DEG:
-            found.append(f"camera {c.name} came out with a {fov:.1f} degree field of view (focal {c.K[0, 0]:.1f} px)")
-    return found
+    return found + field_of_view_problems(rig.cameras)
 
 
 def check_rig(rig: Rig, expected: list[str], label: str, focal_given: bool = False) -> Rig:

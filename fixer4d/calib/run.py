@@ -4,18 +4,17 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-# The file a run folder keeps its self-calibration in (the run folder accepts it before its config exists).
+# The file a run folder keeps its calibration in (the run folder accepts it before its config exists).
 RUN_RIG_NAME = "rig.json"
 
 
 def calibrate_into_run(config, out: str | Path, progress: bool = True):
     """``config`` (a RunConfig) unchanged unless its scene is a capture folder with no calibration
-    given and none beside the videos: then the rig is calibrated into ``out``/rig.json, from the
-    board videos in CAPTURE/board/ when that holds a board.json (``fixer4d.calib.board``), else
-    self-calibrated (and gated); reused when it is already there, and the returned config names it."""
-    from fixer4d.calib import calibrate
-    from fixer4d.calib.board import find_board
-    from fixer4d.calib.board_calib import calibrate_board
+    given and none beside the videos: then the rig is calibrated into ``out``/rig.json
+    (``fixer4d.calib.calibrate_capture``: from the board videos in CAPTURE/board/ when that holds
+    a board.json, else self-calibrated and gated); reused when it is already there, and the
+    returned config names it."""
+    from fixer4d.calib import calibrate_capture
     from fixer4d.calib.formats import find_calibration
     from fixer4d.calib.rig import read_rig_json
     from fixer4d.scene import detect_layout
@@ -30,13 +29,5 @@ def calibrate_into_run(config, out: str | Path, progress: bool = True):
         read_rig_json(path)  # a damaged file fails here, naming itself
     else:
         frame_range = None if sc.frame_range is None else tuple(sc.frame_range)
-        files = CaptureFiles(src, sc.offsets, frame_range)
-        board = find_board(src)
-        if progress:
-            how = f"from the board videos in {board[0]}" if board else "from its frames"
-            print(f"[fixer4d] {src}: no calibration file; calibrating the rig {how} -> {path}", flush=True)
-        if board:
-            calibrate_board(CaptureFiles(board[0]), board[1], files.names, progress=progress).write(path)
-        else:
-            calibrate(files, path, progress=progress)
+        calibrate_capture(CaptureFiles(src, sc.offsets, frame_range), path, progress=progress)
     return dataclasses.replace(config, scene=dataclasses.replace(sc, calibration=str(path.resolve())))

@@ -25,6 +25,7 @@ import threading
 import numpy as np
 
 from fixer4d.errors import BackendUnavailable, InputError
+from fixer4d.psnr import psnr_from_mse
 
 SSIM_WIN_SIZE = 7  # scikit-image's default window, the one STGS/4C4D's numbers were computed with
 DSSIM1_DATA_RANGE = 1.0  # the true range of [0, 1] images
@@ -65,17 +66,6 @@ def _check_pair(a: np.ndarray, b: np.ndarray, who: str, min_side: int = 1) -> tu
     _check_image_values(a, "the first image", who)
     _check_image_values(b, "the second image", who)
     return a, b
-
-
-def psnr_from_mse(mse: float, max_db: float | None = None) -> float:
-    """PSNR in dB for data range 1 from a mean squared error: -10 log10(mse); inf for mse = 0,
-    or at most ``max_db`` when given (a cap for reports that cannot hold inf). The one PSNR
-    formula: every PSNR in fixer4d (numpy and torch) ends here."""
-    mse = float(mse)
-    if not (mse >= 0.0 and math.isfinite(mse)):
-        raise InputError(f"psnr: mean squared error must be finite and >= 0, got {mse}")
-    db = math.inf if mse == 0.0 else -10.0 * math.log10(mse)
-    return db if max_db is None else min(db, float(max_db))
 
 
 def psnr(a: np.ndarray, b: np.ndarray, *, max_db: float | None = None) -> float:

@@ -84,6 +84,8 @@ def decide(log_gain: np.ndarray, stderr: np.ndarray, forced: bool | None = None)
     """(on, reason): on when some view's gain differs from the rig's by >= MIN_LOG_GAIN and by
     >= MIN_SIGMAS standard errors; ``forced`` True/False overrides the evidence."""
     g, s = np.asarray(log_gain, np.float64), np.asarray(stderr, np.float64)
+    if g.size == 0:
+        return bool(forced), "no per-camera colour measurement (an init without a static cloud)"
     spread = np.abs(g)
     beyond = (spread >= MIN_LOG_GAIN) & (spread >= MIN_SIGMAS * s)
     worst = float(spread[np.isfinite(s)].max()) if np.isfinite(s).any() else 0.0

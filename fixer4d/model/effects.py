@@ -17,6 +17,9 @@ sh_degree, rotation_velocity, temporal_opacity; None = decided):
     exposure-corrected colour spread above SH_VIEW_STD (view-dependent residual), else 0.
     Never above 1: four views cannot constrain the 8 extra coefficients per channel of degree 2.
   * temporal opacity: on exactly when there are dynamic Gaussians (it only ever applies to them).
+- every mode: camera response (an affine colour map per train camera, trained beside the
+  Gaussians; fixer4d.model.camera_response) when the train cameras' colour gains, measured on
+  the static points several of them see, differ beyond 2 % and beyond their noise.
 - all: every effect on every Gaussian (cubic motion, rotation velocity, temporal opacity, SH 1;
   the static cloud becomes clip-long dynamic Gaussians): the reference for speed and accuracy.
 - static: no time terms at all, the static cloud only.
@@ -35,6 +38,7 @@ import numpy as np
 import torch
 
 from fixer4d.errors import InputError
+from fixer4d.model.camera_response import decide as decide_camera_response
 from fixer4d.model.initial_scales import initial_temporal_std, knn_scales
 from fixer4d.model.spacetime import MAX_MOTION_DEGREE, ModelConfig, SpacetimeGaussians
 
@@ -86,14 +90,16 @@ DYNAMIC_CAP_SHARE = 0.5
 @dataclass
 class EffectsConfig:
     """mode: auto | all | static. Forced overrides (None = decided by ``mode``): motion_degree
-    0..3, sh_degree 0..3, rotation_velocity, temporal_opacity. revise: demote/split during
-    stage 1 (auto mode only)."""
+    0..3, sh_degree 0..3, rotation_velocity, temporal_opacity; camera_response (None = decided by
+    the cameras' measured colour gains in every mode, fixer4d.model.camera_response). revise:
+    demote/split during stage 1 (auto mode only)."""
 
     mode: str = "auto"
     motion_degree: int | None = None
     sh_degree: int | None = None
     rotation_velocity: bool | None = None
     temporal_opacity: bool | None = None
+    camera_response: bool | None = None
     revise: bool = True
 
     def __post_init__(self) -> None:
@@ -106,7 +112,8 @@ class EffectsConfig:
     def forced(self) -> dict[str, Any]:
         return {k: v for k, v in (("motion_degree", self.motion_degree), ("sh_degree", self.sh_degree),
                                   ("rotation_velocity", self.rotation_velocity),
-                                  ("temporal_opacity", self.temporal_opacity)) if v is not None}
+                                  ("temporal_opacity", self.temporal_opacity),
+                                  ("camera_response", self.camera_response)) if v is not None}
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -127,7 +134,8 @@ class EffectsDecision:
     model_config: the scene's switches. dynamic_keep: (M,) which moving points become dynamic
     Gaussians. point_degree: (M,) per-point motion degree used for seeding (<= the scene's).
     rotates: (M,) points seeded with an angular velocity. static_dynamic: the static cloud's
-    Gaussians are dynamic too (mode all). reasons: why, per switch. evidence: the numbers.
+    Gaussians are dynamic too (mode all). camera_response: train each train camera's colour
+    response (fixer4d.model.camera_response). reasons: why, per switch. evidence: the numbers.
     """
 
     mode: str
@@ -139,6 +147,7 @@ class EffectsDecision:
     reasons: dict[str, str] = field(default_factory=dict)
     evidence: dict[str, Any] = field(default_factory=dict)
     forced: dict[str, Any] = field(default_factory=dict)
+    camera_response: bool = False
 
 
 def _lifetime(init) -> float:
@@ -186,9 +195,18 @@ def decide_effects(init, config: EffectsConfig | None = None) -> EffectsDecision
         sw.keep = np.zeros(M, bool)
         if M and config.mode != "static":
             reasons["dynamic"] = "the model has no time terms: moving points are left out (they would be ghosts)"
+    response = _camera_response(init, config.camera_response, ev, reasons)
     return EffectsDecision(mode=config.mode, model_config=cfg, dynamic_keep=sw.keep, point_degree=sw.point_degree,
                            rotates=sw.rotates & sw.keep, static_dynamic=sw.static_dynamic and cfg.has_time_terms,
-                           reasons=reasons, evidence=ev, forced=forced)
+                           reasons=reasons, evidence=ev, forced=forced, camera_response=response)
+
+
+def _camera_response(init, forced: bool | None, ev: dict[str, Any], reasons: dict[str, str]) -> bool:
+    """Per-camera colour response from the train views' measured gains (camera_response.decide)."""
+    log_gain = np.asarray(init.view_log_gain, np.float64)
+    ev["camera_gain"] = np.exp(log_gain).round(4).tolist()
+    on, reasons["camera_response"] = decide_camera_response(log_gain, init.view_gain_stderr, forced)
+    return on
 
 
 def _sh_degree(init, ev: dict[str, Any], reasons: dict[str, str]) -> int:

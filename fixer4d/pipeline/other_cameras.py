@@ -46,7 +46,7 @@ def evaluate_on_other_cameras(run_dir: str | Path, other: str | Path, *, progres
     from fixer4d.eval.evaluate import evaluate
     from fixer4d.model.io import load_ply
     from fixer4d.pipeline import report as R
-    from fixer4d.pipeline.restoration import UnobservedMasks, blur_render_fn, build_restorer, restoration_render_fn
+    from fixer4d.pipeline.restoration import UnobservedMasks, blur_render_fn, restoration_render_fn, run_restorer
     from fixer4d.pipeline.run_folder import RunFolder, load_scene_for
     from fixer4d.pipeline.self_check import DECISION_FILE
     from fixer4d.render.views import model_render_fn
@@ -82,7 +82,7 @@ def evaluate_on_other_cameras(run_dir: str | Path, other: str | Path, *, progres
         rows.append(R.copied_row(R.ROW_IDENTITY, m))
         score(R.ROW_BLUR, blur_render_fn(stage1, ev.blur_sigma_px, "auto", bg))
         gate = config.stage2.visibility if config.eval.gate_restoration else None
-        score(R.ROW_RESTORED_INIT, restoration_render_fn(stage1, scene, build_restorer(config, folder.path), "auto",
+        score(R.ROW_RESTORED_INIT, restoration_render_fn(stage1, scene, run_restorer(config, folder.path), "auto",
                                                          gate))
     for name, path in models:
         if path.is_file():

@@ -51,12 +51,12 @@ def make_request(model, scene, cameras: list[Camera], frame: int, ref_ids: tuple
         extra_depths=list(extra_depth) or None, trajectory=trajectory or {}, unobserved=unobserved)
 
 
-def build_restorer(config: RunConfig, run_dir: str | Path | None = None):
-    """The restorer a run's config asks for; a learned one loads its weights from RUN/restorer
-    (``restorer_stage`` trains them)."""
-    from fixer4d.restore.factory import build_restorer as build
+def run_restorer(config: RunConfig, run_dir: str | Path | None = None):
+    """The restorer of a run: ``restore.build_restorer`` of its config, a learned one with the
+    weights ``restorer_stage`` trained into RUN/restorer."""
+    from fixer4d.restore.factory import build_restorer
 
-    return build(config.restorer, None if run_dir is None else Path(run_dir) / RESTORER_DIR)
+    return build_restorer(config.restorer, None if run_dir is None else Path(run_dir) / RESTORER_DIR)
 
 
 def scene_trajectories_for(scene, tc: TrajectoryConfig):
@@ -94,7 +94,7 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
     # entries written under other settings (restorer, trajectories, stage-1 model) are set aside
     cache = RestoreCache(Path(run_dir) / "cache", fingerprint=stage2_key(config))
     cache.clean_temporary()  # leftovers of a killed write; complete entries are reused below
-    restorer = restorer if restorer is not None else build_restorer(config, run_dir)
+    restorer = restorer if restorer is not None else run_restorer(config, run_dir)
     executor = executor or LocalExecutor()
     trajectories = scene_trajectories_for(scene, config.trajectories)
     frames = list(range(0, scene.num_frames, max(1, config.trajectories.time_stride)))

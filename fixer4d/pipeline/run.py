@@ -20,8 +20,8 @@ from fixer4d import atomic
 from fixer4d.pipeline import report as R
 from fixer4d.pipeline import stages as S
 from fixer4d.pipeline.config import RunConfig
-from fixer4d.pipeline.restoration import (UnobservedMasks, blur_render_fn, build_restorer, pseudo_view_summary,
-                                          restoration_render_fn)
+from fixer4d.pipeline.restoration import (UnobservedMasks, blur_render_fn, pseudo_view_summary,
+                                          restoration_render_fn, run_restorer)
 from fixer4d.pipeline.run_folder import RunFolder, load_scene_for, stage_key
 from fixer4d.pipeline.shared_static import SHARED_DIR, export_shared_static
 from fixer4d.pipeline.stage_cache import StageCache
@@ -39,7 +39,7 @@ def open_context(config: RunConfig, out: str | Path, *, progress: bool = True,
     scene = load_scene_for(config)
     validate_scene(scene)  # a video that opens but does not decode fails here, naming file and frame
     if config.restorer.kind == "cogvideo":  # an unavailable restorer stops before any work
-        build_restorer(config)
+        run_restorer(config)
     run = RunFolder.create(out, config)
     return S.StageContext(run=run, scene=scene, progress=progress,
                           cache=StageCache(stage_cache) if stage_cache is not None else None)

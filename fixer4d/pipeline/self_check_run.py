@@ -33,6 +33,7 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
     from fixer4d import atomic
     from fixer4d.init import load_frame_clouds, run_init
     from fixer4d.init.decompose import DecomposedInit, has_decomposed
+    from fixer4d.model.camera_response import CameraResponse
     from fixer4d.pipeline.keys import stage2_key
     from fixer4d.pipeline.restoration import make_refresh_callback
     from fixer4d.restore.cache import RestoreCache
@@ -61,7 +62,10 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
     cfg1 = dataclasses.replace(config.stage1, progress=progress)
     t0 = time.perf_counter()
     model, effects_decision = model_from_init(init, views, cfg1, config.effects)
-    trainer = Trainer(model, views, cfg1, effects=config.effects if effects_decision is not None else None)
+    response = (CameraResponse(len(views.train_ids)) if effects_decision is not None and effects_decision.camera_response
+                else None)
+    trainer = Trainer(model, views, cfg1, effects=config.effects if effects_decision is not None else None,
+                      camera_response=response)
     trainer.train(progress=progress)
     base = trainer.model
     seconds["stage1"] = time.perf_counter() - t0
@@ -71,7 +75,7 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
     psnr = {"skip": _held_back_psnr(base, views, held, eval_frames, backend, background)}
 
     t0 = time.perf_counter()
-    cont = Trainer(copy.deepcopy(base), views, matched_config(cfg1, config.stage2))
+    cont = Trainer(copy.deepcopy(base), views, matched_config(cfg1, config.stage2), camera_response=copy.deepcopy(response))
     cont.train(progress=progress)
     psnr["continue"] = _held_back_psnr(cont.model, views, held, eval_frames, backend, background)
     seconds["continue"] = time.perf_counter() - t0
@@ -80,7 +84,8 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
     t0 = time.perf_counter()
     refresh = make_refresh_callback(out_dir, views, config, progress=progress, backend=backend, restorer=restorer)
     refine = Trainer(copy.deepcopy(base), views, cfg1, stage2=config.stage2,
-                     cache=RestoreCache(out_dir / "cache", fingerprint=stage2_key(config)), refresh_cache=refresh)
+                     cache=RestoreCache(out_dir / "cache", fingerprint=stage2_key(config)), refresh_cache=refresh,
+                     camera_response=copy.deepcopy(response))
     refine.train(progress=progress)
     psnr["refine"] = _held_back_psnr(refine.model, views, held, eval_frames, backend, background)
     seconds["refine"] = time.perf_counter() - t0

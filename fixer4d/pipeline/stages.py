@@ -145,7 +145,10 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
     prior = trainer.train_seconds if trainer.resume() else 0.0
     trainer.train()
     save_ply(trainer.model, model_path)
-    atomic.write_json(model_path.parent / EFFECTS_NAME, effects_report(trainer.model, decision, trainer.revisions))
+    report = effects_report(trainer.model, decision, trainer.revisions)
+    if trainer.response is not None:
+        report["camera_response"] = trainer.response.to_json()
+    atomic.write_json(model_path.parent / EFFECTS_NAME, report)
     ctx.run.records.finish(name, key, time.perf_counter() - t0 + prior)
     _drop_checkpoints(model_path.parent, 1)
     if ctx.cache is not None:
@@ -174,9 +177,26 @@ def stage1_trainer(ctx: StageContext, init, run_dir: Path | None):
                 f"{counts['shared_static']} frozen static Gaussians of the first segment; own static points kept "
                 f"where they are not explained by them: {counts['own_static_kept']} kept, "
                 f"{counts['own_static_dropped']} dropped")
+    response = None
+    if decision is not None and decision.camera_response:
+        from fixer4d.model.camera_response import CameraResponse
+
+        response = CameraResponse(len(ctx.train_scene.train_ids))
     trainer = Trainer(model, ctx.train_scene, cfg, run_dir=run_dir,
-                      effects=ctx.config.effects if decision is not None else None)
+                      effects=ctx.config.effects if decision is not None else None, camera_response=response)
     return trainer, decision
+
+
+def stage1_response(ctx: StageContext):
+    """The camera response stage 1 trained (RUN/model_effects.json), to continue from in stage 2
+    and the matched control; None when the scene's cameras agree on colour."""
+    import json
+
+    from fixer4d.model.camera_response import CameraResponse
+
+    path = ctx.path / EFFECTS_NAME
+    saved = json.loads(path.read_text()).get("camera_response") if path.is_file() else None
+    return None if saved is None else CameraResponse.from_json(saved)
 
 
 def restorer_stage(ctx: StageContext, clouds, model):
@@ -184,16 +204,16 @@ def restorer_stage(ctx: StageContext, clouds, model):
     (leave-one-camera-out trainings from ``clouds``, plus the stage-1 ``model``'s renders of the
     train cameras as the mildest pairs; ``train_scene_restorer``) into RUN/restorer/ (resumable:
     finished folds are reused). Other kinds are built as they are (no stage record)."""
-    from fixer4d.pipeline.restoration import RESTORER_DIR, build_restorer
+    from fixer4d.pipeline.restoration import RESTORER_DIR, run_restorer
 
     rc = ctx.config.restorer
     if rc.kind != "learned":
-        return build_restorer(ctx.config, ctx.path)
+        return run_restorer(ctx.config, ctx.path)
     from fixer4d.train.restorer_pairs import train_scene_restorer
 
     key = restorer_key(ctx.config)
     if ctx.run.records.done("restorer", key):
-        return build_restorer(ctx.config, ctx.path)
+        return run_restorer(ctx.config, ctx.path)
     if ctx.run.records.begin("restorer", key):
         _clear(ctx.path / RESTORER_DIR)
     t0 = time.perf_counter()
@@ -249,7 +269,8 @@ def stage2(ctx: StageContext, model, refresh: Callable[[Any, int], None] | None 
         refresh = make_refresh_callback(ctx.path, ctx.train_scene, ctx.config, progress=ctx.progress, backend=ctx.backend,
                                         executor=executor_for(ctx.config.executor))
     trainer = Trainer(model, ctx.train_scene, ctx.stage1_config(), run_dir=ctx.path, stage2=ctx.config.stage2,
-                      cache=RestoreCache(ctx.path / "cache", fingerprint=key), refresh_cache=refresh)
+                      cache=RestoreCache(ctx.path / "cache", fingerprint=key), refresh_cache=refresh,
+                      camera_response=stage1_response(ctx))
     prior = trainer.train_seconds if trainer.resume() else 0.0
     trainer.train()
     save_ply(trainer.model, final)
@@ -276,7 +297,7 @@ def matched_stage1(ctx: StageContext, model):
     cfg = matched_config(ctx.stage1_config(), ctx.config.stage2)
     t0 = time.perf_counter()
     # a copy: the Trainer updates its model in place, and stage 2 must start from the stage-1 model
-    trainer = Trainer(copy.deepcopy(model), ctx.train_scene, cfg, run_dir=out)
+    trainer = Trainer(copy.deepcopy(model), ctx.train_scene, cfg, run_dir=out, camera_response=stage1_response(ctx))
     prior = trainer.train_seconds if trainer.resume() else 0.0
     trainer.train()
     save_ply(trainer.model, path)

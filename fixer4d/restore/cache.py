@@ -43,9 +43,12 @@ import numpy as np
 from fixer4d.atomic import atomic_dir, write_json
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
+from fixer4d.psnr import psnr_from_mse
 from fixer4d.restore.base import RestoreRequest, RestoreResult
 
 META_FILE = "meta.json"
+# meta.json cannot hold inf: a restored clip identical to its render reports this (the 1e-12 MSE floor)
+CACHE_PSNR_MAX_DB = 120.0
 CONFIDENCE_FILE = "confidence.npz"
 FRAME_FILE = "frame_{:04d}.png"
 ROUND_DIR = "round_{}"
@@ -63,11 +66,6 @@ log = logging.getLogger("fixer4d.restore")
 # Render alpha below this counts as a hole when scoring how much an entry repaired
 # (the same threshold as the restorer's trusted-depth alpha).
 SCORE_HOLE_ALPHA = 0.5
-
-
-def _psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    return float(10.0 * np.log10(1.0 / max(mse, 1e-12)))
 
 
 @dataclass
@@ -207,7 +205,7 @@ class RestoreCache:
             "mean_confidence": float(result.confidence.mean()),
             "frame_confidence": [float(c) for c in result.frame_confidence],
             "render_hole_fraction": float(hole.mean()),
-            "psnr_restored_vs_render": _psnr(result.rgb, np.clip(np.nan_to_num(request.rgb, nan=0.0), 0, 1)),
+            "psnr_restored_vs_render": _restored_vs_render_psnr(result.rgb, request.rgb),
             # the share of the clip's pixels left to pseudo-supervision (None: not computed)
             "unobserved_fraction": None if request.unobserved is None else float(np.mean(request.unobserved)),
         }
@@ -366,3 +364,10 @@ def _write_png(path: Path, rgb8: np.ndarray) -> None:
     """Write one (H, W, 3) uint8 RGB frame as PNG."""
     if not cv2.imwrite(str(path), np.ascontiguousarray(rgb8[..., ::-1])):
         raise OSError(f"could not write {path}")
+
+
+def _restored_vs_render_psnr(restored: np.ndarray, render: np.ndarray) -> float:
+    """PSNR (dB, at most CACHE_PSNR_MAX_DB) of a restored clip against the render it started from."""
+    target = np.clip(np.nan_to_num(render, nan=0.0), 0, 1).astype(np.float64)
+    mse = float(np.mean((restored.astype(np.float64) - target) ** 2))
+    return psnr_from_mse(mse, CACHE_PSNR_MAX_DB)

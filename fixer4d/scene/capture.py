@@ -2,8 +2,10 @@
 
 Layout: a folder holding either videos (``*.mp4 *.mov *.mkv *.avi``; camera name = file stem)
 or one sub-folder of images per camera (``*.jpg *.jpeg *.png``, sorted; camera name = folder
-name). Cameras are sorted by name. A calibration beside them is optional
-(``fixer4d.calib.formats``): without one the rig is calibrated from the frames.
+name). Cameras are sorted by name. A folder named ``board`` is never a camera: it holds the
+videos of a calibration board (``fixer4d.calib.board``). A calibration beside them is optional
+(``fixer4d.calib.formats``): without one the rig is calibrated from the board videos or the
+frames (``fixer4d.calib.calibrate_capture``).
 
 ``CaptureFiles`` reads the raw frames and checks synchronization: every camera has the same
 frame rate, and after the per-camera start offsets (``--offset CAM=N``: the capture's frame f is
@@ -19,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fixer4d.calib.board import BOARD_FOLDER
 from fixer4d.calib.rig import Rig, RigCamera, undistort, undistort_maps
 from fixer4d.errors import InputError
 from fixer4d.scene.base import FRAME_CACHE_MB, MultiViewVideo
@@ -54,7 +57,9 @@ def _videos(root: Path) -> list[Path]:
 
 
 def _image_folders(root: Path) -> list[Path]:
-    return sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".") and _image_files(p))
+    """The camera image folders of ``root``: not hidden, not the board videos' folder (``BOARD_FOLDER``)."""
+    return sorted(p for p in root.iterdir()
+                  if p.is_dir() and not p.name.startswith(".") and p.name != BOARD_FOLDER and _image_files(p))
 
 
 def is_capture(path: str | Path) -> bool:

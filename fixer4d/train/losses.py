@@ -221,8 +221,8 @@ def _stg_loss(render: torch.Tensor, target: torch.Tensor, weight: torch.Tensor |
 
 def psnr_torch(a: torch.Tensor, b: torch.Tensor) -> float:
     """PSNR in dB (data range 1) of two images of one shape, for progress bars; inf when
-    identical (``fixer4d.eval.metrics.psnr_from_mse``, the one PSNR formula)."""
-    from fixer4d.eval.metrics import psnr_from_mse
+    identical (``fixer4d.psnr.psnr_from_mse``, the one PSNR formula)."""
+    from fixer4d.psnr import psnr_from_mse
 
     if not (torch.is_tensor(a) and torch.is_tensor(b)) or a.shape != b.shape or a.numel() == 0:
         raise InputError(f"psnr_torch: expected two non-empty tensors of one shape, got "

@@ -1,7 +1,7 @@
 """Calibration from a ChArUco board: the spec and its printable image, a rig recovered from an
 exact synthetic board capture (four converging 320x240 cameras, two with lens distortion, 30
-board poses tilted up to 40 degrees), and the refusal of a camera that never sees the board
-together with the others."""
+board poses tilted up to 40 degrees) by `fixer4d calibrate` and by opening the capture (the
+same rig, cached), and the refusal of a camera that never sees the board together with the others."""
 from __future__ import annotations
 
 import dataclasses
@@ -35,11 +35,18 @@ def _capture(root, cameras, poses, **kw):
 
 
 @pytest.fixture(scope="module")
-def board_run(tmp_path_factory):
-    """(true cameras, the rig `fixer4d calibrate CAPTURE --out rig.json` wrote from CAPTURE/board/)."""
+def board_capture(tmp_path_factory):
+    """(true cameras, CAPTURE with its board videos in CAPTURE/board/ and no calibration file)."""
     cameras = build_rig(RIG)
     root = _capture(tmp_path_factory.mktemp("board") / "capture", cameras,
                     board_poses(SPEC, cameras, *VOLUME, count=30, tilt_deg=40.0, seed=0), distortion=LENSES)
+    return cameras, root
+
+
+@pytest.fixture(scope="module")
+def board_run(board_capture):
+    """(true cameras, the rig `fixer4d calibrate CAPTURE --out rig.json` wrote from CAPTURE/board/)."""
+    cameras, root = board_capture
     out = root.parent / "rig.json"
     assert main(["calibrate", str(root), "--out", str(out), "--quiet"]) == 0
     return cameras, read_rig_json(out)
@@ -109,6 +116,32 @@ def test_the_board_rig_recovers_the_lenses(board_run):
         assert np.abs(distort_points(c, grid) - distort_points(true_lens, grid)).max() < 0.5
     assert rig.checks["lens_model"]["cam01"].endswith("k1, k2")
     assert "k1" in rig.checks["lens_model"]["cam03"]
+
+
+def test_opening_a_capture_calibrates_from_its_board_once(board_capture, board_run, tmp_path, monkeypatch):
+    """The viewer's and `fixer4d init`'s path (``resolve_rig`` through ``load_scene``) takes the
+    board in CAPTURE/board/, gives the rig `fixer4d calibrate` gives, and caches it."""
+    from fixer4d.calib import board_calib, resolve_rig
+    from fixer4d.scene import load_scene
+    from fixer4d.scene.capture import CaptureFiles
+
+    _, root = board_capture
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    rig, label = resolve_rig(CaptureFiles(root), progress=False)
+    assert "from the board videos in" in label and str(tmp_path) in label
+    assert "ChArUco" in rig.source and rig.names() == board_run[1].names()
+    for c, ref in zip(rig.cameras, board_run[1].cameras):
+        # to the fit's convergence: two board calibrations of one capture agree to ~1e-6 relative
+        np.testing.assert_allclose(c.K, ref.K, rtol=1e-5)
+        np.testing.assert_allclose(c.w2c, ref.w2c, atol=1e-5)
+
+    def no_second_calibration(*args, **kwargs):
+        raise AssertionError("the cached rig should have been used")
+
+    monkeypatch.setattr(board_calib, "calibrate_board", no_second_calibration)
+    scene = load_scene(root)
+    assert "from the board videos in" in scene.describe()
+    np.testing.assert_allclose(scene.rig.cameras[0].K, rig.cameras[0].K)
 
 
 def test_a_camera_never_seeing_the_board_with_the_others_is_refused(tmp_path, capsys):

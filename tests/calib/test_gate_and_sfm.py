@@ -43,6 +43,7 @@ def test_the_gate_refuses_with_the_figures(rig, expected, phrase):
     assert "\n" not in msg and phrase in msg and "self-calibration refused" in msg
     assert "c0-c1" in msg and "verified" in msg  # the per-pair figures
     assert "--calibration" in msg and "--focal" in msg  # what to do
+    assert "`fixer4d calibrate --write-board board.png`" in msg and "board.json in CAPTURE/board/" in msg
 
 
 def test_focal_given_skips_the_focal_check():

@@ -397,6 +397,8 @@ COVERED: dict[str, tuple[str, str]] = {
 EXEMPT: dict[str, str] = {
     "bench.positive_int": "argparse type of the bench CLI: raises argparse.ArgumentTypeError by contract",
     "calib.calibrate": "runs SfM on a video capture (minutes); its gate has tests in tests/calib",
+    "calib.calibrate_capture": "calibrates a capture folder (board or SfM, seconds to minutes): "
+                               "tests/calib/test_board.py, tests/calib/test_run_capture.py",
     "calib.resolve_rig": "needs a capture folder; covered by tests/calib",
     "calib.cache_path": "a hash of file names and sizes: no numbers in or out",
     "init.InitConfig": "a config dataclass: its fields are fuzzed through pipeline.resolve (init.*)",
