@@ -63,6 +63,17 @@ def restorer_line(summary: dict[str, Any]) -> str:
             f"warp restorer {v['psnr_warp']:.2f} dB" + (f"; {cpu:.0f} CPU s to train)" if cpu is not None else ")"))
 
 
+def camera_response_line(model: dict[str, Any]) -> str:
+    """The report's sentence on the per-camera colour response (``model`` = effects_report)."""
+    reason = (model.get("reasons") or {}).get("camera_response")
+    trained = model.get("camera_response")
+    if trained is None:
+        return f"Camera response: off ({reason or 'no decomposed init to measure it on'})."
+    gains = ", ".join("/".join(f"{g:.3f}" for g in v["gain"]) for v in trained["views"])
+    return (f"Camera response: on ({reason}); trained RGB gains per train camera: {gains} "
+            "(renders at other cameras use the rig's mean response).")
+
+
 def self_check_line(check: dict[str, Any]) -> str:
     """'Stage-2 self-check: ...' for the report (the decision and its fold figures)."""
     psnr = check.get("psnr")
@@ -88,6 +99,8 @@ def write_report(run_dir: Path, scene_text: str, rows: list[dict[str, Any]], sta
     if any(r.get("held_out") is False for r in rows):
         lines += ["No held-out camera: every camera trained, so the table shows the fit to the train views, not "
                   "novel-view quality (`fixer4d run CAPTURE --holdout CAM` holds one camera out).", ""]
+    if report.get("model"):
+        lines += [camera_response_line(report["model"]), ""]
     if report.get("restorer"):
         lines += [restorer_line(report["restorer"]), ""]
     if report.get("self_check"):

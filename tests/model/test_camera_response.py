@@ -74,3 +74,19 @@ def test_json_round_trip():
     back = CameraResponse.from_json(resp.to_json())
     for a, b in zip(resp.gains_biases(), back.gains_biases()):
         torch.testing.assert_close(a, b)
+
+
+def test_no_measurement_means_off_unless_forced():
+    empty = np.zeros((0, 3))
+    assert decide(empty, empty) == (False, "no per-camera colour measurement (an init without a static cloud)")
+    assert decide(empty, empty, forced=True)[0] is True
+
+
+def test_the_report_says_whether_and_why():
+    from fixer4d.pipeline.report import camera_response_line
+
+    resp = CameraResponse(2)
+    on = camera_response_line({"reasons": {"camera_response": "largest ... 5.0%"}, "camera_response": resp.to_json()})
+    assert on.startswith("Camera response: on (largest ... 5.0%)") and "1.000/1.000/1.000" in on
+    off = camera_response_line({"reasons": {"camera_response": "largest ... 0.1%"}})
+    assert off == "Camera response: off (largest ... 0.1%)."
