@@ -27,22 +27,31 @@ END = "<!-- RESULTS:END -->"
 # (result file stem, table label): the headline table, in this order. "_paper" files are the same
 # runs refined with the paper's stage 2 (no self-check, restoration rows ungated); "_unobserved"
 # ones with the pseudo-loss on the unobserved pixels only; "_val" ones score a run on the
-# validation cameras (fixer4d eval --cameras-from).
+# validation cameras (fixer4d eval --cameras-from). Rows "without camera response" come from runs
+# whose models had no per-camera colour response (their commit is in the row): the paper and
+# unobserved-only variants of those runs compare with them, not with the runs above them. The
+# README shows the rows in README_ROWS; docs/results.md shows them all.
 TABLE = (("demo", "demo (test: 12 held-out cameras)"),
          ("demo_paper", "demo, paper's stage 2"),
          ("demo_unobserved", "demo, pseudo-loss on unobserved pixels only"),
          ("panoptic", "Panoptic (test camera 30)"),
-         ("panoptic_paper", "Panoptic, paper's stage 2"),
-         ("panoptic_unobserved", "Panoptic, pseudo-loss on unobserved pixels only"),
+         ("panoptic_without_response", "Panoptic, without camera response"),
+         ("panoptic_paper", "Panoptic, paper's stage 2, without camera response"),
+         ("panoptic_unobserved", "Panoptic, pseudo-loss on unobserved pixels only, without camera response"),
          ("panoptic_c", "Panoptic split c (test camera 15)"),
-         ("panoptic_c_paper", "Panoptic split c, paper's stage 2"),
-         ("panoptic_c_unobserved", "Panoptic split c, pseudo-loss on unobserved pixels only"),
+         ("panoptic_c_without_response", "Panoptic split c, without camera response"),
+         ("panoptic_c_paper", "Panoptic split c, paper's stage 2, without camera response"),
+         ("panoptic_c_unobserved", "Panoptic split c, pseudo-loss on unobserved pixels only, without camera response"),
          ("panoptic_val", "*validation*: Panoptic cameras 4, 14"),
-         ("panoptic_paper_val", "*validation*: Panoptic cameras 4, 14, paper's stage 2"),
-         ("panoptic_unobserved_val", "*validation*: Panoptic cameras 4, 14, unobserved pixels only"),
+         ("panoptic_without_response_val", "*validation*: Panoptic cameras 4, 14, without camera response"),
+         ("panoptic_paper_val", "*validation*: Panoptic cameras 4, 14, paper's stage 2, without camera response"),
+         ("panoptic_unobserved_val", "*validation*: Panoptic cameras 4, 14, unobserved pixels only, without camera response"),
          ("panoptic_c_val", "*validation*: split c cameras 2, 12"),
-         ("panoptic_c_paper_val", "*validation*: split c cameras 2, 12, paper's stage 2"),
-         ("panoptic_c_unobserved_val", "*validation*: split c cameras 2, 12, unobserved pixels only"))
+         ("panoptic_c_without_response_val", "*validation*: split c cameras 2, 12, without camera response"),
+         ("panoptic_c_paper_val", "*validation*: split c cameras 2, 12, paper's stage 2, without camera response"),
+         ("panoptic_c_unobserved_val", "*validation*: split c cameras 2, 12, unobserved pixels only, without camera response"))
+README_ROWS = ("demo", "demo_paper", "demo_unobserved", "panoptic", "panoptic_without_response", "panoptic_c",
+               "panoptic_c_without_response", "panoptic_val", "panoptic_c_val")
 COLUMNS = (("STGS w/ COLMAP", "psnr"), ("STGS w/ MVS", "psnr"), ("STGS w/ MVS (matched iterations)", "psnr"),
            ("Restoration (init)", "psnr"), ("Full", "psnr"))
 
@@ -77,13 +86,14 @@ def _cell(rows: dict, method: str, key: str) -> str:
     return "n/a" if v is None else f"{v:.2f}"
 
 
-def table() -> str:
-    """The headline table (markdown) from the committed result files."""
+def table(stems: tuple[str, ...] | None = None) -> str:
+    """The headline table (markdown) from the committed result files: the rows of ``stems``
+    (default: all of TABLE), in TABLE's order."""
     lines = ["| scene | " + " | ".join(m for m, _ in COLUMNS) + " | self-check | commit, date |",
              "|---|" + "---|" * (len(COLUMNS) + 2)]
     for stem, label in TABLE:
         path = RESULTS / f"{stem}.json"
-        if not path.is_file():
+        if (stems is not None and stem not in stems) or not path.is_file():
             continue
         data = json.loads(path.read_text())
         rows = {r["method"]: r for r in data["rows"]}
@@ -94,8 +104,9 @@ def table() -> str:
     return "\n".join(lines)
 
 
-def block() -> str:
-    return f"{BEGIN}\n{table()}\n{END}"
+def block(page: str = "docs/results.md") -> str:
+    """The generated block of ``page`` (README.md: README_ROWS; docs/results.md: every row)."""
+    return f"{BEGIN}\n{table(README_ROWS if Path(page).name == 'README.md' else None)}\n{END}"
 
 
 def write(paths: list[Path]) -> None:
@@ -105,7 +116,7 @@ def write(paths: list[Path]) -> None:
             raise SystemExit(f"{path}: no {BEGIN!r} ... {END!r} block to fill")
         head, rest = text.split(BEGIN, 1)
         _, tail = rest.split(END, 1)
-        path.write_text(head + block() + tail)
+        path.write_text(head + block(str(path)) + tail)
 
 
 def main(argv: list[str] | None = None) -> int:

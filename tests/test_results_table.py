@@ -11,7 +11,7 @@ def test_published_tables_match_the_committed_result_files(benchmark_script):
     tables = benchmark_script("results_table")
     for page in ("README.md", "docs/results.md"):
         text = (REPO_ROOT / page).read_text()
-        assert tables.block() in text, f"{page}: run `python benchmarks/results_table.py write`"
+        assert tables.block(page) in text, f"{page}: run `python benchmarks/results_table.py write`"
 
 
 def test_every_result_file_says_how_it_was_made():
