@@ -166,9 +166,10 @@ def noisy_depth(depth: np.ndarray, camera: Camera, rel: float = NOISY_DEPTH_REL)
     """A model-like wrong depth: true depth x (1 + rel * n(X)), with n a smooth field of the world
     point X (std ~1, wavelength ~1 unit), so the error is the same surface error in every view and
     frame, like a model's geometry error (not per-pixel noise)."""
+    from fixer4d.restore.reference_warp import backproject
 
     finite = np.isfinite(depth)
-    X = camera.backproject_depth(np.where(finite, depth, 0.0).astype(np.float64))
+    X = backproject(camera, np.where(finite, depth, 0.0).astype(np.float64))
     field = (np.sin(5.1 * X[..., 0] + 1.3) + np.sin(4.3 * X[..., 1] + 0.7 * X[..., 2] + 2.1)
              + np.sin(3.7 * X[..., 2] - 2.9 * X[..., 0] + 0.4)) / np.sqrt(1.5)
     return np.where(finite, depth * (1.0 + rel * field), depth).astype(np.float32)

@@ -177,22 +177,22 @@ class Camera:
 
     # ---- projection -------------------------------------------------------------------
     def world_to_camera(self, points: np.ndarray) -> np.ndarray:
-        """(..., 3) world points -> (..., 3) camera-frame points (a single (3,) point -> (1, 3))."""
-        return _affine(_points(points), self.w2c)
+        """(N, 3) world points -> (N, 3) camera-frame points."""
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        return p @ self.w2c[:3, :3].T + self.w2c[:3, 3]
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Project world points (..., 3) to continuous pixel coordinates.
+        """Project world points (N, 3) to continuous pixel coordinates.
 
-        Returns (uv (..., 2), depth (...)): depth is the camera-frame z; uv = (K X / z)[:2] (K
-        upper triangular, last row 0 0 1), so a point on the centre of pixel (i, j) has uv =
-        (i + 0.5, j + 0.5). Points with z <= 0 get uv = NaN (they have no image).
+        Returns (uv (N, 2), depth (N,)): depth is the camera-frame z; uv = (K X / z)[:2], so a
+        point on the centre of pixel (i, j) has uv = (i + 0.5, j + 0.5). Points with z <= 0 get
+        uv = NaN (they have no image).
         """
         pc = self.world_to_camera(points)
-        x, y, z = pc[..., 0], pc[..., 1], pc[..., 2]
+        z = pc[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
-            u = (self.fx * x + self.K[0, 1] * y) / z + self.cx
-            v = self.fy * y / z + self.cy
-        uv = np.stack([u, v], axis=-1)
+            uvw = pc @ self.K.T
+            uv = uvw[:, :2] / uvw[:, 2:3]
         uv[z <= 0] = np.nan
         return uv, z
 
@@ -232,13 +232,7 @@ class Camera:
         depth = np.asarray(depth, dtype=np.float64)
         if depth.shape != (self.height, self.width):
             raise InputError(f"camera {self.name!r}: depth shape {depth.shape} != image {self.height}x{self.width}")
-        K = self.K
-        u = np.arange(self.width, dtype=np.float64) + 0.5
-        v = np.arange(self.height, dtype=np.float64) + 0.5
-        y = ((v - K[1, 2]) / K[1, 1])[:, None]
-        x = (u[None, :] - K[0, 2] - K[0, 1] * y) / K[0, 0]
-        rays = np.stack(np.broadcast_arrays(x, y, np.ones_like(x)), axis=-1) * depth[..., None]
-        return _affine(rays, self.c2w)
+        return self.center[None, None, :] + depth[..., None] * self.ray_directions()
 
     # ---- derived cameras --------------------------------------------------------------
     def resized(self, width: int, height: int) -> "Camera":
@@ -335,17 +329,3 @@ def rig_extent(cameras: list[Camera]) -> float:
     (the 3DGS 'cameras_extent' that scales position learning rates), at least 1e-6."""
     centers = np.stack([c.center for c in cameras])
     return max(float(np.max(np.linalg.norm(centers - centers.mean(0), axis=1))), 1e-6)
-
-
-def _points(points: np.ndarray) -> np.ndarray:
-    """float64 (..., 3) points; a single (3,) point becomes (1, 3)."""
-    p = np.asarray(points, dtype=np.float64)
-    return p.reshape(1, 3) if p.ndim == 1 else p
-
-
-def _affine(points: np.ndarray, M: np.ndarray) -> np.ndarray:
-    """(..., 3) points -> M[:3, :3] p + M[:3, 3], element-wise: a (N, 3) @ (3, 3) matmul goes
-    through the multi-threaded BLAS, which is 10x slower than this on a busy 2-core machine (the
-    warp restorer and the visibility mask project whole images dozens of times per frame)."""
-    x, y, z = points[..., 0:1], points[..., 1:2], points[..., 2:3]
-    return x * M[:3, 0] + y * M[:3, 1] + z * M[:3, 2] + M[:3, 3]

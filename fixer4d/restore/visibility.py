@@ -32,7 +32,7 @@ import numpy as np
 
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
-from fixer4d.restore.reference_warp import sanitize_depth
+from fixer4d.restore.reference_warp import backproject, project, sanitize_depth
 
 
 @dataclass(frozen=True)
@@ -103,7 +103,7 @@ def unobserved_weight(camera: Camera, depth: np.ndarray, alpha: np.ndarray, trai
     solid = (z > 0) & (alpha >= cfg.hole_alpha_low)
     seen = np.zeros((H, W), np.float64)
     if solid.any() and len(train):
-        X = camera.backproject_depth(z)[solid]  # (N, 3) surface points
+        X = backproject(camera, z)[solid]  # (N, 3) surface points
         to_novel = camera.center[None, :] - X
         to_novel /= np.maximum(np.linalg.norm(to_novel, axis=1, keepdims=True), 1e-12)
         best = np.zeros(len(X), np.float64)
@@ -111,7 +111,7 @@ def unobserved_weight(camera: Camera, depth: np.ndarray, alpha: np.ndarray, trai
             c = view.camera
             d = sanitize_depth(view.depth)
             d = np.where(np.asarray(view.alpha) >= cfg.alpha_min, d, 0.0)
-            uv, zc = c.project(X)
+            uv, zc = project(c, X)
             inside = np.isfinite(uv).all(axis=1) & (zc > 0)
             ui = np.floor(np.nan_to_num(uv[:, 0], nan=-1.0)).astype(np.int64)
             vi = np.floor(np.nan_to_num(uv[:, 1], nan=-1.0)).astype(np.int64)
