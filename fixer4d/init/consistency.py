@@ -31,11 +31,11 @@ def geometric_consistency(depths: list[torch.Tensor], valids: list[torch.Tensor]
             continue
         pix = torch.from_numpy(cam_r.pixel_centers().reshape(-1, 2))[idx]
         z = d_r.reshape(-1)[idx]
-        X = _backproject(cam_r, pix, z)
+        X = torch.from_numpy(cam_r.backproject(pix.numpy(), z.numpy()))
         for s, cam_s in enumerate(cams):
             if s == r:
                 continue
-            uv_s, z_s = _project(cam_s, X)
+            uv_s, z_s = (torch.from_numpy(a) for a in cam_s.project(X.numpy()))
             iu = torch.floor(uv_s[:, 0]).long()
             iv = torch.floor(uv_s[:, 1]).long()
             ok = (z_s > 0) & (iu >= 0) & (iu < cam_s.width) & (iv >= 0) & (iv < cam_s.height)
@@ -43,8 +43,11 @@ def geometric_consistency(depths: list[torch.Tensor], valids: list[torch.Tensor]
             flat = (iv.clamp(0, cam_s.height - 1) * cam_s.width + iu.clamp(0, cam_s.width - 1))
             d_s = depths[s].to(torch.float64).reshape(-1)[flat]
             ok &= valids[s].reshape(-1)[flat]
-            Y = _backproject(cam_s, uv_s, d_s)
-            uv_back, z_back = _project(cam_r, Y)
+            # pixels already rejected back-project from (0, 0) at depth 1: their non-finite uv or depth
+            # would only warn
+            keep = ok.numpy()
+            Y = cam_s.backproject(np.where(keep[:, None], uv_s.numpy(), 0.0), np.where(keep, d_s.numpy(), 1.0))
+            uv_back, z_back = (torch.from_numpy(a) for a in cam_r.project(Y))
             err = torch.linalg.norm(uv_back - pix, dim=1)
             rel = (z_back - z).abs() / z
             ok &= (err < pixel_tol) & (rel < depth_tol)
@@ -53,21 +56,3 @@ def geometric_consistency(depths: list[torch.Tensor], valids: list[torch.Tensor]
         keep[idx] = count >= min_views
         out.append(keep.reshape(H, W))
     return out
-
-
-def _backproject(cam: Camera, uv: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-    """World points (N, 3) of pixels uv (N, 2) at z-depths z (N,), float64."""
-    Kinv = torch.from_numpy(np.linalg.inv(cam.K))
-    rays = torch.cat([uv, torch.ones(uv.shape[0], 1, dtype=uv.dtype)], 1) @ Kinv.T
-    pc = rays * z[:, None]
-    return pc @ torch.tensor(cam.R).T + torch.tensor(cam.c2w[:3, 3])
-
-
-def _project(cam: Camera, X: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Pixels uv (N, 2) and z-depths (N,) of world points X (N, 3), float64."""
-    w2c = torch.tensor(cam.w2c)
-    pc = X @ w2c[:3, :3].T + w2c[:3, 3]
-    z = pc[:, 2]
-    uvw = pc @ torch.tensor(cam.K).T
-    uv = uvw[:, :2] / uvw[:, 2:3]
-    return uv, z

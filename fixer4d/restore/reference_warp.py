@@ -121,8 +121,13 @@ def _transform(points: np.ndarray, M: np.ndarray) -> np.ndarray:
 
 
 def project(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Like ``Camera.project`` for (..., 3) world points: uv (..., 2) continuous pixel
-    coordinates (pixel centre at i + 0.5; NaN behind the camera) and z-depth (...)."""
+    """``Camera.project`` for whole images of (..., 3) world points: uv (..., 2) continuous pixel
+    coordinates (pixel centre at i + 0.5; NaN behind the camera) and z-depth (...).
+
+    The restorer's own element-wise form (``_transform``), not a copy to merge: it avoids the BLAS
+    matmul (10x slower on a busy 2-core machine) and rounds differently in the last bits, so the
+    two cannot share one body without changing every restored frame's bits; tests check they
+    agree to 1e-6 px (tests/restore/test_reference_warp.py)."""
     pc = _transform(points, camera.w2c)
     z = pc[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
