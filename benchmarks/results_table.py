@@ -16,7 +16,6 @@ import argparse
 import datetime
 import json
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -61,11 +60,10 @@ def record(run: Path, name: str, command: str, note: str | None) -> Path:
     # a run scored on other cameras (RUN/heldout/<folder>/) keeps its config in the run's folder
     config_file = run / "config.json" if (run / "config.json").is_file() else Path(report["run"]) / "config.json"
     config = json.loads(config_file.read_text())
-    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True).stdout.strip()
-    dirty = bool(subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no"],
-                                capture_output=True, text=True).stdout.strip())
-    out = {"name": name, "command": command, "note": note, "commit": commit + ("+changes" if dirty else ""),
+    from fixer4d.pipeline.run_folder import source_commit
+
+    # the code that ran (the run folder's own stamp) wins over the checkout at record time
+    out = {"name": name, "command": command, "note": note, "commit": config.get("source_commit") or source_commit(),
            "date": datetime.date.today().isoformat(),
            "machine": {"cores": os.cpu_count(), "load_average_at_record": list(os.getloadavg())},
            "rows": report["rows"], "self_check": report.get("self_check"), "stage_seconds": report.get("stage_seconds"),

@@ -21,3 +21,15 @@ def test_every_result_file_says_how_it_was_made():
         data = json.loads(path.read_text())
         assert data["command"] and data["commit"] and data["date"] and data["rows"], path.name
         assert data["machine"]["cores"] >= 1 and len(data["machine"]["load_average_at_record"]) == 3
+
+
+def test_a_run_folder_names_the_code_that_made_it(tmp_path):
+    """config.json carries the source commit, and a record takes it over the checkout's."""
+    from fixer4d.pipeline.config import resolve
+    from fixer4d.pipeline.run_folder import RunFolder, source_commit
+
+    folder = RunFolder.create(tmp_path / "run", resolve("tiny"))
+    stamp = json.loads((folder.path / "config.json").read_text())["source_commit"]
+    assert stamp == source_commit()
+    if stamp is not None:  # a git checkout: a short hash, maybe with "+changes"
+        assert len(stamp.split("+")[0]) >= 7

@@ -1,6 +1,7 @@
 """A run folder: its versioned config, its stage records, its scene (docs/design.md §6).
 
-    RUN/config.json   {"format_version": FORMAT_VERSION, "fixer4d": version, "config": RunConfig}
+    RUN/config.json   {"format_version": FORMAT_VERSION, "fixer4d": version, "source_commit": the
+                      code's git commit (None outside a checkout), "config": RunConfig}
     RUN/stages.json   {stage: {"key": inputs key, "seconds": s, "done": bool}}
 
 Every entry point opens a run through ``RunFolder``: ``create`` for a new or resumed run (refuses a
@@ -39,6 +40,24 @@ def _version() -> str:
     from fixer4d import __version__
 
     return __version__
+
+
+def source_commit() -> str | None:
+    """The git commit of the fixer4d code running now ("abc1234", "+changes" when tracked files
+    differ from it), so a result can name the code that produced it; None outside a git checkout."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[2]
+    try:
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, timeout=10)
+        if head.returncode != 0:
+            return None
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return head.stdout.strip() + ("+changes" if dirty else "")
 
 
 class StageRecords:
@@ -154,6 +173,7 @@ class RunFolder:
 
     def save_config(self) -> None:
         atomic.write_json(self.path / CONFIG_NAME, {"format_version": FORMAT_VERSION, "fixer4d": _version(),
+                                                    "source_commit": source_commit(),
                                                     "config": self.config.to_dict()})
 
     def update_config(self, config: RunConfig) -> None:
