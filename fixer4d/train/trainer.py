@@ -78,6 +78,9 @@ class Trainer:
     cache: the restoration cache (``entries(round)``, ``latest_round()``).
     refresh_cache: ``refresh_cache(model, round)`` re-renders and restores the trajectories into
       cache round ``round`` with the current model; None = use the cache as it is.
+    effects: the effects config whose auto decisions stage 1 revises (None: no revisions).
+    camera_response: a CameraResponse over the train views, trained with the model: each train
+      view's render passes through it before its loss (None: the cameras agree on colour).
 
     ``step()`` runs one iteration and returns scalars; ``train(n)`` runs up to ``n`` more (default:
     to the end) with a progress bar and checkpoints; ``stop()`` ends ``train`` after the current
