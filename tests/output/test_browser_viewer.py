@@ -6,6 +6,8 @@ Needs Debian's chromium and the npm package in ``.cache/browser-viewer/``
 (``bash benchmarks/browser_viewer_setup.sh``); skipped, with the reason, when either is missing.
 FIXER4D_BROWSER_VIEWER (a folder holding ``node_modules/gsplat``) and FIXER4D_CHROMIUM (the browser
 binary) say where else to look. The page is tests/output/browser/gsplat_frame.html.
+FIXER4D_BROWSER_RESULT=FILE also writes what was measured to FILE (JSON; the committed one is
+benchmarks/results/browser_viewer.json).
 """
 from __future__ import annotations
 
@@ -54,7 +56,25 @@ SPLATV_FLOOR_DB = 38.0
 # entries) into a buffer sized for the splat count's next power of two: below 1024 splats the copy
 # overruns the sort keys and the splats are drawn unsorted. The test frames stay above it.
 GSPLAT_MIN_SPLATS = 1024
-BROWSER_TIMEOUT_S = 120.0  # a cold Chromium start plus SwiftShader on a busy 2-core machine
+BROWSER_TIMEOUT_S = 120.0
+# What the tests measured (PSNR in dB per export and per wrong export, versions, timings), written
+# to FIXER4D_BROWSER_RESULT when that is set.
+MEASURED: dict = {}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _write_measured():
+    yield
+    target = os.environ.get("FIXER4D_BROWSER_RESULT")
+    if target and MEASURED:
+        import datetime
+        import platform
+
+        record = {"command": "FIXER4D_BROWSER_RESULT=FILE .venv/bin/python -m pytest "
+                             "tests/output/test_browser_viewer.py",
+                  "date": datetime.date.today().isoformat(), "machine": platform.machine(),
+                  "load_average": list(os.getloadavg()), "chromium": CHROMIUM, **MEASURED}
+        Path(target).write_text(json.dumps(record, indent=1) + "\n")  # a cold Chromium start plus SwiftShader on a busy 2-core machine
 
 
 def _require_browser() -> None:
@@ -192,6 +212,7 @@ def test_ply_frame_renders_in_the_browser_like_fixer4d(scene, tmp_path):
     save_pair(tmp_path / "ply_browser_vs_fixer4d.png", theirs, ours)
     value = psnr(theirs, ours)
     print(f"\nply frame: gsplat {gsplat_version()} vs fixer4d {value:.2f} dB, {timings}")
+    MEASURED.update(gsplat=gsplat_version(), ply_psnr_db=value, ply_timings=timings)
     assert value >= PLY_FLOOR_DB, (value, tmp_path)
 
     def swap_red_blue(v):
@@ -206,6 +227,7 @@ def test_ply_frame_renders_in_the_browser_like_fixer4d(scene, tmp_path):
         save_pair(tmp_path / f"{name}_browser_vs_fixer4d.png", wrong, ours)
         wrong_value = psnr(wrong, ours)
         print(f"{name}: {wrong_value:.2f} dB")
+        MEASURED[f"ply_{name}_psnr_db"] = wrong_value
         assert wrong_value < PLY_FLOOR_DB - 5.0, (name, wrong_value)
 
 
@@ -217,6 +239,7 @@ def test_splatv_renders_in_the_browser_like_fixer4d(scene, tmp_path):
     save_pair(tmp_path / "splatv_browser_vs_fixer4d.png", theirs, ours)
     value = psnr(theirs, ours)
     print(f"\nsplatv: gsplat {gsplat_version()} vs fixer4d {value:.2f} dB, {timings}")
+    MEASURED.update(gsplat=gsplat_version(), splatv_psnr_db=value, splatv_timings=timings)
     assert value >= SPLATV_FLOOR_DB, (value, tmp_path)
 
     wrong_exports = {"colours_swapped": {"rgba": fields.rgba[:, [2, 1, 0, 3]]},
@@ -227,4 +250,5 @@ def test_splatv_renders_in_the_browser_like_fixer4d(scene, tmp_path):
         save_pair(tmp_path / f"splatv_{name}_browser_vs_fixer4d.png", wrong, ours)
         wrong_value = psnr(wrong, ours)
         print(f"splatv {name}: {wrong_value:.2f} dB")
+        MEASURED[f"splatv_{name}_psnr_db"] = wrong_value
         assert wrong_value < SPLATV_FLOOR_DB - 5.0, (name, wrong_value)
