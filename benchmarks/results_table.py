@@ -58,15 +58,19 @@ COLUMNS = (("STGS w/ COLMAP", "psnr"), ("STGS w/ MVS", "psnr"), ("STGS w/ MVS (m
 def record(run: Path, name: str, command: str, note: str | None) -> Path:
     report = json.loads((run / "report.json").read_text())
     # a run scored on other cameras (RUN/heldout/<folder>/) keeps its config in the run's folder
-    config_file = run / "config.json" if (run / "config.json").is_file() else Path(report["run"]) / "config.json"
-    config = json.loads(config_file.read_text())
+    run_dir = run if (run / "config.json").is_file() else Path(report["run"])
+    config = json.loads((run_dir / "config.json").read_text())
+    # and its seconds per stage: those of the run that trained the scored models
+    stage_seconds = report.get("stage_seconds")
+    if not stage_seconds and (run_dir / "report.json").is_file():
+        stage_seconds = json.loads((run_dir / "report.json").read_text()).get("stage_seconds")
     from fixer4d.pipeline.run_folder import source_commit
 
     # the code that ran (the run folder's own stamp) wins over the checkout at record time
     out = {"name": name, "command": command, "note": note, "commit": config.get("source_commit") or source_commit(),
            "date": datetime.date.today().isoformat(),
            "machine": {"cores": os.cpu_count(), "load_average_at_record": list(os.getloadavg())},
-           "rows": report["rows"], "self_check": report.get("self_check"), "stage_seconds": report.get("stage_seconds"),
+           "rows": report["rows"], "self_check": report.get("self_check"), "stage_seconds": stage_seconds,
            "scene": report.get("scene"), "heldout_from": report.get("heldout_from"), "config": config}
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / f"{name}.json"

@@ -33,3 +33,18 @@ def test_a_run_folder_names_the_code_that_made_it(tmp_path):
     assert stamp == source_commit()
     if stamp is not None:  # a git checkout: a short hash, maybe with "+changes"
         assert len(stamp.split("+")[0]) >= 7
+
+
+def test_a_record_of_other_cameras_keeps_the_runs_seconds(benchmark_script, tmp_path, monkeypatch):
+    """RUN/heldout/<folder>/ has no training of its own: its record takes the run's seconds per stage."""
+    tables = benchmark_script("results_table")
+    monkeypatch.setattr(tables, "RESULTS", tmp_path / "results")
+    run = tmp_path / "run"
+    (run / "heldout" / "val").mkdir(parents=True)
+    (run / "config.json").write_text(json.dumps({"source_commit": "abc1234"}))
+    (run / "report.json").write_text(json.dumps({"rows": [{"method": "m", "psnr": 1.0}], "stage_seconds": {"stage1": 7.5}}))
+    (run / "heldout" / "val" / "report.json").write_text(json.dumps(
+        {"rows": [{"method": "m", "psnr": 2.0}], "stage_seconds": {}, "run": str(run), "heldout_from": "val"}))
+    data = json.loads(tables.record(run / "heldout" / "val", "x", "cmd", None).read_text())
+    assert data["rows"][0]["psnr"] == 2.0 and data["stage_seconds"] == {"stage1": 7.5}
+    assert data["commit"] == "abc1234" and data["heldout_from"] == "val"

@@ -265,12 +265,15 @@ def build_rig(spec: dict, where: str = "<spec>") -> list[Camera]:
             raise p.fail("rig.up", "must not be parallel to the viewing direction")
         right /= np.linalg.norm(right)
         true_up = np.cross(right, fwd)
+        positions = [(r, c) for r in range(rows) for c in range(cols)] + _extra_grid_positions(rig, p)
         eyes = [centre + (c - (cols - 1) / 2) * sx * right - (r - (rows - 1) / 2) * sy * true_up
-                for r in range(rows) for c in range(cols)]
+                for r, c in positions]
         # Forward-facing like Neural3DV: every camera looks along the rig's axis, offset by its
         # position, so optical axes stay parallel (no convergence).
         targets = [e + fwd for e in eyes] if rig.get("parallel", True) else [target] * len(eyes)
     elif layout == "arc":
+        if rig.get("extra") is not None:
+            raise p.fail("rig.extra", "extra cameras at grid positions need layout \"grid\"")
         count = int(p.num(rig, "count", positive=True))
         radius = p.num(rig, "radius", positive=True)
         span = np.radians(p.num(rig, "arc_deg", 60.0, positive=True))
@@ -289,6 +292,17 @@ def build_rig(spec: dict, where: str = "<spec>") -> list[Camera]:
         raise p.fail("rig.layout", f"\"grid\" or \"arc\", got {layout!r}")
     K = Camera.intrinsics_from_fov(fov_y, width, height)
     return [Camera(K, look_at_c2w(e, t, up), width, height, f"cam{i:02d}") for i, (e, t) in enumerate(zip(eyes, targets))]
+
+
+def _extra_grid_positions(rig: dict, p: _Spec) -> list[tuple[float, float]]:
+    """The grid rig's "extra" cameras: (row, col) grid coordinates, fractional between grid
+    positions (row 0.5 lies halfway between rows 0 and 1), numbered after the rows x cols grid."""
+    extra = rig.get("extra")
+    if extra is None:
+        return []
+    if not isinstance(extra, list):
+        raise p.fail("rig.extra", f"a list of [row, col] grid positions, got {extra!r}")
+    return [tuple(p.vec({f"rig.extra[{i}]": e}, f"rig.extra[{i}]", 2)) for i, e in enumerate(extra)]
 
 
 def look_at_c2w(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
@@ -338,9 +352,11 @@ def most_separated(cameras: list[Camera], k: int = 4, exclude: tuple[int, ...] =
     return sorted(chosen)
 
 
-def select_views(cameras: list[Camera], train: Any = "auto", where: str = "<spec>") -> tuple[list[int], list[int]]:
+def select_views(cameras: list[Camera], train: Any = "auto", where: str = "<spec>",
+                 test: Any = None) -> tuple[list[int], list[int]]:
     """(train_ids, test_ids): ``train`` = "auto" (the 4 most separated cameras, never the centre
-    one, which is held out) or a list of camera indices."""
+    one, which is held out) or a list of camera indices; ``test`` = None (every other camera) or
+    a list of camera indices disjoint from the train ones (cameras in neither are not used)."""
     n = len(cameras)
     if train in (None, "auto"):
         if n < 2:
@@ -355,7 +371,20 @@ def select_views(cameras: list[Camera], train: Any = "auto", where: str = "<spec
         bad = [i for i in train_ids if not 0 <= i < n]
         if bad:
             raise InputError(f"scene spec {where}: rig.train: camera indices {bad} outside [0, {n})")
-    return train_ids, [i for i in range(n) if i not in train_ids]
+    if test is None:
+        return train_ids, [i for i in range(n) if i not in train_ids]
+    try:
+        test_ids = sorted(int(i) for i in test)
+    except (TypeError, ValueError):
+        raise InputError(f"scene spec {where}: rig.test: a list of camera indices, got {test!r}") from None
+    bad = [i for i in test_ids if not 0 <= i < n]
+    if bad:
+        raise InputError(f"scene spec {where}: rig.test: camera indices {bad} outside [0, {n})")
+    both = sorted(set(test_ids) & set(train_ids))
+    if both or not test_ids:
+        raise InputError(f"scene spec {where}: rig.test: needs at least one camera and none of the train ones"
+                         + (f" (both: {both})" if both else ""))
+    return train_ids, test_ids
 
 
 # ---------------------------------------------------------------------------- the scene
@@ -398,7 +427,8 @@ class SyntheticScene(MultiViewVideo):
         self.world = build_world(raw, where)
         rig = build_rig(raw, where)
         self.cameras = [c.scaled(scale) if scale != 1.0 else c for c in rig]
-        spec_train, spec_test = select_views(self.cameras, raw.get("rig", {}).get("train", "auto"), where)
+        rig_spec = raw.get("rig", {})
+        spec_train, spec_test = select_views(self.cameras, rig_spec.get("train", "auto"), where, rig_spec.get("test"))
         self.train_ids = [int(i) for i in train_ids] if train_ids is not None else spec_train
         if test_ids is not None:
             self.test_ids = [int(i) for i in test_ids]  # overlap with train: load_scene refuses it (validate.check_ids)

@@ -16,6 +16,8 @@ from fixer4d.restore.visibility import VisibilityConfig
 
 # Stage2Config.pseudo_mask values: where the pseudo-loss acts.
 PSEUDO_MASKS = ("unobserved", "all")
+# Stage2Config.densify_stats values: whose screen-space gradients decide where stage 2 densifies.
+DENSIFY_STATS = ("all", "observed", "evidence")
 
 # 3DGS trains 30k iterations and densifies from 500 to 15k every 100, resetting opacities every
 # 3000; ``Stage1Config.for_iterations`` scales that schedule to shorter runs.
@@ -235,6 +237,12 @@ class Stage2Config:
     # densification keeps running in stage 2 (pseudo-views expose holes) until this fraction
     # of the stage-2 iterations; 0 disables it.
     densify_until_fraction: float = 0.5
+    # Whose gradients feed the densification statistics: "all" every render of a step, the
+    # observed views' and the pseudo-views' (the paper); "observed" the observed views only;
+    # "evidence" the observed views plus the pseudo-views' gradient of their loss restricted to
+    # the pixels no train camera explains (restore.visibility), so that a pseudo-target can grow
+    # the model only where no real view already decides it.
+    densify_stats: str = "all"
     # restored clips held decoded in memory (each is F frames of H x W x 3 float32)
     max_cached_clips: int = 8
     seed: int = 0
@@ -251,6 +259,9 @@ class Stage2Config:
     def __post_init__(self) -> None:
         if self.pseudo_mask not in PSEUDO_MASKS:
             raise InputError(f"Stage2Config.pseudo_mask must be one of {', '.join(PSEUDO_MASKS)}, got {self.pseudo_mask!r}")
+        if self.densify_stats not in DENSIFY_STATS:
+            raise InputError(f"Stage2Config.densify_stats must be one of {', '.join(DENSIFY_STATS)}, "
+                             f"got {self.densify_stats!r}")
         if not 0.0 <= self.observed_weight <= 1.0:
             raise InputError(f"Stage2Config.observed_weight must be in [0, 1], got {self.observed_weight}")
         if isinstance(self.visibility, dict):

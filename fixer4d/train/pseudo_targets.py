@@ -70,7 +70,7 @@ class PseudoTargets:
         self.entries: list[PseudoEntry] = []
         self.entry_frames: list[np.ndarray] = []  # per entry: the clip frames used as pseudo-views
         self.entry_offsets = np.zeros(1, np.int64)  # (E+1,) start of each entry's frames in the flat pool
-        self._clips: OrderedDict[str, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
+        self._clips: OrderedDict[str, tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]] = OrderedDict()
 
     def update(self, model: SpacetimeGaussians, due: int | None) -> None:
         """Before a step: refresh round ``due`` with the current model and load it (``due`` None:
@@ -116,16 +116,34 @@ class PseudoTargets:
     def clip(self, entry: PseudoEntry) -> tuple[torch.Tensor, torch.Tensor]:
         """(F,H,W,3) restored frames and (F,H,W) per-pixel weight of an entry's pseudo-loss,
         decoded on first use and kept in a small LRU (``max_cached_clips``)."""
+        rgb, conf, _ = self._decoded(entry)
+        return rgb, conf
+
+    def evidence_weight(self, entry: PseudoEntry, frame: int) -> torch.Tensor:
+        """(H,W) of clip frame ``frame``: the pseudo-loss weight times how unobserved each pixel is
+        by the train cameras (the part of the loss that ``densify_stats = "evidence"`` lets densify)."""
+        _, conf, hidden = self._decoded(entry)
+        if hidden is None:
+            raise InputError(f"cache entry {entry.key} has no unobserved-pixel map; refresh the cache or set "
+                             "stage2.densify_stats to all or observed")
+        return conf[frame] * hidden[frame]
+
+    def _decoded(self, entry: PseudoEntry) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """(rgb, weight, unobserved or None) of an entry, decoded once into the LRU."""
         key = entry.key
         if key in self._clips:
             self._clips.move_to_end(key)
             return self._clips[key]
         rgb = torch.from_numpy(np.ascontiguousarray(entry.rgb(), dtype=np.float32))
         conf = torch.from_numpy(np.ascontiguousarray(self.weight(entry), dtype=np.float32))
-        self._clips[key] = (rgb, conf)
+        hidden = None
+        if self.config.densify_stats == "evidence":
+            unobserved = entry.unobserved()
+            hidden = None if unobserved is None else torch.from_numpy(np.ascontiguousarray(unobserved, dtype=np.float32))
+        self._clips[key] = (rgb, conf, hidden)
         while len(self._clips) > max(self.config.max_cached_clips, 1):
             self._clips.popitem(last=False)
-        return rgb, conf
+        return rgb, conf, hidden
 
     def weight(self, entry: PseudoEntry) -> np.ndarray:
         """(F, H, W) weight of the pseudo L1 (``Stage2Config``): the restorer's confidence (when
@@ -145,11 +163,12 @@ class PseudoTargets:
         return weight
 
     def loss(self, model: SpacetimeGaussians, rng: np.random.Generator, render_view: RenderView,
-             timing: dict[str, float]) -> torch.Tensor:
+             timing: dict[str, float], evidence: list[torch.Tensor] | None = None) -> torch.Tensor:
         """Mean over ``batch_pseudo`` cached novel frames, drawn uniformly from the loaded round
         with ``rng``, of the (confidence-weighted) L1 between the model rendered at the frame's
         camera *and its clip's time* and the restored frame. Adds seconds to ``timing``'s t_at
-        and t_loss."""
+        and t_loss. ``evidence``, when given, receives per frame (in render order) its term of
+        the same mean restricted to the pixels no train camera explains (``evidence_weight``)."""
         s2 = self.config
         total = int(self.entry_offsets[-1])
         picks = rng.integers(0, total, size=s2.batch_pseudo)
@@ -171,5 +190,7 @@ class PseudoTargets:
                                  f"{cam.height}x{cam.width}; the cache is stale, refresh it")
             weight = conf[f] if s2.confidence_weighting or s2.pseudo_mask != "all" else None
             loss = loss + masked_l1(out.rgb, target, weight)
+            if evidence is not None:
+                evidence.append(masked_l1(out.rgb, target, self.evidence_weight(entry, f)) / max(len(picks), 1))
             timing["t_loss"] += time.perf_counter() - tic
         return loss / max(len(picks), 1)

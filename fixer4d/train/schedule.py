@@ -41,6 +41,8 @@ class StageSchedule:
     stage draws pseudo-views when both are > 0.
     refresh_every, rounds: the restoration cache is refreshed at step 0 and every
     ``refresh_every`` steps, ``rounds`` times in all (0: never).
+    densify_stats: whose gradients feed the densification statistics (``Stage2Config``):
+    "all", "observed" or "evidence"; stage 1 has only observed views.
     """
 
     stage: int
@@ -56,6 +58,7 @@ class StageSchedule:
     pseudo_batch: int = 0
     refresh_every: int = 1
     rounds: int = 0
+    densify_stats: str = "all"
 
     @classmethod
     def stage1(cls, config: Stage1Config) -> "StageSchedule":
@@ -76,7 +79,8 @@ class StageSchedule:
                    lr_means_final=stage2.lr_means_final, densify_from=min(config.densify_every, until),
                    densify_until=until, opacity_reset_every=None, revises_effects=False,
                    lambda_gen=stage2.lambda_gen, pseudo_batch=stage2.batch_pseudo,
-                   refresh_every=stage2.refresh_every, rounds=stage2.rounds)
+                   refresh_every=stage2.refresh_every, rounds=stage2.rounds,
+                   densify_stats=stage2.densify_stats)
 
     def position_lr(self, step: int) -> float:
         """Position learning rate at ``step`` before the extent factor."""

@@ -194,14 +194,20 @@ class Trainer:
         if self.response is not None:
             loss_stg = loss_stg + RESPONSE_REG * self.response.regularizer()
         loss_gen = torch.zeros(())
+        pseudo_outputs: list[RenderedView] = []
+        evidence = [] if self._gathers_evidence() else None
         if self.pseudo is not None and self.schedule.draws_pseudo_views:
             loss_gen = self.pseudo.loss(self.model, self.rng,
-                                        lambda snap, cam: self._render_view(snap, cam, outputs, timing), timing)
+                                        lambda snap, cam: self._render_view(snap, cam, pseudo_outputs, timing), timing,
+                                        evidence=evidence)
             loss = loss_stg + self.schedule.lambda_gen * loss_gen
         else:
             loss = loss_stg
+        grads = self._evidence_grads(pseudo_outputs, evidence, n_views, timing) if evidence else []
         self._backward(loss, n_views, timing)
-        self._gather_stats(outputs, t, timing)
+        if self.schedule.densify_stats == "all":
+            outputs = outputs + pseudo_outputs
+        self._gather_stats(outputs, grads, t, timing)
 
         tic = time.perf_counter()
         self.optimizer.step()
@@ -259,17 +265,43 @@ class Trainer:
         self._hold_frozen_rows()
         timing["t_backward"] = time.perf_counter() - tic
 
-    def _gather_stats(self, outputs: list[RenderedView], t: float, timing: dict[str, float]) -> None:
-        """Add the screen-space gradients of this step's renders (at time ``t``) to the
-        densification (and effect-revision) statistics while the schedule densifies."""
+    def _gathers_evidence(self) -> bool:
+        """Whether this step's pseudo-views add their unobserved-pixel gradients to the
+        densification statistics (``densify_stats = "evidence"`` while the schedule densifies)."""
+        return (self.pseudo is not None and self.schedule.draws_pseudo_views and self.schedule.densify_stats == "evidence"
+                and self.schedule.gathers_stats(self.step_count))
+
+    def _evidence_grads(self, pseudo_outputs: list[RenderedView], evidence: list[torch.Tensor], n_views: int,
+                        timing: dict[str, float]) -> list[tuple[torch.Tensor, Camera, torch.Tensor]]:
+        """Per pseudo-view: the screen-space gradient of its loss term restricted to the pixels no
+        train camera explains, at the scale the full loss gives its render (``n_views x lambda_gen``),
+        with its camera and drawn mask. Taken before the step's backward (which frees the graph)."""
+        tic = time.perf_counter()
+        grads = []
+        for (out, cam, drawn), term in zip(pseudo_outputs, evidence):
+            if not out.means2d.requires_grad:
+                continue
+            (g,) = torch.autograd.grad(term * (n_views * self.schedule.lambda_gen), out.means2d, retain_graph=True,
+                                       allow_unused=True)
+            if g is not None:
+                grads.append((g, cam, drawn))
+        timing["t_densify"] += time.perf_counter() - tic
+        return grads
+
+    def _gather_stats(self, outputs: list[RenderedView], grads: list[tuple[torch.Tensor, Camera, torch.Tensor]],
+                      t: float, timing: dict[str, float]) -> None:
+        """Add the screen-space gradients of this step's renders ``outputs`` (at time ``t``), and
+        the precomputed ``grads`` (gradient, camera, drawn), to the densification (and
+        effect-revision) statistics while the schedule densifies."""
         tic = time.perf_counter()
         if self.schedule.gathers_stats(self.step_count):
-            for out, cam, drawn in outputs:
-                if out.means2d.grad is not None:
-                    self.stats.update(out.means2d.grad, drawn, cam.width, cam.height)
+            views = [(out.means2d.grad, cam, drawn) for out, cam, drawn in outputs] + list(grads)
+            for grad, cam, drawn in views:
+                if grad is not None:
+                    self.stats.update(grad, drawn, cam.width, cam.height)
                     if self.revise:
-                        self.temporal_stats.update(out.means2d.grad, drawn, cam.width, cam.height, t)
-        timing["t_densify"] = time.perf_counter() - tic
+                        self.temporal_stats.update(grad, drawn, cam.width, cam.height, t)
+        timing["t_densify"] += time.perf_counter() - tic
 
     def _next_frame(self) -> int:
         """The frame of this step (``Stage1Config.frame_order``)."""
