@@ -8,6 +8,9 @@ refresh callback, but the restorer is replaced by an oracle that returns the sce
 render of every trajectory camera at the clip's time, with confidence 1. Whatever this run gains
 over RUN's matched-iterations control is the most any restorer could give with these
 trajectories, iterations and loss weights: the ceiling of the report's "Full - matched" figure.
+The oracle's frames are the pseudo-targets on every pixel (``stage2.pseudo_target=restored``:
+a perfect frame needs no gate); ``--set stage2.pseudo_target=gated`` measures the gated loss
+with perfect restorations instead.
 
 This is a diagnostic that reads ground truth, so it lives here and never in the method: the
 oracle is not a restorer choice, and nothing it produces feeds another run.
@@ -66,6 +69,7 @@ def main(argv: list[str] | None = None) -> int:
 
     base = read_run_config(args.run)
     tree = config_tree.to_dict(base)
+    config_tree.set_dotted(tree, "stage2.pseudo_target", "restored")
     for key, value in config_tree.parse_set_overrides(args.set).items():
         if not key.startswith(("stage2.", "trajectories.")):
             raise SystemExit(f"stage2_ceiling: only stage2.* and trajectories.* may change, not {key}")

@@ -21,7 +21,6 @@ import argparse
 import json
 import math
 import os
-import platform
 import resource
 import subprocess
 import sys
@@ -60,26 +59,6 @@ def random_init_snapshot(n: int, bbox_min, bbox_max, seed: int = 0):
     quats = np.zeros((n, 4))
     quats[:, 0] = 1.0
     return Snapshot(f(pts), f(quats), f(scales), f(np.full(n, INIT_OPACITY)), f(rng.uniform(0, 1, (n, 3))))
-
-
-def machine_info() -> dict:
-    import numba
-    import torch
-
-    model = ""
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"cpu": model or platform.processor(), "cores": os.cpu_count(), "numba_threads": numba.get_num_threads(),
-            "torch_threads": torch.get_num_threads(), "python": platform.python_version(),
-            # fixer4d/render/simd.py: 16-lane float32 loops on AVX-512 hosts unless switched off
-            "numba_avx512_vectors": "-prefer-256-bit" in os.environ.get("NUMBA_CPU_FEATURES", ""),
-            "torch": torch.__version__, "numba": numba.__version__, "platform": platform.platform(),
-            "load_avg_1_5_15min": [round(x, 2) for x in os.getloadavg()]}
 
 
 def _rss_mb() -> float:
@@ -215,8 +194,10 @@ def main(argv: list[str] | None = None) -> int:
                    all(q[k] == r[k] for k in ("n_gaussians", "width", "height", "pass"))]
             if ref:
                 speedups[f"{r['n_gaussians']} {r['width']}x{r['height']} {r['pass']}"] = round(ref[0]["ms"] / r["ms"], 1)
+    from fixer4d.bench.machine import machine_info
+
     result = {"rows": rows, "skipped": skipped, "speedup_cpu_over_reference": speedups,
-              "scaling": scaling(rows), "machine": machine_info(), "torch_threads": args.torch_threads,
+              "scaling": scaling(rows), "machine": machine_info(reference=True), "torch_threads": args.torch_threads,
               "memory": "peak_mb = ru_maxrss of the row's fresh process; base_mb = its RSS before the timed passes",
               "scene": "uniform cube [-1,1]^3, camera at distance 4, fov 50 deg, opacity 0.1, 3-NN scales"}
     write_json(args.out, result)

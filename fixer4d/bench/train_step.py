@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from fixer4d.atomic import write_json
     from fixer4d.bench.opensplat import opensplat_info, run_opensplat, write_nerfstudio_project
-    from fixer4d.bench.raster import machine_info
+    from fixer4d.bench.machine import machine_info
     from fixer4d.errors import InputError
     from fixer4d.model.densify import make_adam
     from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians
@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
             runs = alternate(ours, theirs, args.repeats)
         rows.append(summarize_row(runs, backend=args.backend, n=n, width=cams[0].width, height=cams[0].height))
     result = {"rows": rows, "loss": loss_name, "bbox": [lo.tolist(), hi.tolist()], "cameras": len(cams),
-              "data": str(args.data), "torch_threads": args.torch_threads, "machine": machine_info(),
+              "data": str(args.data), "torch_threads": args.torch_threads, "machine": machine_info(reference=True),
               "iters": args.iters, "repeats": args.repeats, "opensplat_iters": args.opensplat_iters,
               "opensplat": str(args.opensplat) if args.opensplat is not None else "not run",
               "opensplat_version": os_info["version"] if os_info else None,

@@ -26,6 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batch-pseudo", type=int, default=None, help="cached frames per iteration")
     parser.add_argument("--no-confidence", action="store_true", help="plain L1 instead of confidence-weighted")
     parser.add_argument("--eval-stride", type=int, default=None, help="evaluate every S-th frame")
+    parser.add_argument("--paper-stage2", action="store_true",
+                        help="the paper's stage 2: restored targets on every pixel, no self-check, ungated "
+                             "restoration rows (--set values given as well win)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help=f"a config value in {', '.join(k.rstrip('.') for k in REFINABLE)} by dotted key")
     parser.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
@@ -52,6 +55,10 @@ def run(args: argparse.Namespace) -> int:
     }.items() if v is not None}
     if args.iterations is not None and args.iterations < 1:
         raise InputError(f"refine --iterations {args.iterations}: must be >= 1 (leave it out for R x K)")
+    if args.paper_stage2:
+        from fixer4d.pipeline.config import PAPER_STAGE2
+
+        overrides.update(PAPER_STAGE2)
     overrides.update(config_tree.parse_set_overrides(args.set))
     bad = [k for k in overrides if not k.startswith(REFINABLE)]
     if bad:

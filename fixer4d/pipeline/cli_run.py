@@ -24,6 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="spacetime effects: decided by evidence (auto, default), all, or static only; force "
                              "one with --set effects.motion_degree=N (sh_degree, rotation_velocity, temporal_opacity)")
     parser.add_argument("--no-baseline", action="store_true", help="skip the STGS w/ COLMAP baseline row")
+    parser.add_argument("--paper-stage2", action="store_true",
+                        help="the paper's stage 2: restored targets on every pixel, no self-check, ungated "
+                             "restoration rows (--set values given as well win)")
     parser.add_argument("--eval-stride", type=int, default=None, help="evaluate every S-th frame")
     parser.add_argument("--segment-frames", type=int, default=None,
                         help="train a long capture as overlapping temporal segments of F frames")
@@ -62,6 +65,10 @@ def run(args: argparse.Namespace) -> int:
              "seed": args.seed, "stage1.seed": args.seed, "stage2.seed": args.seed,
              "scene.offsets": parse_offsets(args.offset) if args.offset else None, "scene.holdout": args.holdout,
              "scene.calibration": str(Path(args.calibration).resolve()) if args.calibration else None}
+    if args.paper_stage2:
+        from fixer4d.pipeline.config import PAPER_STAGE2
+
+        flags.update(PAPER_STAGE2)
     config = resolve_from_args(args, flags, source=args.scene)
     if maybe_print_config(args, config):
         return 0

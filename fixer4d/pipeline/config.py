@@ -41,6 +41,12 @@ from fixer4d.train.config import Stage1Config, Stage2Config
 # "config": RunConfig} plus per-stage keys in stages.json.
 FORMAT_VERSION = 2
 
+# The paper's stage 2 (`--paper-stage2`): every pseudo-view pixel supervised by the restored
+# frame with the restorer's confidence as weight, densified from every render, stage 2 run
+# without asking, and the Restoration rows ungated.
+PAPER_STAGE2 = {"stage2.pseudo_target": "restored", "stage2.pseudo_mask": "all", "stage2.densify_stats": "all",
+                "self_check.enabled": False, "eval.gate_restoration": False}
+
 
 @dataclass
 class SceneConfig:
@@ -95,9 +101,10 @@ class EvalConfig:
     # pixels, about the resampling blur of a bilinear warp (a restoration gain means something
     # only against the render itself and a plain blur of it)
     blur_sigma_px: float = 1.0
-    # the Restoration rows use a restored frame only where the train cameras leave a pixel
-    # unobserved, in proportion to the restorer's confidence (restore.base.blend_with_render);
-    # false: the restorer's output as it is (the paper's rows). Chosen on the validation cameras
+    # the Restoration rows use a restored frame only where the render is a hole or the train
+    # cameras leave a pixel unobserved, there in proportion to the restorer's confidence
+    # (pipeline.restoration.gate_restoration); false: the restorer's output as it is (the
+    # paper's rows). Chosen on the validation cameras
     # by the worst case: gated 18.40 / 18.42 dB, ungated 18.79 / 18.18 against STGS w/ MVS 18.24 /
     # 18.42 (Panoptic 4/14, split c 2/12): ungated falls 0.24 dB under the render it starts from.
     gate_restoration: bool = True

@@ -70,7 +70,12 @@ def restorer_key(config: RunConfig) -> str:
 
 
 def matched_key(config: RunConfig) -> str:
-    return stage_key("matched", stage1_key(config, config.init_method), config.to_dict()["stage2"])
+    """The matched-iterations control: the stage-1 model and the training it continues with
+    (``matched_config``), so stage-2 settings it never reads (the pseudo-targets') leave it as it is."""
+    from fixer4d.train.config import matched_config
+
+    continued = matched_config(config.stage1, config.stage2).to_dict()
+    return stage_key("matched", stage1_key(config, config.init_method), training_settings(continued))
 
 
 def self_check_key(config: RunConfig) -> str:

@@ -83,13 +83,13 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
                           backend: str = "auto", executor=None, restorer=None) -> Callable[[Any, int], None]:
     """The stage-2 cache refresh: render every trajectory at every restored timestamp with the
     current model, restore the clips (on ``executor``: local by default, Ray when configured),
-    write them to RUN/cache/round_<r>. Complete entries of a round are reused (a resumed run does
+    write them to RUN/cache/round_<r> (with ``stage2.pseudo_target = "gated"``, each restored frame
+    blended into its render by confidence x unobserved weight first). Complete entries of a round are reused (a resumed run does
     not redo them). restorer: the run's configured one when None (a diagnostic may pass another,
     e.g. benchmarks/stage2_ceiling.py's ground-truth oracle)."""
     from fixer4d.pipeline.executors import LocalExecutor
-    from fixer4d.restore.cache import RestoreCache
-
     from fixer4d.pipeline.keys import stage2_key
+    from fixer4d.restore.cache import RestoreCache
 
     # entries written under other settings (restorer, trajectories, stage-1 model) are set aside
     cache = RestoreCache(Path(run_dir) / "cache", fingerprint=stage2_key(config))
@@ -98,6 +98,7 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
     executor = executor or LocalExecutor()
     trajectories = scene_trajectories_for(scene, config.trajectories)
     frames = list(range(0, scene.num_frames, max(1, config.trajectories.time_stride)))
+    gated = config.stage2.pseudo_target == "gated"
 
     def refresh(model, round_index: int) -> None:
         from tqdm.auto import tqdm
@@ -114,6 +115,8 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
                                      visibility=config.stage2.visibility)
                         for f, tr, ids in batch]
             results = executor.map(_restore_job, [(restorer, req) for req in requests])
+            if gated:  # the pseudo-target: restored where unobserved and trusted, the render elsewhere
+                results = [gate_restoration(req, res, config.stage2.visibility) for req, res in zip(requests, results)]
             for (f, tr, ids), req, res in zip(batch, requests, results):
                 cache.write(round_index, cache.key(f, ids[0], ids[1], tr.arc_index), req, res,
                             {"restorer": restorer.name, "restorer_settings": restorer.settings(),
@@ -124,6 +127,16 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
     return refresh
 
 
+def gate_restoration(request, result, visibility: VisibilityConfig):
+    """``result`` where it may act, the request's render elsewhere (``restore.base.blend_with_render``
+    with the request's unobserved map as weight and its holes, ``restore.visibility.hole_weight``):
+    one gate for the Restoration rows and stage 2's gated pseudo-targets."""
+    from fixer4d.restore.base import blend_with_render
+    from fixer4d.restore.visibility import hole_weight
+
+    return blend_with_render(request.rgb, result, request.unobserved, hole_weight(request.alpha, visibility))
+
+
 def restoration_render_fn(model, scene, restorer, backend: str = "auto",
                           visibility: VisibilityConfig | None = None) -> Callable[[Camera, float], np.ndarray]:
     """A render function for evaluation whose images are *restored* renders.
@@ -132,10 +145,9 @@ def restoration_render_fn(model, scene, restorer, backend: str = "auto",
     h are the references, the clip is (midpoint ref_a..h, h, midpoint h..ref_b) and the restored
     middle frame is returned (the "restoration" rows of the paper's Table 2).
     visibility: when given, the restored frame replaces the render only where the train cameras
-    leave the pixel unobserved and the restorer is confident (``restore.base.blend_with_render``);
-    None: the restorer's output as it is (the paper's rows).
+    leave the pixel unobserved and the restorer is confident, or the render is a hole
+    (``gate_restoration``); None: the restorer's output as it is (the paper's rows).
     """
-    from fixer4d.restore.base import blend_with_render
     from fixer4d.geometry.trajectory import interpolate_pair, same_pose
 
     def midpoint(c0: Camera, c1: Camera) -> Camera:
@@ -155,7 +167,7 @@ def restoration_render_fn(model, scene, restorer, backend: str = "auto",
                            visibility=visibility)
         result = restorer.restore(req)
         if visibility is not None:
-            result = blend_with_render(req.rgb, result, req.unobserved)
+            result = gate_restoration(req, result, visibility)
         return result.rgb[1]
 
     return fn

@@ -347,13 +347,18 @@ def final_stage(ctx: StageContext, model, decision: str):
     _drop_checkpoints(ctx.path, 2)
     t0 = time.perf_counter()
     chosen = matched_stage1(ctx, model) if decision == "continue" else model
+    if ctx.config.segments.static_from is not None:  # beside the first segment's final static rows
+        from fixer4d.pipeline.shared_static import load_shared, swap_shared_static
+
+        chosen = swap_shared_static(chosen, load_shared(ctx.config.segments.static_from, "final"))
     save_ply(chosen, final)
     ctx.run.records.finish("stage2", key, time.perf_counter() - t0)
     return chosen
 
 
-# Bumped when evaluation adds or changes a metric, so a finished row is scored again.
-EVAL_METRICS_VERSION = 2
+# Bumped when evaluation adds or changes a metric or how a row is made, so a finished row is
+# scored again.
+EVAL_METRICS_VERSION = 3
 
 
 def evaluate_stage(ctx: StageContext, name: str, render_fn: Callable[[Camera, float], np.ndarray], inputs_key: str,

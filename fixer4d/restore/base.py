@@ -165,23 +165,34 @@ class RestoreResult:
         return int(self.rgb.shape[0])
 
 
-def blend_with_render(render: np.ndarray, result: RestoreResult, weight: np.ndarray | None = None) -> RestoreResult:
+def blend_with_render(render: np.ndarray, result: RestoreResult, weight: np.ndarray | None = None,
+                      hole: np.ndarray | None = None) -> RestoreResult:
     """The restored clip where it is trusted, the render elsewhere.
 
     render: (F, H, W, 3) the rendered clip the restorer started from. weight: (F, H, W) in [0, 1]
-    or None, where the restorer may act (e.g. ``request.unobserved``). Per pixel
-    g = weight x confidence; rgb = render + g (restored - render), confidence = g. Where the
-    restorer has no confidence (its inputs were unreliable) or the pixel is observed, the render
-    comes back unchanged: restoration never overwrites what it cannot support.
+    or None, where the restorer may act (e.g. ``request.unobserved``). hole: (F, H, W) in [0, 1]
+    or None, where the render holds no content (``restore.visibility.hole_weight``). Per pixel
+    g = max(hole, weight x confidence); rgb = render + g (restored - render), confidence = g.
+    Where the render has content and the restorer has no confidence (its inputs were unreliable)
+    or the pixel is observed, the render comes back unchanged: restoration never overwrites what
+    it cannot support. A hole is replaced whatever the confidence: there the render is the
+    background colour, not an estimate of the scene, and any reference-guided guess beats it.
     """
     render = _as_array(render, "render")
     _check_shape(render, result.rgb.shape, "render")
-    g = np.clip(result.confidence, 0.0, 1.0)
+    g = np.clip(np.nan_to_num(result.confidence, nan=0.0), 0.0, 1.0)
     if weight is not None:
         weight = _as_array(weight, "weight")
         _check_shape(weight, result.confidence.shape, "weight")
-        g = g * np.clip(weight, 0.0, 1.0)
-    rgb = render + g[..., None] * (result.rgb - render)
+        g = g * np.clip(np.nan_to_num(weight, nan=0.0), 0.0, 1.0)
+    if hole is not None:
+        hole = _as_array(hole, "hole")
+        _check_shape(hole, result.confidence.shape, "hole")
+        g = np.maximum(g, np.clip(np.nan_to_num(hole, nan=0.0), 0.0, 1.0))
+    # images are in [0, 1]: clipped first, so out-of-range input cannot overflow the difference
+    render = np.clip(np.nan_to_num(render, nan=0.0), 0.0, 1.0)
+    restored = np.clip(np.nan_to_num(result.rgb, nan=0.0), 0.0, 1.0)
+    rgb = render + g[..., None] * (restored - render)
     return RestoreResult(rgb=np.clip(rgb, 0.0, 1.0), confidence=g,
                          frame_confidence=g.reshape(g.shape[0], -1).mean(axis=1))
 

@@ -82,6 +82,14 @@ def _ramp(x: np.ndarray, zero_at: float, one_at: float) -> np.ndarray:
     return np.clip((x - zero_at) / (one_at - zero_at), 0.0, 1.0)
 
 
+def hole_weight(alpha: np.ndarray, config: VisibilityConfig | None = None) -> np.ndarray:
+    """(...) float32 in [0, 1] of an alpha map (...): 1 where the render holds nothing (alpha at or
+    below ``hole_alpha_low``), 0 where it is solid (at or above ``hole_alpha_high``), linear between."""
+    cfg = config or VisibilityConfig()
+    a = np.clip(np.nan_to_num(np.asarray(alpha, np.float32), nan=0.0), 0.0, 1.0)
+    return _ramp(a, cfg.hole_alpha_high, cfg.hole_alpha_low).astype(np.float32)
+
+
 def _max3x3(depth: np.ndarray) -> np.ndarray:
     return cv2.dilate(depth.astype(np.float32), np.ones((3, 3), np.uint8))
 
@@ -99,7 +107,7 @@ def unobserved_weight(camera: Camera, depth: np.ndarray, alpha: np.ndarray, trai
         raise InputError(f"unobserved_weight: depth {depth.shape} and alpha {alpha.shape} must be the camera's "
                          f"({H}, {W})")
     z = sanitize_depth(depth)
-    hole = _ramp(alpha, cfg.hole_alpha_high, cfg.hole_alpha_low)
+    hole = hole_weight(alpha, cfg)
     solid = (z > 0) & (alpha >= cfg.hole_alpha_low)
     seen = np.zeros((H, W), np.float64)
     if solid.any() and len(train):
@@ -142,4 +150,4 @@ def unobserved_fraction(weight: np.ndarray) -> float:
     return float(w.mean()) if w.size else 0.0
 
 
-__all__ = ["VisibilityConfig", "TrainView", "unobserved_weight", "unobserved_clip", "unobserved_fraction"]
+__all__ = ["VisibilityConfig", "TrainView", "hole_weight", "unobserved_weight", "unobserved_clip", "unobserved_fraction"]

@@ -147,10 +147,11 @@ class PseudoTargets:
 
     def weight(self, entry: PseudoEntry) -> np.ndarray:
         """(F, H, W) weight of the pseudo L1 (``Stage2Config``): the restorer's confidence (when
-        ``confidence_weighting``) times, with ``pseudo_mask = "unobserved"``, observed_weight +
+        ``confidence_weighting`` with ``pseudo_target = "restored"``; 1 for a gated target) times, with ``pseudo_mask = "unobserved"``, observed_weight +
         (1 - observed_weight) x how unobserved the pixel is by the train cameras."""
         s2 = self.config
-        weight = entry.confidence() if s2.confidence_weighting else None
+        # a gated target already carries the confidence: the render stands wherever it is low
+        weight = entry.confidence() if s2.confidence_weighting and s2.pseudo_target == "restored" else None
         if s2.pseudo_mask == "unobserved":
             hidden = entry.unobserved()
             if hidden is None:
@@ -188,7 +189,8 @@ class PseudoTargets:
             if tuple(target.shape[:2]) != (cam.height, cam.width):
                 raise InputError(f"cache entry {entry.key}: frame {f} is {tuple(target.shape[:2])} but its camera is "
                                  f"{cam.height}x{cam.width}; the cache is stale, refresh it")
-            weight = conf[f] if s2.confidence_weighting or s2.pseudo_mask != "all" else None
+            weighted = (s2.confidence_weighting and s2.pseudo_target == "restored") or s2.pseudo_mask != "all"
+            weight = conf[f] if weighted else None
             loss = loss + masked_l1(out.rgb, target, weight)
             if evidence is not None:
                 evidence.append(masked_l1(out.rgb, target, self.evidence_weight(entry, f)) / max(len(picks), 1))

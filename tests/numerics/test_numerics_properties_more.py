@@ -101,8 +101,8 @@ def test_restore_request_and_result_validate_or_input_error(f, h, w, kind):
 
 @SETTINGS
 @given(st.integers(1, 2), st.sampled_from([UNIT, SIGNED_MAG]), st.sampled_from([UNIT, SIGNED_MAG]),
-       st.booleans(), st.data())
-def test_blend_with_render_finite_in_unit_range(f, render_el, result_el, with_weight, data):
+       st.booleans(), st.booleans(), st.data())
+def test_blend_with_render_finite_in_unit_range(f, render_el, result_el, with_weight, with_hole, data):
     from fixer4d.restore import RestoreResult
     from fixer4d.restore.base import blend_with_render
 
@@ -110,9 +110,10 @@ def test_blend_with_render_finite_in_unit_range(f, render_el, result_el, with_we
     result = RestoreResult(data.draw(_arrays((f, 3, 4, 3), result_el)), data.draw(_arrays((f, 3, 4), SIGNED_MAG)),
                            np.zeros(f, np.float32))
     weight = data.draw(_arrays((f, 3, 4), SIGNED_MAG)) if with_weight else None
-    out = blend_with_render(render, result, weight)
+    hole = data.draw(_arrays((f, 3, 4), SIGNED_MAG)) if with_hole else None
+    out = blend_with_render(render, result, weight, hole)
     assert finite(out.rgb) and finite(out.confidence) and finite(out.frame_confidence)
-    assert out.rgb.min() >= 0.0 and out.rgb.max() <= 1.0 and out.confidence.min() >= 0.0
+    assert out.rgb.min() >= 0.0 and out.rgb.max() <= 1.0 and 0.0 <= out.confidence.min() <= out.confidence.max() <= 1.0
     with pytest.raises(InputError):
         blend_with_render(render[:, :2], result, weight)
 

@@ -33,10 +33,15 @@ def test_report_contract(tiny_run):
                  "baseline_sparse/model_stage1.ply", "matched/model.ply", "init_mvs/init_report.json",
                  "init_sparse/init_report.json"):
         assert (run_dir / name).exists(), name
-    # the cache holds the 6 pairs + 2 arcs at the one restored timestamp, in round 0
-    keys = sorted(p.name for p in (run_dir / "cache" / "round_0").iterdir() if not p.name.startswith("."))
-    assert len(keys) == 8 and keys[0].startswith("t0000_")
     rows = {r["method"]: r for r in on_disk["rows"]}
+    decision = on_disk["self_check"]["decision"]
+    if decision == "refine":
+        # the cache holds the 6 pairs + 2 arcs at the one restored timestamp, in round 0
+        keys = sorted(p.name for p in (run_dir / "cache" / "round_0").iterdir() if not p.name.startswith("."))
+        assert len(keys) == 8 and keys[0].startswith("t0000_")
+    else:  # the final model is the one the check trusted: the stage-1 model or the matched control
+        same_as = R.ROW_MVS if decision == "skip" else R.ROW_MATCHED
+        assert rows[R.ROW_FULL]["psnr"] == rows[same_as]["psnr"]
     assert rows[R.ROW_FULL]["seconds"] > rows[R.ROW_MVS]["seconds"]
     stored = json.loads((run_dir / "config.json").read_text())
     assert stored["format_version"] == FORMAT_VERSION and stored["config"] == tiny_config().to_dict()

@@ -37,11 +37,14 @@ def test_refine_continues_a_run_with_its_own_config(tiny_run, tmp_path, capsys):
     # the run's own config, not refine's defaults: same cap, same trajectories, nothing recomputed
     assert main(["refine", str(run), "--quiet"]) == 0
     assert json.loads((run / "stages.json").read_text()) == before
+    # the self-check off: stage 2 runs whatever the fold would say, and fills a cache
+    assert main(["refine", str(run), "--set", "self_check.enabled=false", "--quiet"]) == 0
+    refined = json.loads((run / "stages.json").read_text())
+    assert (run / "cache" / "round_0").is_dir()
     # a new stage-2 setting recomputes stage 2; the old pseudo-targets are moved aside, never reused
-    # (the self-check off: stage 2 runs whatever the fold would say)
-    assert main(["refine", str(run), "--refresh-every", "10", "--set", "self_check.enabled=false", "--quiet"]) == 0
+    assert main(["refine", str(run), "--refresh-every", "10", "--quiet"]) == 0
     after = json.loads((run / "stages.json").read_text())
-    assert after["stage1"] == before["stage1"] and after["stage2"]["key"] != before["stage2"]["key"]
+    assert after["stage1"] == before["stage1"] and after["stage2"]["key"] != refined["stage2"]["key"]
     assert (run / "stale" / "cache-0" / "round_0").is_dir() and (run / "cache" / "round_0").is_dir()
     config = json.loads((run / "config.json").read_text())["config"]
     assert config["stage2"]["refresh_every"] == 10 and config["stage1"]["iterations"] == 40

@@ -8,7 +8,7 @@ import pytest
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
 from fixer4d.restore.base import RestoreResult, blend_with_render
-from fixer4d.restore.visibility import TrainView, VisibilityConfig, unobserved_weight
+from fixer4d.restore.visibility import TrainView, VisibilityConfig, hole_weight, unobserved_weight
 
 WALL_Z = 5.0
 # an occluder between the train camera and the wall: x in [0.3, 0.7], y in [-0.3, 0.3] at z = 2.5;
@@ -90,3 +90,27 @@ def test_blend_returns_the_render_where_confidence_or_weight_is_zero():
     np.testing.assert_allclose(out.confidence, conf * weight, rtol=1e-6)
     full = blend_with_render(render, RestoreResult(restored, np.ones_like(conf), np.ones(2)))
     np.testing.assert_allclose(full.rgb, restored, rtol=1e-6)
+
+
+def test_a_hole_takes_the_restored_frame_whatever_the_confidence():
+    rng = np.random.default_rng(2)
+    render = rng.random((1, 6, 5, 3)).astype(np.float32)
+    restored = rng.random((1, 6, 5, 3)).astype(np.float32)
+    conf = np.zeros((1, 6, 5), np.float32)  # no confidence anywhere
+    weight = np.zeros((1, 6, 5), np.float32)  # every pixel observed
+    alpha = np.ones((1, 6, 5), np.float32)
+    alpha[0, :2] = 0.0  # nothing rendered in the first two rows
+    alpha[0, 2] = 0.5  # half-way between hole_alpha_low 0.2 and hole_alpha_high 0.8
+    hole = hole_weight(alpha)
+    assert np.array_equal(hole[0, :2], np.ones((2, 5), np.float32)) and np.allclose(hole[0, 2], 0.5)
+    assert (hole[0, 3:] == 0.0).all()
+    out = blend_with_render(render, RestoreResult(restored, conf, conf.mean(axis=(1, 2))), weight, hole)
+    np.testing.assert_allclose(out.rgb[0, :2], restored[0, :2], rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(out.rgb[0, 2], 0.5 * (render[0, 2] + restored[0, 2]), rtol=1e-6)
+    np.testing.assert_array_equal(out.rgb[0, 3:], render[0, 3:])  # solid and observed: the render
+    np.testing.assert_array_equal(out.confidence, hole)
+    # where the restorer may act, the larger of the two weights wins
+    conf[:] = 0.8
+    weight[:] = 1.0
+    out = blend_with_render(render, RestoreResult(restored, conf, conf.mean(axis=(1, 2))), weight, hole)
+    np.testing.assert_allclose(out.confidence, np.maximum(hole, 0.8), rtol=1e-6)

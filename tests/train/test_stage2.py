@@ -191,8 +191,13 @@ def test_real_restore_cache_plugs_in(small_scene, small_clouds, make_config, tmp
     trainer = Trainer(model, small_scene, cfg, stage2=Stage2Config(refresh_every=3, rounds=1), cache=cache)
     rec = trainer.step()
     assert trainer.round == 0 and rec["loss_gen"] > 0
-    assert trainer.pseudo.weight(entry) == pytest.approx(np.full((3, h, w), 0.5))
-    masked = Trainer(model, small_scene, cfg, stage2=Stage2Config(refresh_every=3, rounds=1, pseudo_mask="unobserved"),
-                     cache=cache)
-    assert masked.pseudo.weight(entry) == pytest.approx(np.full((3, h, w), 0.125))
+    # a gated target (the default) carries the confidence itself: every pixel at weight 1
+    assert trainer.pseudo.weight(entry) == pytest.approx(np.ones((3, h, w)))
+    for target, expected in (("restored", 0.5), ("gated", 1.0)):
+        plain = Trainer(model, small_scene, cfg, cache=cache,
+                        stage2=Stage2Config(refresh_every=3, rounds=1, pseudo_target=target))
+        assert plain.pseudo.weight(entry) == pytest.approx(np.full((3, h, w), expected))
+        masked = Trainer(model, small_scene, cfg, cache=cache,
+                         stage2=Stage2Config(refresh_every=3, rounds=1, pseudo_target=target, pseudo_mask="unobserved"))
+        assert masked.pseudo.weight(entry) == pytest.approx(np.full((3, h, w), 0.25 * expected))
     assert rec["loss"] == pytest.approx(rec["loss_stg"] + 0.5 * rec["loss_gen"], rel=1e-5)

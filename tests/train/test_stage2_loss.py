@@ -108,7 +108,7 @@ def test_confidence_weights_the_pseudo_loss(small_scene, small_clouds, make_conf
     losses = []
     for conf in (1.0, 0.25, 0.0):
         model, cfg = _model(small_scene, small_clouds, make_config)
-        trainer = Trainer(model, small_scene, cfg, stage2=Stage2Config(refresh_every=5, rounds=1),
+        trainer = Trainer(model, small_scene, cfg, stage2=Stage2Config(refresh_every=5, rounds=1, pseudo_target="restored"),
                           cache=FakeCache({0: [_endpoint_clip(small_scene, conf=conf)]}))
         torch.manual_seed(0)
         losses.append(trainer.step()["loss_gen"])
@@ -139,24 +139,46 @@ def _pseudo_weight(scene, clouds, make_config, entry, **stage2):
     return trainer.pseudo.weight(entry)
 
 
+def _paper_stage2() -> dict:
+    """The Stage2Config fields of ``--paper-stage2`` (pipeline.config.PAPER_STAGE2)."""
+    from fixer4d.pipeline.config import PAPER_STAGE2
+
+    return {k.split(".", 1)[1]: v for k, v in PAPER_STAGE2.items() if k.startswith("stage2.")}
+
+
 def test_paper_switch_gives_the_confidence_weighted_loss_exactly(small_scene, small_clouds, make_config):
-    # pseudo_mask=all: the weight is the restorer's confidence, bit for bit (the paper's stage 2,
+    # --paper-stage2: the weight is the restorer's confidence, bit for bit (the paper's stage 2,
     # with the unobserved map ignored even where the cache has one)
     entry = _masked_clip(small_scene)
-    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, pseudo_mask="all")
+    paper = _paper_stage2()
+    assert paper == {"pseudo_target": "restored", "pseudo_mask": "all", "densify_stats": "all"}
+    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, **paper)
     assert np.array_equal(w, entry.conf)
-    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, pseudo_mask="all", confidence_weighting=False)
+    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, **paper, confidence_weighting=False)
     assert np.array_equal(w, np.ones_like(entry.conf))
 
 
 def test_unobserved_mask_weights_the_pseudo_loss(small_scene, small_clouds, make_config):
     entry = _masked_clip(small_scene)
-    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, pseudo_mask="unobserved")
+    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, pseudo_mask="unobserved", pseudo_target="restored")
     np.testing.assert_allclose(w, entry.conf * entry.hidden, rtol=1e-6)
-    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, pseudo_mask="unobserved", observed_weight=0.25)
+    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, pseudo_mask="unobserved", observed_weight=0.25,
+                       pseudo_target="restored")
     np.testing.assert_allclose(w, entry.conf * (0.25 + 0.75 * entry.hidden), rtol=1e-6)
     blank = MaskedEntry(entry.key, entry.cameras, entry.time, entry.frames, entry.conf, None)
     with pytest.raises(Exception, match="unobserved-pixel map"):
         _pseudo_weight(small_scene, small_clouds, make_config, blank, pseudo_mask="unobserved")
-    # the default (chosen on the validation cameras) supervises every pixel, as the paper
-    assert np.array_equal(_pseudo_weight(small_scene, small_clouds, make_config, entry), entry.conf)
+    # the default (chosen on the validation cameras) supervises every pixel of a gated target
+    assert np.array_equal(_pseudo_weight(small_scene, small_clouds, make_config, entry), np.ones_like(entry.conf))
+
+
+def test_a_gated_target_weighs_every_pixel_alike(small_scene, small_clouds, make_config):
+    # the gated target carries the confidence itself (the render stands where it is low), so its
+    # loss weight is 1 everywhere; with pseudo_mask=unobserved the unobserved map still applies
+    entry = _masked_clip(small_scene)
+    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, pseudo_target="gated")
+    assert np.array_equal(w, np.ones_like(entry.conf))
+    w = _pseudo_weight(small_scene, small_clouds, make_config, entry, pseudo_target="gated", pseudo_mask="unobserved")
+    np.testing.assert_allclose(w, entry.hidden, rtol=1e-6)
+    with pytest.raises(Exception, match="pseudo_target"):
+        Stage2Config(pseudo_target="render")
