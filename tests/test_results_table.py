@@ -48,3 +48,18 @@ def test_a_record_of_other_cameras_keeps_the_runs_seconds(benchmark_script, tmp_
     data = json.loads(tables.record(run / "heldout" / "val", "x", "cmd", None).read_text())
     assert data["rows"][0]["psnr"] == 2.0 and data["stage_seconds"] == {"stage1": 7.5}
     assert data["commit"] == "abc1234" and data["heldout_from"] == "val"
+
+
+def test_a_mean_row_averages_the_files_it_names(benchmark_script, tmp_path, monkeypatch):
+    tables = benchmark_script("results_table")
+    monkeypatch.setattr(tables, "RESULTS", tmp_path)
+    for stem, full, check in (("a", 20.0, "refine"), ("b", 21.0, "continue")):
+        (tmp_path / f"{stem}.json").write_text(json.dumps({
+            "rows": [{"method": "Full", "status": "ok", "psnr": full},
+                     {"method": "STGS w/ COLMAP", "status": "failed" if stem == "b" else "ok", "psnr": 18.0}],
+            "self_check": {"decision": check}, "commit": f"c{stem}", "date": f"2026-11-2{len(stem)}"}))
+    mean = tables._read("mean:a,b")
+    rows = {r["method"]: r for r in mean["rows"]}
+    assert rows["Full"]["psnr"] == 20.5 and rows["STGS w/ COLMAP"]["status"] == "failed"
+    assert mean["self_check"]["decision"] == "continue/refine" and mean["commit"] == "ca/cb"
+    assert tables._read("mean:a,missing") is None

@@ -1,8 +1,8 @@
 """Compare: for a trajectory frame of a cached restoration, the current render vs the cached
 pseudo-target (and the ground truth where the scene has one: a real camera, or any camera of a
 synthetic scene): side by side, split slider, A/B toggle, labels and per-frame PSNR. Where the
-clip carries its unobserved-pixel map (``restore.visibility``), a fourth pane shows where the
-pseudo-loss acts (magenta: pixels no train camera explains) with its share of the frame."""
+clip carries it, a fourth pane shows where the pseudo-target pulls the model towards the
+restorer (magenta; ``supervision_map``) with its share of the frame."""
 from __future__ import annotations
 
 import time
@@ -49,16 +49,27 @@ def frame_images(viewer, ui: dict, entry, k: int) -> dict[str, np.ndarray]:
     if key not in cache:
         cam = entry.cameras[k]
         out = {"render": viewer.gaussians_render_fn()(cam, entry.time)["rgb"], "target": entry.rgb()[k]}
-        hidden = entry.unobserved() if hasattr(entry, "unobserved") else None
-        if hidden is not None:
-            out["supervised"] = supervised_overlay(out["target"], hidden[k])
-            out["supervised_fraction"] = float(hidden[k].mean())
+        weight = supervision_map(entry)
+        if weight is not None:
+            out["supervised"] = supervised_overlay(out["target"], weight[k])
+            out["supervised_fraction"] = float(weight[k].mean())
         truth = ground_truth(viewer.source.scene, entry, cam)
         if truth is not None:
             out["truth"] = truth
         cache.clear()
         cache[key] = out
     return cache[key]
+
+
+def supervision_map(entry) -> np.ndarray | None:
+    """(F, H, W) in [0, 1] or None: what pulls the model towards the restorer in an entry. A gated
+    pseudo-target (meta "pseudo_target": "gated") is the restored frame only where its stored
+    confidence (the gate: holes, confident unobserved pixels) says so and the render elsewhere;
+    another entry's pseudo-loss acts where the train cameras leave a pixel unobserved."""
+    meta = getattr(entry, "meta", None) or {}
+    if meta.get("pseudo_target") == "gated":
+        return entry.confidence()
+    return entry.unobserved() if hasattr(entry, "unobserved") else None
 
 
 def supervised_overlay(target: np.ndarray, weight: np.ndarray) -> np.ndarray:
@@ -114,18 +125,19 @@ def body(viewer, ui: dict) -> None:
     _, ui["mode"] = imgui.combo("mode", ui["mode"], list(MODES))
     imgs = frame_images(viewer, ui, entry, ui["k"])
     labels = [("render", "render (current model)"), ("target", "pseudo-target (cache)"), ("truth", "ground truth"),
-              ("supervised", "where the pseudo-loss acts (magenta)")]
+              ("supervised", "where the target is restored (magenta)")]
     scores = [f"PSNR render vs target {psnr(imgs['render'], imgs['target']):.2f} dB"]
     if "truth" in imgs:
         scores.append(f"render vs truth {psnr(imgs['render'], imgs['truth']):.2f} dB")
         scores.append(f"target vs truth {psnr(imgs['target'], imgs['truth']):.2f} dB")
     if "supervised_fraction" in imgs:
-        scores.append(f"pseudo-loss on {100 * imgs['supervised_fraction']:.1f} % of the frame")
+        scores.append(f"restored on {100 * imgs['supervised_fraction']:.1f} % of the frame")
     imgui.text("   ".join(scores))
     if "supervised" in imgs and imgui.is_item_hovered():
-        imgui.set_tooltip("The pseudo-loss acts only where no train camera sees the rendered surface from near this "
-                          "view (holes, occluded or unseen surfaces); elsewhere the real frames already constrain "
-                          "the model (stage2.pseudo_mask=all supervises every pixel, as the paper)")
+        imgui.set_tooltip("Magenta: where the pseudo-target pulls the model towards the restorer: holes of the "
+                          "render, and surfaces no train camera sees from near this view where the restorer is "
+                          "confident. Elsewhere the target is the render itself (stage2.pseudo_target=gated) and "
+                          "the real frames constrain the model; --paper-stage2 restores every pixel")
     avail = imgui.get_content_region_avail()
     h, w = imgs["render"].shape[:2]
     mode = MODES[ui["mode"]]

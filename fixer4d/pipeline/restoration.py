@@ -120,7 +120,8 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
             for (f, tr, ids), req, res in zip(batch, requests, results):
                 cache.write(round_index, cache.key(f, ids[0], ids[1], tr.arc_index), req, res,
                             {"restorer": restorer.name, "restorer_settings": restorer.settings(),
-                             "restorer_kind": config.restorer.kind, "model_gaussians": int(model.num_gaussians)})
+                             "restorer_kind": config.restorer.kind, "model_gaussians": int(model.num_gaussians),
+                             "pseudo_target": config.stage2.pseudo_target})
             bar.update(len(batch))
         bar.close()
 

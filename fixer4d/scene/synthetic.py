@@ -364,27 +364,27 @@ def select_views(cameras: list[Camera], train: Any = "auto", where: str = "<spec
         # Rigs of 4 cameras or fewer still hold the centre one out, training on the rest.
         train_ids = most_separated(cameras, min(4, n - 1), exclude=(centre_camera(cameras),))
     else:
-        try:
-            train_ids = sorted(int(i) for i in train)
-        except (TypeError, ValueError):
-            raise InputError(f"scene spec {where}: rig.train: \"auto\" or a list of camera indices, got {train!r}") from None
-        bad = [i for i in train_ids if not 0 <= i < n]
-        if bad:
-            raise InputError(f"scene spec {where}: rig.train: camera indices {bad} outside [0, {n})")
+        train_ids = _camera_indices(train, n, f"scene spec {where}: rig.train", '"auto" or ')
     if test is None:
         return train_ids, [i for i in range(n) if i not in train_ids]
-    try:
-        test_ids = sorted(int(i) for i in test)
-    except (TypeError, ValueError):
-        raise InputError(f"scene spec {where}: rig.test: a list of camera indices, got {test!r}") from None
-    bad = [i for i in test_ids if not 0 <= i < n]
-    if bad:
-        raise InputError(f"scene spec {where}: rig.test: camera indices {bad} outside [0, {n})")
+    test_ids = _camera_indices(test, n, f"scene spec {where}: rig.test")
     both = sorted(set(test_ids) & set(train_ids))
     if both or not test_ids:
         raise InputError(f"scene spec {where}: rig.test: needs at least one camera and none of the train ones"
                          + (f" (both: {both})" if both else ""))
     return train_ids, test_ids
+
+
+def _camera_indices(value: Any, n: int, where: str, alternative: str = "") -> list[int]:
+    """``value`` as sorted camera indices in [0, n), or an InputError naming ``where``."""
+    try:
+        ids = sorted(int(i) for i in value)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: {alternative}a list of camera indices, got {value!r}") from None
+    bad = [i for i in ids if not 0 <= i < n]
+    if bad:
+        raise InputError(f"{where}: camera indices {bad} outside [0, {n})")
+    return ids
 
 
 # ---------------------------------------------------------------------------- the scene

@@ -123,3 +123,25 @@ def test_moving_mask_overlay_from_the_run(gl_ctx, tiny, tmp_path, monkeypatch):
         assert imgui.calc_text_size(v.mask_note).x <= lx1 - lx0
     finally:
         v.close()
+
+
+def test_compare_shows_where_a_gated_target_is_restored():
+    """A gated pseudo-target is the render but where its gate (stored as the entry's confidence)
+    restores; other entries show the pixels no train camera explains."""
+    from app.panels.compare import supervision_map
+
+    conf, hidden = np.full((2, 3, 4), 0.25, np.float32), np.full((2, 3, 4), 0.75, np.float32)
+
+    class Entry:
+        def __init__(self, meta):
+            self.meta = meta
+
+        def confidence(self):
+            return conf
+
+        def unobserved(self):
+            return hidden
+
+    assert supervision_map(Entry({"pseudo_target": "gated"})) is conf
+    assert supervision_map(Entry({"pseudo_target": "restored"})) is hidden
+    assert supervision_map(Entry({})) is hidden

@@ -1,0 +1,126 @@
+"""Where does the restorer help the render, and which gate keeps only that? Per pixel class, on a
+run's validation cameras.
+
+    python benchmarks/restoration_gate.py RUN --cameras-from VALIDATION [--stride S] [--out FILE.json]
+
+RUN is a finished `fixer4d run` folder (its stage-1 model, restorer and config are used as they
+are); VALIDATION a folder or bundled spec with the same train cameras and other held-out cameras
+(as `fixer4d eval --cameras-from`). For every held-out camera and every S-th frame the camera is
+restored exactly as the "Restoration (init)" row restores it (the two nearest train cameras as
+references, a three-frame clip through the camera, the middle frame), and the squared error of
+five images is summed per pixel class:
+
+- render: the stage-1 render; restored: the restorer's output as it is (the paper's row);
+- gated: restored x confidence x unobserved (no holes rule); hole: restored only in the render's
+  holes (``restore.visibility.hole_weight``); gate: max(hole, confidence x unobserved), the
+  pipeline's ``gate_restoration``;
+
+over the classes all, unobserved (weight > 0.5), hole (alpha < 0.5), unobserved and solid, and
+observed. It reads held-out images, so it is a diagnostic of validation cameras: never pass test
+cameras to choose a setting with it.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import fixer4d  # noqa: E402,F401  (sets the OpenMP wait policy before torch is imported)
+
+IMAGES = ("render", "restored", "gated", "hole", "gate")
+CLASSES = ("all", "unobserved", "hole", "unobserved_solid", "observed")
+
+
+def through_clip(scene, camera):
+    """(cameras, reference ids) of the Restoration row's clip through ``camera``."""
+    from fixer4d.geometry.trajectory import interpolate_pair, same_pose
+
+    d = [np.linalg.norm(scene.cameras[i].center - camera.center) for i in scene.train_ids]
+    order = np.argsort(d)
+    ids = (scene.train_ids[order[0]], scene.train_ids[order[1]])
+
+    def mid(c0, c1):
+        return c1 if same_pose(c0, c1) else interpolate_pair(c0, c1, np.array([0.5]), 0.0)[0]
+
+    a, b = scene.cameras[ids[0]], scene.cameras[ids[1]]
+    return [mid(a, camera), camera, mid(camera, b)], ids
+
+
+def pixel_classes(unobserved: np.ndarray, alpha: np.ndarray) -> dict[str, np.ndarray]:
+    hidden = unobserved > 0.5
+    return {"all": np.ones_like(hidden), "unobserved": hidden, "hole": alpha < 0.5,
+            "unobserved_solid": hidden & (alpha >= 0.5), "observed": ~hidden}
+
+
+def images(request, result, visibility) -> dict[str, np.ndarray]:
+    """The five (H, W, 3) images of the clip's middle frame."""
+    from fixer4d.restore.visibility import hole_weight
+
+    r, o = request.rgb[1], result.rgb[1]
+    conf, hidden = result.confidence[1], request.unobserved[1]
+    hole = hole_weight(request.alpha[1], visibility)
+    blend = lambda g: r + g[..., None] * (o - r)  # noqa: E731
+    return {"render": r, "restored": o, "gated": blend(conf * hidden), "hole": blend(hole),
+            "gate": blend(np.maximum(hole, conf * hidden))}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run", type=Path)
+    parser.add_argument("--cameras-from", required=True, help="a validation folder or bundled spec")
+    parser.add_argument("--stride", type=int, default=6, help="every S-th frame")
+    parser.add_argument("--out", type=Path, default=None, help="write the table as JSON")
+    args = parser.parse_args(argv)
+
+    from fixer4d.model.io import load_ply
+    from fixer4d.pipeline.other_cameras import check_same_train_cameras
+    from fixer4d.pipeline.restoration import make_request, run_restorer
+    from fixer4d.pipeline.run_folder import load_scene_for, read_run_config, source_commit
+    from fixer4d.psnr import psnr_from_mse
+    from fixer4d.scene import load_scene
+
+    config = read_run_config(args.run)
+    own = load_scene_for(config)
+    sc = config.scene
+    scene = load_scene(args.cameras_from, scale=sc.scale, frame_range=sc.frame_range)
+    check_same_train_cameras(own, scene)
+    model = load_ply(args.run / "model_stage1.ply")
+    restorer = run_restorer(config, args.run)
+    sums = {c: {k: 0.0 for k in IMAGES} for c in CLASSES}
+    counts = dict.fromkeys(CLASSES, 0)
+    for cam_idx in scene.test_ids:
+        cams, ids = through_clip(scene, scene.cameras[cam_idx])
+        for frame in range(0, scene.num_frames, args.stride):
+            request = make_request(model, scene, cams, frame, ids, visibility=config.stage2.visibility)
+            result = restorer.restore(request)
+            truth = scene.frame(frame, cam_idx)
+            imgs = images(request, result, config.stage2.visibility)
+            errors = {k: ((np.clip(v, 0, 1) - truth) ** 2).mean(-1) for k, v in imgs.items()}
+            for c, mask in pixel_classes(request.unobserved[1], request.alpha[1]).items():
+                counts[c] += int(mask.sum())
+                for k in IMAGES:
+                    sums[c][k] += float(errors[k][mask].sum())
+    total = counts["all"]
+    table = {c: {"fraction": counts[c] / total if total else 0.0,
+                 **{k: (psnr_from_mse(sums[c][k] / counts[c]) if counts[c] else None) for k in IMAGES}}
+             for c in CLASSES}
+    out = {"run": str(args.run), "cameras_from": str(args.cameras_from), "stride": args.stride,
+           "restorer": config.restorer.kind, "commit": source_commit(), "psnr_db": table}
+    for c, row in table.items():
+        print(f"{c:17s} {100 * row['fraction']:5.1f} % " + " ".join(
+            f"{k} {row[k]:.2f}" if row[k] is not None else f"{k} n/a" for k in IMAGES))
+    if args.out is not None:
+        from fixer4d.atomic import write_json
+
+        write_json(args.out, out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
