@@ -147,8 +147,9 @@ class PseudoTargets:
 
     def weight(self, entry: PseudoEntry) -> np.ndarray:
         """(F, H, W) weight of the pseudo L1 (``Stage2Config``): the restorer's confidence (when
-        ``confidence_weighting`` with ``pseudo_target = "restored"``; 1 for a gated target) times, with ``pseudo_mask = "unobserved"``, observed_weight +
-        (1 - observed_weight) x how unobserved the pixel is by the train cameras."""
+        ``confidence_weighting`` with ``pseudo_target = "restored"``; 1 for a gated target) times,
+        with ``pseudo_mask = "unobserved"``, observed_weight + (1 - observed_weight) x how
+        unobserved the pixel is by the train cameras."""
         s2 = self.config
         # a gated target already carries the confidence: the render stands wherever it is low
         weight = entry.confidence() if s2.confidence_weighting and s2.pseudo_target == "restored" else None
