@@ -11,8 +11,8 @@ PIP    := $(PY) -m pip
 STAMP  := $(VENV)/.fixer4d-installed
 LPIPS  := $(VENV)/share/fixer4d/lpips/alexnet.ckpt
 # Debian packages: EGL/Mesa for headless GL (viewer, GL tests), xvfb + xauth for real windows,
-# ffmpeg libs come inside PyAV's wheel.
-DEB_PKGS := libegl1 libgl1 libgl1-mesa-dri libegl-mesa0 libglx-mesa0 xvfb xauth
+# xdotool for the test that presses keys in one; ffmpeg libs come inside PyAV's wheel.
+DEB_PKGS := libegl1 libgl1 libgl1-mesa-dri libegl-mesa0 libglx-mesa0 xvfb xauth xdotool
 TORCH  := torch==2.13.0
 RUN    ?= runs/demo
 PYTEST_ARGS ?=

@@ -1,6 +1,7 @@
 """The demo as a user's own capture: board-calibrated (the user's path) against the given poses.
 
     python benchmarks/capture_run.py [--demo DIR] [--work DIR] [--seed S]
+    python benchmarks/capture_run.py --summarize     # the mean over the seeds' result files
 
 1. `fixer4d make-scene demo --format n3dv` (into WORK/demo unless --demo names such a folder).
 2. WORK/capture: the demo's 4 train videos plus ONE held-out camera's video, chosen without any
@@ -20,7 +21,8 @@ Both runs read the same video files and use `fixer4d run`'s defaults (those of `
 exists is resumed by `fixer4d run` (finished stages are reused): its seconds then are not a full
 run's. Writes benchmarks/results/calibration_demo_run.json (calibration errors of A, the report
 rows of both runs on the held-out camera, Full_A - Full_B, commands, seconds, load average, commit);
-with --seed, calibration_demo_run_seed<S>.json.
+with --seed, calibration_demo_run_seed<S>.json. `--summarize` writes their per-seed and mean
+figures to calibration_demo_run_mean.json.
 """
 from __future__ import annotations
 
@@ -53,8 +55,9 @@ RESULTS = ROOT / "benchmarks" / "results"
 BOARD_FILM_FACTOR = 4
 # The report rows recorded per run (every row the report has; these two are the done-when's).
 KEY_ROWS = ("STGS w/ MVS", "Full")
-# The issue's done-when: the board-calibrated run's Full PSNR within this of the given-pose run's.
+# The acceptance bar: the board-calibrated run's Full PSNR within this of the given-pose run's.
 DONE_WHEN_DB = 0.3
+MEAN_FILE = "calibration_demo_run_mean.json"
 
 
 def _cli(*args: str) -> list[str]:
@@ -118,12 +121,41 @@ def timed(cmd: list[str], log: Path) -> dict:
             "load_average_after": [round(x, 2) for x in os.getloadavg()]}
 
 
+def summarize(files: list[Path]) -> dict:
+    """Per-seed and mean STGS w/ MVS and Full of runs A and B over result files of this script
+    (those whose runs both finished), and the mean Full A - B against the acceptance bar."""
+    seeds = []
+    for f in files:
+        rec = json.loads(Path(f).read_text())
+        if "summary" not in rec:
+            continue
+        seeds.append({"file": Path(f).name, "seed": rec.get("seed"), "commit": rec.get("commit"),
+                      **{n: rec["summary"][n] for n in "AB"}, "full_A_minus_B_db": rec["full_A_minus_B_db"]})
+    if not seeds:
+        raise SystemExit("no finished capture runs among " + ", ".join(str(f) for f in files))
+    mean = {n: {m: float(np.mean([s[n][m] for s in seeds])) for m in KEY_ROWS} for n in "AB"}
+    diff = mean["A"]["Full"] - mean["B"]["Full"]
+    return {"seeds": seeds, "mean": mean, "full_A_minus_B_db": diff,
+            "spread_full_A_minus_B_db": [min(s["full_A_minus_B_db"] for s in seeds),
+                                         max(s["full_A_minus_B_db"] for s in seeds)],
+            "done_when": {"threshold_db": DONE_WHEN_DB, "met": abs(diff) <= DONE_WHEN_DB}}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--demo", type=Path, default=None, help="an existing `make-scene demo --format n3dv` folder")
     parser.add_argument("--work", type=Path, default=ROOT / "runs" / "capture_run", help="capture and run folders")
     parser.add_argument("--seed", type=int, default=None, help="one seed for both runs (default: the runs' default)")
+    parser.add_argument("--summarize", action="store_true",
+                        help="run nothing: the mean over the committed calibration_demo_run*.json seeds "
+                             "-> calibration_demo_run_mean.json")
     args = parser.parse_args()
+    if args.summarize:
+        files = sorted(f for f in RESULTS.glob("calibration_demo_run*.json") if f.name != MEAN_FILE)
+        out = summarize(files)
+        atomic.write_json(RESULTS / MEAN_FILE, out)
+        print(json.dumps(out, indent=1))
+        return 0
     work = args.work.resolve()
     work.mkdir(parents=True, exist_ok=True)
     demo_dir = args.demo
