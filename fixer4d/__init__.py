@@ -17,6 +17,13 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 # older one gave a warning on every run).
 if sys.platform.startswith("linux"):
     os.environ.setdefault("NUMBA_THREADING_LAYER", "omp")
+# Under a cgroup CPU quota smaller than the affinity mask (containers, CI runners) the pools
+# would start a thread per host CPU; sized to the quota instead (fixer4d/cpus.py). The
+# environment's own values win.
+from fixer4d.cpus import thread_env_defaults  # noqa: E402
+
+for _key, _value in thread_env_defaults().items():
+    os.environ.setdefault(_key, _value)
 
 __version__ = "0.1.0"
 

@@ -193,7 +193,7 @@ def test_the_library_has_no_gui_import():
 # fixer4d's packages from the bottom layer up; a module may import its own layer and lower ones.
 # Command-line modules (``cli``, ``cli_*``, ``*_cli``, ``__main__``) are the top layer; the package
 # root (``fixer4d/__init__.py``: process settings, no fixer4d imports) is the bottom.
-LAYERS = (("errors", "atomic", "signals", "threads", "psnr"), ("geometry",), ("scene", "calib", "model", "restore"), ("render", "jit"),
+LAYERS = (("errors", "atomic", "signals", "threads", "psnr", "cpus"), ("geometry",), ("scene", "calib", "model", "restore"), ("render", "jit"),
           ("init", "eval"), ("train",), ("pipeline",), ("bench", "study"))
 
 

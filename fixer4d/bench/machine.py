@@ -24,6 +24,8 @@ import time
 
 import numpy as np
 
+from fixer4d.cpus import affinity_cpus, cgroup_cpu_quota, usable_cpus
+
 # The reference workload: float32 values, each passed through exp and a chain of multiply-adds,
 # REF_ROUNDS times over an array of REF_SIZE values (256 KiB: resident in L2 on any x86 server
 # core, so the figure is compute, not memory). ~0.1-0.3 s on one core of a 2-4 GHz x86 CPU.
@@ -156,7 +158,9 @@ def machine_info(reference: bool = False) -> dict:
     import numba
     import torch
 
-    out = {**cpu_topology(), "cores": os.cpu_count(), "numba_threads": numba.get_num_threads(),
+    out = {**cpu_topology(), "cores": os.cpu_count(), "affinity_cpus": affinity_cpus(),
+           "cgroup_cpu_quota": cgroup_cpu_quota(), "usable_cpus": usable_cpus(),
+           "numba_threads": numba.get_num_threads(),
            "torch_threads": torch.get_num_threads(), "python": platform.python_version(),
            # fixer4d/render/simd.py: 16-lane float32 loops on AVX-512 hosts unless switched off
            "numba_avx512_vectors": "-prefer-256-bit" in os.environ.get("NUMBA_CPU_FEATURES", ""),
