@@ -37,21 +37,6 @@ IMAGES = ("render", "restored", "gated", "hole", "gate")
 CLASSES = ("all", "unobserved", "hole", "unobserved_solid", "observed")
 
 
-def through_clip(scene, camera):
-    """(cameras, reference ids) of the Restoration row's clip through ``camera``."""
-    from fixer4d.geometry.trajectory import interpolate_pair, same_pose
-
-    d = [np.linalg.norm(scene.cameras[i].center - camera.center) for i in scene.train_ids]
-    order = np.argsort(d)
-    ids = (scene.train_ids[order[0]], scene.train_ids[order[1]])
-
-    def mid(c0, c1):
-        return c1 if same_pose(c0, c1) else interpolate_pair(c0, c1, np.array([0.5]), 0.0)[0]
-
-    a, b = scene.cameras[ids[0]], scene.cameras[ids[1]]
-    return [mid(a, camera), camera, mid(camera, b)], ids
-
-
 def pixel_classes(unobserved: np.ndarray, alpha: np.ndarray) -> dict[str, np.ndarray]:
     hidden = unobserved > 0.5
     return {"all": np.ones_like(hidden), "unobserved": hidden, "hole": alpha < 0.5,
@@ -59,7 +44,8 @@ def pixel_classes(unobserved: np.ndarray, alpha: np.ndarray) -> dict[str, np.nda
 
 
 def images(request, result, visibility) -> dict[str, np.ndarray]:
-    """The five (H, W, 3) images of the clip's middle frame."""
+    """The five (H, W, 3) images of the clip's middle frame ("gate" is the pipeline's own)."""
+    from fixer4d.pipeline.restoration import gate_restoration
     from fixer4d.restore.visibility import hole_weight
 
     r, o = request.rgb[1], result.rgb[1]
@@ -67,7 +53,7 @@ def images(request, result, visibility) -> dict[str, np.ndarray]:
     hole = hole_weight(request.alpha[1], visibility)
     blend = lambda g: r + g[..., None] * (o - r)  # noqa: E731
     return {"render": r, "restored": o, "gated": blend(conf * hidden), "hole": blend(hole),
-            "gate": blend(np.maximum(hole, conf * hidden))}
+            "gate": gate_restoration(request, result, visibility).rgb[1]}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -80,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from fixer4d.model.io import load_ply
     from fixer4d.pipeline.other_cameras import check_same_train_cameras
-    from fixer4d.pipeline.restoration import make_request, run_restorer
+    from fixer4d.pipeline.restoration import clip_through, make_request, run_restorer
     from fixer4d.pipeline.run_folder import load_scene_for, read_run_config, source_commit
     from fixer4d.psnr import psnr_from_mse
     from fixer4d.scene import load_scene
@@ -95,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     sums = {c: {k: 0.0 for k in IMAGES} for c in CLASSES}
     counts = dict.fromkeys(CLASSES, 0)
     for cam_idx in scene.test_ids:
-        cams, ids = through_clip(scene, scene.cameras[cam_idx])
+        cams, ids = clip_through(scene, scene.cameras[cam_idx])
         for frame in range(0, scene.num_frames, args.stride):
             request = make_request(model, scene, cams, frame, ids, visibility=config.stage2.visibility)
             result = restorer.restore(request)

@@ -6,7 +6,6 @@ import json
 from typing import Any
 
 
-
 def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     """--config, --set, --print-config."""
     parser.add_argument("--config", default=None, metavar="FILE",
@@ -16,6 +15,22 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
                              "see --print-config for every key")
     parser.add_argument("--print-config", action="store_true",
                         help="print the resolved config (every key, validated) and exit without running")
+
+
+def add_paper_stage2_argument(parser: argparse.ArgumentParser) -> None:
+    """--paper-stage2 (``paper_stage2_overrides``)."""
+    parser.add_argument("--paper-stage2", action="store_true",
+                        help="the paper's stage 2: restored targets on every pixel, no self-check, ungated "
+                             "restoration rows (--set values given as well win)")
+
+
+def paper_stage2_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """``pipeline.config.PAPER_STAGE2`` when --paper-stage2 was given, else nothing."""
+    if not args.paper_stage2:
+        return {}
+    from fixer4d.pipeline.config import PAPER_STAGE2
+
+    return dict(PAPER_STAGE2)
 
 
 def frame_range_override(text: str | None) -> list[int] | None:

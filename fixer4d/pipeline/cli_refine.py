@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 
 from fixer4d.errors import InputError
-from fixer4d.pipeline.cli_common import maybe_print_config
+from fixer4d.pipeline.cli_common import add_paper_stage2_argument, maybe_print_config, paper_stage2_overrides
 
 # Sections refine may change: anything else would make the stage-1 model stale.
 REFINABLE = ("stage2.", "restorer.", "trajectories.", "eval.", "self_check.")
@@ -26,9 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batch-pseudo", type=int, default=None, help="cached frames per iteration")
     parser.add_argument("--no-confidence", action="store_true", help="plain L1 instead of confidence-weighted")
     parser.add_argument("--eval-stride", type=int, default=None, help="evaluate every S-th frame")
-    parser.add_argument("--paper-stage2", action="store_true",
-                        help="the paper's stage 2: restored targets on every pixel, no self-check, ungated "
-                             "restoration rows (--set values given as well win)")
+    add_paper_stage2_argument(parser)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help=f"a config value in {', '.join(k.rstrip('.') for k in REFINABLE)} by dotted key")
     parser.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
@@ -55,10 +53,7 @@ def run(args: argparse.Namespace) -> int:
     }.items() if v is not None}
     if args.iterations is not None and args.iterations < 1:
         raise InputError(f"refine --iterations {args.iterations}: must be >= 1 (leave it out for R x K)")
-    if args.paper_stage2:
-        from fixer4d.pipeline.config import PAPER_STAGE2
-
-        overrides.update(PAPER_STAGE2)
+    overrides.update(paper_stage2_overrides(args))
     overrides.update(config_tree.parse_set_overrides(args.set))
     bad = [k for k in overrides if not k.startswith(REFINABLE)]
     if bad:

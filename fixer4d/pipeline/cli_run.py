@@ -4,7 +4,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fixer4d.pipeline.cli_common import add_config_arguments, frame_range_override, maybe_print_config, resolve_from_args
+from fixer4d.pipeline.cli_common import (add_config_arguments, add_paper_stage2_argument, frame_range_override,
+                                         maybe_print_config, paper_stage2_overrides, resolve_from_args)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,9 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="spacetime effects: decided by evidence (auto, default), all, or static only; force "
                              "one with --set effects.motion_degree=N (sh_degree, rotation_velocity, temporal_opacity)")
     parser.add_argument("--no-baseline", action="store_true", help="skip the STGS w/ COLMAP baseline row")
-    parser.add_argument("--paper-stage2", action="store_true",
-                        help="the paper's stage 2: restored targets on every pixel, no self-check, ungated "
-                             "restoration rows (--set values given as well win)")
+    add_paper_stage2_argument(parser)
     parser.add_argument("--eval-stride", type=int, default=None, help="evaluate every S-th frame")
     parser.add_argument("--segment-frames", type=int, default=None,
                         help="train a long capture as overlapping temporal segments of F frames")
@@ -65,10 +64,7 @@ def run(args: argparse.Namespace) -> int:
              "seed": args.seed, "stage1.seed": args.seed, "stage2.seed": args.seed,
              "scene.offsets": parse_offsets(args.offset) if args.offset else None, "scene.holdout": args.holdout,
              "scene.calibration": str(Path(args.calibration).resolve()) if args.calibration else None}
-    if args.paper_stage2:
-        from fixer4d.pipeline.config import PAPER_STAGE2
-
-        flags.update(PAPER_STAGE2)
+    flags.update(paper_stage2_overrides(args))
     config = resolve_from_args(args, flags, source=args.scene)
     if maybe_print_config(args, config):
         return 0

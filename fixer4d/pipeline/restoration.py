@@ -138,17 +138,10 @@ def gate_restoration(request, result, visibility: VisibilityConfig):
     return blend_with_render(request.rgb, result, request.unobserved, hole_weight(request.alpha, visibility))
 
 
-def restoration_render_fn(model, scene, restorer, backend: str = "auto",
-                          visibility: VisibilityConfig | None = None) -> Callable[[Camera, float], np.ndarray]:
-    """A render function for evaluation whose images are *restored* renders.
-
-    For a held-out camera h, the trajectory passes through it: the two train cameras nearest to
-    h are the references, the clip is (midpoint ref_a..h, h, midpoint h..ref_b) and the restored
-    middle frame is returned (the "restoration" rows of the paper's Table 2).
-    visibility: when given, the restored frame replaces the render only where the train cameras
-    leave the pixel unobserved and the restorer is confident, or the render is a hole
-    (``gate_restoration``); None: the restorer's output as it is (the paper's rows).
-    """
+def clip_through(scene, camera: Camera) -> tuple[list[Camera], tuple[int, int]]:
+    """The Restoration rows' clip through ``camera``: the two train cameras nearest to it are the
+    references, the clip is (midpoint ref_a..camera, camera, midpoint camera..ref_b). Returns
+    (the three cameras, the two reference train ids)."""
     from fixer4d.geometry.trajectory import interpolate_pair, same_pose
 
     def midpoint(c0: Camera, c1: Camera) -> Camera:
@@ -156,13 +149,25 @@ def restoration_render_fn(model, scene, restorer, backend: str = "auto",
         # runs between them, and the midpoint is that pose itself
         return c1 if same_pose(c0, c1) else interpolate_pair(c0, c1, np.array([0.5]), 0.0)[0]
 
+    d = [np.linalg.norm(scene.cameras[i].center - camera.center) for i in scene.train_ids]
+    order = np.argsort(d)
+    ids = (scene.train_ids[order[0]], scene.train_ids[order[1]])
+    a, b = scene.cameras[ids[0]], scene.cameras[ids[1]]
+    return [midpoint(a, camera), camera, midpoint(camera, b)], ids
+
+
+def restoration_render_fn(model, scene, restorer, backend: str = "auto",
+                          visibility: VisibilityConfig | None = None) -> Callable[[Camera, float], np.ndarray]:
+    """A render function for evaluation whose images are *restored* renders: the restored middle
+    frame of ``clip_through`` the held-out camera (the "restoration" rows of the paper's Table 2).
+    visibility: when given, the restored frame replaces the render only where the train cameras
+    leave the pixel unobserved and the restorer is confident, or the render is a hole
+    (``gate_restoration``); None: the restorer's output as it is (the paper's rows).
+    """
+
     def fn(camera: Camera, t: float) -> np.ndarray:
         frame = int(round(t * scene.num_frames))
-        d = [np.linalg.norm(scene.cameras[i].center - camera.center) for i in scene.train_ids]
-        order = np.argsort(d)
-        ids = (scene.train_ids[order[0]], scene.train_ids[order[1]])
-        a, b = scene.cameras[ids[0]], scene.cameras[ids[1]]
-        cams = [midpoint(a, camera), camera, midpoint(camera, b)]
+        cams, ids = clip_through(scene, camera)
         req = make_request(model, scene, cams, frame, ids, backend=backend,
                            trajectory={"name": f"through-{camera.name}", "pair": list(ids), "amplitude": 0.0},
                            visibility=visibility)

@@ -428,6 +428,10 @@ class SyntheticScene(MultiViewVideo):
         rig = build_rig(raw, where)
         self.cameras = [c.scaled(scale) if scale != 1.0 else c for c in rig]
         rig_spec = raw.get("rig", {})
+        if rig_spec.get("extra") and rig_spec.get("train", "auto") in (None, "auto") and train_ids is None:
+            # the automatic choice looks at every camera: added cameras would move the train ones
+            raise InputError(f"scene spec {where}: rig.extra needs an explicit rig.train (camera indices), "
+                             "so the added cameras cannot change which cameras train")
         spec_train, spec_test = select_views(self.cameras, rig_spec.get("train", "auto"), where, rig_spec.get("test"))
         self.train_ids = [int(i) for i in train_ids] if train_ids is not None else spec_train
         if test_ids is not None:

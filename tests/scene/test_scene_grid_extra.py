@@ -47,3 +47,11 @@ def test_an_explicit_held_out_list_leaves_other_cameras_unused():
     for bad, match in (([3, 16], "none of the train"), ([17], "outside"), ([], "at least one"), ("all", "list")):
         with pytest.raises(InputError, match=match):
             SyntheticScene(_grid_spec(extra=[[0.5, 0.5]], train=[0, 3, 12, 15], test=bad))
+
+
+def test_extra_cameras_need_an_explicit_train_list():
+    """"auto" picks the train cameras from every camera: added (held-out) ones must not move them."""
+    with pytest.raises(InputError, match="rig.extra needs an explicit rig.train"):
+        SyntheticScene(_grid_spec(extra=[[0.5, 0.5]]))
+    scene = SyntheticScene(_grid_spec(extra=[[0.5, 0.5]]), train_ids=[0, 3, 12, 15], test_ids=[16])
+    assert scene.train_ids == [0, 3, 12, 15] and scene.test_ids == [16]
