@@ -8,12 +8,16 @@ are); VALIDATION a folder or bundled spec with the same train cameras and other 
 (as `fixer4d eval --cameras-from`). For every held-out camera and every S-th frame the camera is
 restored exactly as the "Restoration (init)" row restores it (the two nearest train cameras as
 references, a three-frame clip through the camera, the middle frame), and the squared error of
-five images is summed per pixel class:
+six images is summed per pixel class:
 
 - render: the stage-1 render; restored: the restorer's output as it is (the paper's row);
-- gated: restored x confidence x unobserved (no holes rule); hole: restored only in the render's
-  holes (``restore.visibility.hole_weight``); gate: max(hole, confidence x unobserved), the
-  pipeline's ``gate_restoration``;
+- fill: the render with its unobserved pixels filled from the observed ones
+  (``restore.unobserved_fill.fill_unobserved``), no restorer;
+- gated: the render + confidence x unobserved x (restored - render), no hole rule;
+- gate_render: the gate falling back on the render (``fill=False``: stage 2's gated targets by
+  default), holes restored whatever the confidence;
+- gate: the gate falling back on the fill (``fill=True``: the Restoration rows by default), the
+  restorer by confidence x unobserved;
 
 over the classes all, unobserved (weight > 0.5), hole (alpha < 0.5), unobserved and solid, and
 observed. It reads held-out images, so it is a diagnostic of validation cameras: never pass test
@@ -33,7 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 import fixer4d  # noqa: E402,F401  (sets the OpenMP wait policy before torch is imported)
 
-IMAGES = ("render", "restored", "gated", "hole", "gate")
+IMAGES = ("render", "restored", "fill", "gated", "gate_render", "gate")
 CLASSES = ("all", "unobserved", "hole", "unobserved_solid", "observed")
 
 
@@ -44,16 +48,16 @@ def pixel_classes(unobserved: np.ndarray, alpha: np.ndarray) -> dict[str, np.nda
 
 
 def images(request, result, visibility) -> dict[str, np.ndarray]:
-    """The five (H, W, 3) images of the clip's middle frame ("gate" is the pipeline's own)."""
+    """The six (H, W, 3) images of the clip's middle frame (both gates are the pipeline's own)."""
     from fixer4d.pipeline.restoration import gate_restoration
-    from fixer4d.restore.visibility import hole_weight
+    from fixer4d.restore.unobserved_fill import fill_unobserved
 
     r, o = request.rgb[1], result.rgb[1]
     conf, hidden = result.confidence[1], request.unobserved[1]
-    hole = hole_weight(request.alpha[1], visibility)
-    blend = lambda g: r + g[..., None] * (o - r)  # noqa: E731
-    return {"render": r, "restored": o, "gated": blend(conf * hidden), "hole": blend(hole),
-            "gate": gate_restoration(request, result, visibility).rgb[1]}
+    return {"render": r, "restored": o, "fill": fill_unobserved(request.rgb[1:2], request.unobserved[1:2])[0],
+            "gated": r + (conf * hidden)[..., None] * (o - r),
+            "gate_render": gate_restoration(request, result, visibility, fill=False).rgb[1],
+            "gate": gate_restoration(request, result, visibility, fill=True).rgb[1]}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -33,6 +33,14 @@ REF_SIZE = 65_536
 REF_ROUNDS = 400
 # Best of this many runs: the minimum is the machine's speed, the rest is other load.
 REF_REPEATS = 5
+# Below this single/parallel ratio on two or more threads the second vCPU adds little: two vCPUs
+# that are real cores give 1.6-2.0 on the reference workload (1.67 on the 2-core Xeon of
+# docs/render.md, whose turbo clock drops with both cores busy), two hyper-threads of one core 1.0-1.3.
+SHARED_CORE_SPEEDUP = 1.5
+# Above this share of stolen CPU time the hypervisor took enough to move a timing by as much.
+STEAL_NOTICE = 0.05
+# A 1-minute load average above this share of the usable CPUs means other jobs ran beside the bench.
+BUSY_LOAD_FRACTION = 0.5
 
 _KERNELS: dict[str, object] = {}
 
@@ -152,6 +160,39 @@ def cpu_topology() -> dict:
     return info
 
 
+def timing_caveats(info: dict) -> list[str]:
+    """Sentences, one per condition in ``info`` (a ``machine_info`` dict) that makes its timings
+    slower than the same code on idle real cores, each with what to do; empty when none applies."""
+    out = []
+    usable = info.get("usable_cpus") or info.get("cores") or 1
+    if info.get("numba_threads", usable) < usable:
+        out.append(f"numba runs {info['numba_threads']} thread(s) on {usable} usable CPUs: the rasterizer's "
+                   "parallel loops use part of the machine (unset NUMBA_NUM_THREADS or raise it)")
+    ref = info.get("reference") or {}
+    if ref.get("threads", 1) >= 2 and ref.get("parallel_speedup", 2.0) < SHARED_CORE_SPEEDUP:
+        out.append(f"the reference workload runs only {ref['parallel_speedup']}x faster on {ref['threads']} threads "
+                   "than on one: the vCPUs share a physical core (hyper-threads) or are throttled, so "
+                   "parallel code gets about one core's work; compare per-core figures (reference.single_ms)")
+    elif (info.get("threads_per_core") or 1) > 1:
+        out.append(f"{info['threads_per_core']} logical CPUs per physical core: the CPUs are hyper-threads")
+    if (ref.get("steal_fraction") or 0) > STEAL_NOTICE:
+        out.append(f"the hypervisor took {100 * ref['steal_fraction']:.0f} % of the CPU time during the "
+                   "reference measurement: rerun when the host is quieter")
+    load = (info.get("load_avg_1_5_15min") or [0.0])[0]
+    if load > BUSY_LOAD_FRACTION * usable:
+        out.append(f"1-minute load average {load} on {usable} usable CPUs: other jobs ran beside the bench")
+    return out
+
+
+def print_timing_caveats(info: dict) -> None:
+    """Print ``timing_caveats(info)`` under a heading, or nothing when there are none."""
+    caveats = timing_caveats(info)
+    if caveats:
+        print("timing caveats (the result file's machine.caveats):")
+        for line in caveats:
+            print(f"  - {line}")
+
+
 def machine_info(reference: bool = False) -> dict:
     """The conditions of a timing: CPU topology, threads, library versions, load; with
     ``reference`` also ``reference_speed()`` (about a second)."""
@@ -170,6 +211,7 @@ def machine_info(reference: bool = False) -> dict:
         before = read_cpu_times()
         out["reference"] = reference_speed()
         out["reference"]["steal_fraction"] = steal_fraction(before, read_cpu_times())
+    out["caveats"] = timing_caveats(out)
     return out
 
 

@@ -194,13 +194,14 @@ def main(argv: list[str] | None = None) -> int:
                    all(q[k] == r[k] for k in ("n_gaussians", "width", "height", "pass"))]
             if ref:
                 speedups[f"{r['n_gaussians']} {r['width']}x{r['height']} {r['pass']}"] = round(ref[0]["ms"] / r["ms"], 1)
-    from fixer4d.bench.machine import machine_info
+    from fixer4d.bench.machine import machine_info, print_timing_caveats
 
     result = {"rows": rows, "skipped": skipped, "speedup_cpu_over_reference": speedups,
               "scaling": scaling(rows), "machine": machine_info(reference=True), "torch_threads": args.torch_threads,
               "memory": "peak_mb = ru_maxrss of the row's fresh process; base_mb = its RSS before the timed passes",
               "scene": "uniform cube [-1,1]^3, camera at distance 4, fov 50 deg, opacity 0.1, 3-NN scales"}
     write_json(args.out, result)
+    print_timing_caveats(result["machine"])
     print(f"{'backend':10s} {'N':>7s} {'size':>8s} {'pass':>8s} {'ms':>10s} {'peak MB':>8s} {'base MB':>8s} "
           f"{'frag/px':>8s} {'ns/frag':>8s} {'load':>5s}")
     for r in rows:

@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from fixer4d.atomic import write_json
     from fixer4d.bench.opensplat import opensplat_info, run_opensplat, write_nerfstudio_project
-    from fixer4d.bench.machine import machine_info
+    from fixer4d.bench.machine import machine_info, print_timing_caveats
     from fixer4d.errors import InputError
     from fixer4d.model.densify import make_adam
     from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians
@@ -142,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
               "opensplat_version": os_info["version"] if os_info else None,
               "opensplat_cited": cited_json()}
     write_json(args.out, result)
+    print_timing_caveats(result["machine"])
     print(format_table(rows))
     print(f"wrote {args.out}")
     return 0

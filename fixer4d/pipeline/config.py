@@ -108,6 +108,12 @@ class EvalConfig:
     # by the worst case: gated 18.40 / 18.42 dB, ungated 18.79 / 18.18 against STGS w/ MVS 18.24 /
     # 18.42 (Panoptic 4/14, split c 2/12): ungated falls 0.24 dB under the render it starts from.
     gate_restoration: bool = True
+    # what the gated rows fall back on where the restorer does not act: the render with its
+    # unobserved pixels (holes included) filled from the observed ones (restore.unobserved_fill);
+    # false: the render, its holes restored whatever the confidence. Chosen on the validation
+    # cameras, Restoration (init) on Panoptic 4/14, split c 2/12, demo_val: fill 20.97 / 20.87 /
+    # 25.41 dB, render 19.89 / 20.56 / 25.36 (docs/stage2.md).
+    fill_unobserved: bool = True
 
     def __post_init__(self) -> None:
         if self.stride < 1:

@@ -83,7 +83,7 @@ def evaluate_on_other_cameras(run_dir: str | Path, other: str | Path, *, progres
         score(R.ROW_BLUR, blur_render_fn(stage1, ev.blur_sigma_px, "auto", bg))
         gate = config.stage2.visibility if config.eval.gate_restoration else None
         score(R.ROW_RESTORED_INIT, restoration_render_fn(stage1, scene, run_restorer(config, folder.path), "auto",
-                                                         gate))
+                                                         gate, ev.fill_unobserved))
     for name, path in models:
         if path.is_file():
             score(name, model_render_fn(load_ply(path).eval(), "auto", bg))

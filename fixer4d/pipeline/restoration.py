@@ -115,8 +115,9 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
                                      visibility=config.stage2.visibility)
                         for f, tr, ids in batch]
             results = executor.map(_restore_job, [(restorer, req) for req in requests])
-            if gated:  # the pseudo-target: restored where unobserved and trusted, the render elsewhere
-                results = [gate_restoration(req, res, config.stage2.visibility) for req, res in zip(requests, results)]
+            if gated:  # the pseudo-target: restored where unobserved and trusted, the fallback elsewhere
+                results = [gate_restoration(req, res, config.stage2.visibility, config.stage2.fill_unobserved)
+                           for req, res in zip(requests, results)]
             for (f, tr, ids), req, res in zip(batch, requests, results):
                 cache.write(round_index, cache.key(f, ids[0], ids[1], tr.arc_index), req, res,
                             {"restorer": restorer.name, "restorer_settings": restorer.settings(),
@@ -128,13 +129,31 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
     return refresh
 
 
-def gate_restoration(request, result, visibility: VisibilityConfig):
-    """``result`` where it may act, the request's render elsewhere (``restore.base.blend_with_render``
-    with the request's unobserved map as weight and its holes, ``restore.visibility.hole_weight``):
-    one gate for the Restoration rows and stage 2's gated pseudo-targets."""
-    from fixer4d.restore.base import blend_with_render
+def gate_restoration(request, result, visibility: VisibilityConfig, fill: bool):
+    """The restored clip where the restorer may act, a fallback elsewhere: one gate for the
+    Restoration rows and stage 2's gated pseudo-targets (``restore.base.blend_with_render`` with
+    the request's unobserved map as weight).
+
+    With ``fill`` (``eval.fill_unobserved`` for the rows, ``stage2.fill_unobserved`` for the
+    targets) the fallback is the render with its unobserved pixels, holes included, filled from
+    the observed ones (``restore.unobserved_fill.fill_unobserved``), and the restorer acts in
+    proportion to its confidence x unobserved; the result's confidence is the larger of that
+    weight and the fill's (where the target departs from the render). Without it the fallback is
+    the render as it is, which holds only the background colour in a hole, so a hole takes the
+    restored frame whatever the confidence (``restore.visibility.hole_weight``).
+    """
+    from fixer4d.restore.base import RestoreResult, blend_with_render
+    from fixer4d.restore.unobserved_fill import UNKNOWN_ABOVE, fill_unobserved
     from fixer4d.restore.visibility import hole_weight
 
+    if fill and request.unobserved is not None:
+        gated = blend_with_render(fill_unobserved(request.rgb, request.unobserved), result, request.unobserved)
+        # the returned confidence says where the target departs from the render: the restorer's
+        # share, and the fill's wherever it replaces the render
+        u = np.clip(np.nan_to_num(request.unobserved, nan=0.0), 0.0, 1.0)
+        departs = np.maximum(gated.confidence, np.where(u > UNKNOWN_ABOVE, u, 0.0)).astype(np.float32)
+        return RestoreResult(rgb=gated.rgb, confidence=departs,
+                             frame_confidence=departs.reshape(len(departs), -1).mean(axis=1))
     return blend_with_render(request.rgb, result, request.unobserved, hole_weight(request.alpha, visibility))
 
 
@@ -156,13 +175,14 @@ def clip_through(scene, camera: Camera) -> tuple[list[Camera], tuple[int, int]]:
     return [midpoint(a, camera), camera, midpoint(camera, b)], ids
 
 
-def restoration_render_fn(model, scene, restorer, backend: str = "auto",
-                          visibility: VisibilityConfig | None = None) -> Callable[[Camera, float], np.ndarray]:
+def restoration_render_fn(model, scene, restorer, backend: str = "auto", visibility: VisibilityConfig | None = None,
+                          fill: bool = True) -> Callable[[Camera, float], np.ndarray]:
     """A render function for evaluation whose images are *restored* renders: the restored middle
     frame of ``clip_through`` the held-out camera (the "restoration" rows of the paper's Table 2).
-    visibility: when given, the restored frame replaces the render only where the train cameras
-    leave the pixel unobserved and the restorer is confident, or the render is a hole
-    (``gate_restoration``); None: the restorer's output as it is (the paper's rows).
+    visibility: when given, the frame is ``gate_restoration``'s (the restored frame where the train
+    cameras leave the pixel unobserved, by the restorer's confidence; the unobserved fill there
+    with ``fill``, else the render, whose holes take the restored frame); None: the restorer's
+    output as it is (the paper's rows).
     """
 
     def fn(camera: Camera, t: float) -> np.ndarray:
@@ -173,7 +193,7 @@ def restoration_render_fn(model, scene, restorer, backend: str = "auto",
                            visibility=visibility)
         result = restorer.restore(req)
         if visibility is not None:
-            result = gate_restoration(req, result, visibility)
+            result = gate_restoration(req, result, visibility, fill)
         return result.rgb[1]
 
     return fn

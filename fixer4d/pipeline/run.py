@@ -8,6 +8,7 @@ reason while the others run.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 from pathlib import Path
@@ -169,8 +170,9 @@ def _stage1_restoration_rows(ctx: S.StageContext, report: _Report, model, restor
                           report.seconds("stage1"), unobserved)
     report.add(R.metrics_row(R.ROW_BLUR, mb, rec.seconds(f"init_{method}", "stage1")))
     m = S.evaluate_stage(ctx, R.ROW_RESTORED_INIT,
-                         restoration_render_fn(model, ctx.scene, restorer, ctx.backend, gate),
-                         stage_key(s1_key, S.restorer_key(config), gate is not None),
+                         restoration_render_fn(model, ctx.scene, restorer, ctx.backend, gate,
+                                               config.eval.fill_unobserved),
+                         stage_key(s1_key, S.restorer_key(config), gate_settings(gate, config.eval.fill_unobserved)),
                          report.seconds("stage1", "restorer"), unobserved)
     report.add(R.metrics_row(R.ROW_RESTORED_INIT, m, rec.seconds(f"init_{method}", "stage1", "restorer")
                              + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_INIT)}")))
@@ -199,12 +201,20 @@ def _final_rows(ctx: S.StageContext, report: _Report, model, decision: str, rest
     report.add(R.metrics_row(R.ROW_FULL, final, full_secs))
     if restorer is not None and config.eval.restoration_rows:
         m = S.evaluate_stage(ctx, R.ROW_RESTORED_REFINED,
-                             restoration_render_fn(model, ctx.scene, restorer, ctx.backend, gate),
-                             stage_key(s2_key, S.restorer_key(config), gate is not None),
+                             restoration_render_fn(model, ctx.scene, restorer, ctx.backend, gate,
+                                               config.eval.fill_unobserved),
+                             stage_key(s2_key, S.restorer_key(config),
+                                       gate_settings(gate, config.eval.fill_unobserved)),
                              report.seconds("stage1", "restorer", "stage2"), unobserved)
         report.add(R.metrics_row(R.ROW_RESTORED_REFINED, m, full_secs
                                  + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_REFINED)}")))
     return final
+
+
+def gate_settings(gate, fill: bool) -> dict[str, Any] | None:
+    """What a restoration row's images depend on besides the models and the restorer: the gate's
+    thresholds and fallback, None for the ungated rows."""
+    return None if gate is None else {**dataclasses.asdict(gate), "fill_unobserved": fill}
 
 
 def peak_rss_mb() -> float:

@@ -270,6 +270,13 @@ class Stage2Config:
     # for gated, the paper's for restored); against the matched control restored loses up to
     # 0.38 dB, gated at most 0.20.
     pseudo_target: str = "gated"
+    # The gated targets' fallback where the restorer does not act: false, the render of the
+    # refresh (holes restored whatever the confidence); true, the render with its unobserved
+    # pixels filled from the observed ones (restore.unobserved_fill, as the Restoration rows).
+    # Chosen on the validation cameras (docs/stage2.md), Full on Panoptic 4/14, split c 2/12,
+    # demo_val: render 18.51 / 20.75 / 25.32 dB, fill 18.29 / 20.60 / 25.38 (the self-check's
+    # decision each time); on split c's fold the fill's stage 2 scored 18.49 dB against 19.00.
+    fill_unobserved: bool = False
     visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
 
     def __post_init__(self) -> None:

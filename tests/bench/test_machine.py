@@ -27,3 +27,39 @@ def test_cpu_topology_reads_the_host():
         assert topo["threads_per_core"] >= 1.0
     info = machine.machine_info()
     assert "reference" not in info and info["numba_threads"] >= 1
+
+
+def _idle_two_cores(**over):
+    info = {"usable_cpus": 2, "cores": 2, "numba_threads": 2, "threads_per_core": 1.0,
+            "load_avg_1_5_15min": [0.1, 0.1, 0.1],
+            "reference": {"threads": 2, "parallel_speedup": 1.9, "steal_fraction": 0.0}}
+    info.update(over)
+    return info
+
+
+def test_timing_caveats_are_empty_on_idle_real_cores():
+    assert machine.timing_caveats(_idle_two_cores()) == []
+
+
+def test_timing_caveats_name_each_condition_that_slows_a_timing():
+    assert "numba runs 1 thread(s) on 2 usable CPUs" in machine.timing_caveats(_idle_two_cores(numba_threads=1))[0]
+    shared = machine.timing_caveats(_idle_two_cores(
+        threads_per_core=2.0, reference={"threads": 2, "parallel_speedup": 1.1, "steal_fraction": 0.0}))
+    assert len(shared) == 1 and "share a physical core" in shared[0]  # one sentence, not two, for hyper-threads
+    assert "hyper-threads" in machine.timing_caveats(_idle_two_cores(threads_per_core=2.0))[0]
+    stolen = machine.timing_caveats(_idle_two_cores(
+        reference={"threads": 2, "parallel_speedup": 1.9, "steal_fraction": 0.12}))
+    assert stolen == ["the hypervisor took 12 % of the CPU time during the reference measurement: "
+                      "rerun when the host is quieter"]
+    assert "other jobs ran" in machine.timing_caveats(_idle_two_cores(load_avg_1_5_15min=[1.5, 1, 1]))[0]
+    # without a reference measurement only what was read can be judged
+    assert machine.timing_caveats({"usable_cpus": 2, "numba_threads": 2}) == []
+
+
+def test_machine_info_records_its_caveats(capsys):
+    info = machine.machine_info()
+    assert info["caveats"] == machine.timing_caveats(info)
+    machine.print_timing_caveats(_idle_two_cores(numba_threads=1))
+    assert "timing caveats" in capsys.readouterr().out
+    machine.print_timing_caveats(_idle_two_cores())
+    assert capsys.readouterr().out == ""

@@ -183,3 +183,15 @@ def test_matched_control_trains_a_copy_of_the_stage1_model(tiny_run, tmp_path):
     assert matched is not model
     after = model.state_dict()
     assert before.keys() == after.keys() and all(torch.equal(before[k], after[k]) for k in before)
+
+
+def test_restoration_rows_are_keyed_by_the_gate_settings():
+    # a restoration row computed under another gate (its fallback, its thresholds) is not reused
+    from fixer4d.pipeline.run import gate_settings
+    from fixer4d.pipeline.run_folder import stage_key
+    from fixer4d.restore.visibility import VisibilityConfig
+
+    keys = {stage_key("s1", gate_settings(g, fill)) for g, fill in
+            ((None, True), (VisibilityConfig(), True), (VisibilityConfig(), False),
+             (VisibilityConfig(angle_full_deg=20.0), True))}
+    assert len(keys) == 4 and gate_settings(None, False) is None
