@@ -49,15 +49,16 @@ def pixel_classes(unobserved: np.ndarray, alpha: np.ndarray) -> dict[str, np.nda
 
 def images(request, result, visibility) -> dict[str, np.ndarray]:
     """The six (H, W, 3) images of the clip's middle frame (both gates are the pipeline's own)."""
-    from fixer4d.pipeline.restoration import gate_restoration
+    from fixer4d.pipeline.restoration import clip_frame, gate_restoration
     from fixer4d.restore.unobserved_fill import fill_unobserved
 
-    r, o = request.rgb[1], result.rgb[1]
-    conf, hidden = result.confidence[1], request.unobserved[1]
-    return {"render": r, "restored": o, "fill": fill_unobserved(request.rgb[1:2], request.unobserved[1:2])[0],
+    request, result = clip_frame(request, result, 1)
+    r, o = request.rgb[0], result.rgb[0]
+    conf, hidden = result.confidence[0], request.unobserved[0]
+    return {"render": r, "restored": o, "fill": fill_unobserved(request.rgb, request.unobserved)[0],
             "gated": r + (conf * hidden)[..., None] * (o - r),
-            "gate_render": gate_restoration(request, result, visibility, fill=False).rgb[1],
-            "gate": gate_restoration(request, result, visibility, fill=True).rgb[1]}
+            "gate_render": gate_restoration(request, result, visibility, fill=False).rgb[0],
+            "gate": gate_restoration(request, result, visibility, fill=True).rgb[0]}
 
 
 def main(argv: list[str] | None = None) -> int:

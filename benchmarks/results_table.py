@@ -27,8 +27,8 @@ END = "<!-- RESULTS:END -->"
 # runs refined with the paper's stage 2 (`--paper-stage2`: restored targets on every pixel, no
 # self-check, restoration rows ungated); "_val" ones score a run on the validation cameras
 # (fixer4d eval --cameras-from); "_seedS" ones are the run with `--seed S`. A stem "mean:A,B,C"
-# is a row of the means of those files' figures. "_nofill" rows are the same commands before the
-# restoration gate fell back on the unobserved fill. Rows "without camera response", "unobserved
+# is a row of the means of those files' figures. "_nofill" rows are the same commands with the
+# Restoration rows' gate falling back on the render (eval.fill_unobserved=false). Rows "without camera response", "unobserved
 # pixels only" and "observed weight 0.25" are earlier runs (their commit and date are in the row;
 # they ran on another machine of the same kind, whose figures differ in the last digits): they
 # compare with each other, not with the rows above them. The README shows the rows in
@@ -50,13 +50,9 @@ TABLE = (("demo", "demo (test: 12 held-out cameras)"),
          ("panoptic_c_val", "*validation*: split c cameras 2, 12"),
          ("panoptic_c_paper_val", "*validation*: split c cameras 2, 12, paper's stage 2"),
          ("demo_nofill", "earlier: demo, gate without the unobserved fill"),
-         ("mean:demo_nofill,demo_nofill_seed1,demo_nofill_seed2",
-          "earlier: demo, mean of seeds 0, 1, 2, gate without the fill"),
          ("panoptic_nofill", "earlier: Panoptic (test camera 30), gate without the unobserved fill"),
          ("panoptic_c_nofill", "earlier: split c (test camera 15), gate without the unobserved fill"),
          ("demo_nofill_val", "earlier *validation*: demo_val, gate without the unobserved fill"),
-         ("mean:demo_nofill_val,demo_nofill_seed1_val,demo_nofill_seed2_val",
-          "earlier *validation*: demo_val, mean of seeds 0, 1, 2, gate without the fill"),
          ("panoptic_nofill_val", "earlier *validation*: Panoptic 4, 14, gate without the unobserved fill"),
          ("panoptic_c_nofill_val", "earlier *validation*: split c 2, 12, gate without the unobserved fill"),
          ("panoptic_response", "earlier: Panoptic (test camera 30), camera response, all-pixel restored targets"),

@@ -157,6 +157,21 @@ def gate_restoration(request, result, visibility: VisibilityConfig, fill: bool):
     return blend_with_render(request.rgb, result, request.unobserved, hole_weight(request.alpha, visibility))
 
 
+def clip_frame(request, result, index: int):
+    """Frame ``index`` of a restored clip as a one-frame (request, result): what a gate needs when
+    only that frame is used (the clip's fill is solved per frame)."""
+    import dataclasses
+
+    from fixer4d.restore.base import RestoreResult
+
+    one = slice(index, index + 1)
+    request = dataclasses.replace(
+        request, rgb=request.rgb[one], depth=request.depth[one], alpha=request.alpha[one],
+        cameras=request.cameras[one], unobserved=None if request.unobserved is None else request.unobserved[one])
+    return request, RestoreResult(rgb=result.rgb[one], confidence=result.confidence[one],
+                                  frame_confidence=result.frame_confidence[one])
+
+
 def clip_through(scene, camera: Camera) -> tuple[list[Camera], tuple[int, int]]:
     """The Restoration rows' clip through ``camera``: the two train cameras nearest to it are the
     references, the clip is (midpoint ref_a..camera, camera, midpoint camera..ref_b). Returns
@@ -192,9 +207,9 @@ def restoration_render_fn(model, scene, restorer, backend: str = "auto", visibil
                            trajectory={"name": f"through-{camera.name}", "pair": list(ids), "amplitude": 0.0},
                            visibility=visibility)
         result = restorer.restore(req)
-        if visibility is not None:
-            result = gate_restoration(req, result, visibility, fill)
-        return result.rgb[1]
+        if visibility is None:
+            return result.rgb[1]
+        return gate_restoration(*clip_frame(req, result, 1), visibility, fill).rgb[0]
 
     return fn
 

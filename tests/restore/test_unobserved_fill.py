@@ -112,3 +112,20 @@ def test_the_gate_falls_back_on_the_fill_and_the_restorer_acts_by_its_confidence
     plain = gate_restoration(request, result, VisibilityConfig(), fill=False)
     np.testing.assert_array_equal(plain.rgb[0, 10:20, 20:30], render[0, 10:20, 20:30])
     np.testing.assert_allclose(plain.rgb[0, 25:35, 10:30], 0.5)
+
+
+def test_gating_one_frame_of_a_clip_equals_that_frame_of_the_gated_clip():
+    from fixer4d.pipeline.restoration import clip_frame
+
+    rng = np.random.default_rng(3)
+    render = rng.random((3, 48, 64, 3)).astype(np.float32)
+    u = (rng.random((3, 48, 64)) > 0.7).astype(np.float32)
+    alpha = rng.random((3, 48, 64)).astype(np.float32)
+    conf = rng.random((3, 48, 64)).astype(np.float32)
+    result = RestoreResult(rng.random(render.shape).astype(np.float32), conf, conf.mean(axis=(1, 2)))
+    request = _request(render, alpha, u)
+    for fill in (True, False):
+        whole = gate_restoration(request, result, VisibilityConfig(), fill)
+        one = gate_restoration(*clip_frame(request, result, 1), VisibilityConfig(), fill)
+        np.testing.assert_array_equal(one.rgb[0], whole.rgb[1])
+        np.testing.assert_array_equal(one.confidence[0], whole.confidence[1])
