@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from fixer4d.pipeline.self_check import DECISION_FILE, decide
 
@@ -27,13 +28,61 @@ def _held_back_psnr(model, views, cam: int, frames: list[int], backend: str, bac
     return float(np.mean(scores))
 
 
+# The fold's progress (finished parts' PSNR and seconds), rewritten after each part: a killed check
+# resumes at the part it was in (the parts' trainers keep checkpoints in <part>/checkpoints/).
+PARTS_FILE = "parts.json"
+# The fold's stage-1 model and the camera response it trained (null when its cameras agree on colour).
+FOLD_MODEL = "model_stage1.ply"
+FOLD_RESPONSE = "camera_response.json"
+
+
+class _Parts:
+    """``{"psnr": {candidate: dB}, "seconds": {part: s}}`` of the finished parts, kept in PARTS_FILE."""
+
+    def __init__(self, out_dir: Path) -> None:
+        import json
+
+        self.path = out_dir / PARTS_FILE
+        data = json.loads(self.path.read_text()) if self.path.is_file() else {}
+        self.psnr: dict[str, float] = dict(data.get("psnr", {}))
+        self.seconds: dict[str, float] = dict(data.get("seconds", {}))
+
+    def finish(self, part: str, seconds: float | None = None, psnr: float | None = None) -> None:
+        from fixer4d import atomic
+
+        if seconds is not None:
+            self.seconds[part] = float(seconds)
+        if psnr is not None:
+            self.psnr[part] = float(psnr)
+        atomic.write_json(self.path, {"psnr": self.psnr, "seconds": self.seconds})
+
+
+def _train(trainer, run_dir: Path, progress: bool):
+    """Train ``trainer`` from its newest checkpoint under ``run_dir`` (if any) to the end; returns
+    (its model, seconds of training over every attempt); the checkpoints are removed after."""
+    import shutil
+
+    prior = trainer.train_seconds if trainer.resume() else 0.0
+    t0 = time.perf_counter()
+    trainer.train(progress=progress)
+    seconds = time.perf_counter() - t0 + prior
+    shutil.rmtree(run_dir, ignore_errors=True)
+    return trainer.model, seconds
+
+
 def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bool = False) -> dict[str, Any]:
     """The self-check of ``config`` on ``scene`` (module docstring) with the run's ``restorer``;
-    working files under ``out_dir``. Returns the decision record (also ``out_dir/decision.json``)."""
+    working files under ``out_dir``. Returns the decision record (also ``out_dir/decision.json``).
+    Resumable: the parts finished in ``out_dir`` (PARTS_FILE, the fold's init and model) are
+    reused and an interrupted training continues from its last checkpoint, so a resumed check
+    decides as an uninterrupted one."""
+    import json
+
     from fixer4d import atomic
     from fixer4d.init import load_frame_clouds, run_init
     from fixer4d.init.decompose import DecomposedInit, has_decomposed
     from fixer4d.model.camera_response import CameraResponse
+    from fixer4d.model.io import load_ply, save_ply
     from fixer4d.pipeline.keys import stage2_key
     from fixer4d.pipeline.restoration import make_refresh_callback
     from fixer4d.restore.cache import RestoreCache
@@ -49,47 +98,62 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
         record = {"decision": "refine", "reason": f"{len(train_ids)} train cameras: no fold of at least 2 to check on"}
         atomic.write_json(out_dir / DECISION_FILE, record)
         return record
+    out_dir.mkdir(parents=True, exist_ok=True)
+    parts = _Parts(out_dir)
     held = train_ids[sc.fold % len(train_ids)]
     views = TrainOnlyView(scene, [i for i in train_ids if i != held], sc.scale)
-    seconds: dict[str, float] = {}
-    t0 = time.perf_counter()
-    frames = list(range(0, scene.num_frames, config.init_frame_stride))
     init_dir = out_dir / "init"
-    run_init(views, config.init.method, init_dir, frames=frames, config=config.init, progress=False)
-    init = DecomposedInit.load(init_dir) if has_decomposed(init_dir) else load_frame_clouds(init_dir)
-    seconds["init"] = time.perf_counter() - t0
+    if "init" not in parts.seconds:
+        t0 = time.perf_counter()
+        frames = list(range(0, scene.num_frames, config.init_frame_stride))
+        run_init(views, config.init.method, init_dir, frames=frames, config=config.init, progress=False)
+        parts.finish("init", time.perf_counter() - t0)
 
     cfg1 = dataclasses.replace(config.stage1, progress=progress)
-    t0 = time.perf_counter()
-    model, effects_decision = model_from_init(init, views, cfg1, config.effects)
-    response = (CameraResponse(len(views.train_ids)) if effects_decision is not None and effects_decision.camera_response
-                else None)
-    trainer = Trainer(model, views, cfg1, effects=config.effects if effects_decision is not None else None,
-                      camera_response=response)
-    trainer.train(progress=progress)
-    base = trainer.model
-    seconds["stage1"] = time.perf_counter() - t0
+    if "stage1" not in parts.seconds:
+        init = DecomposedInit.load(init_dir) if has_decomposed(init_dir) else load_frame_clouds(init_dir)
+        model, effects_decision = model_from_init(init, views, cfg1, config.effects)
+        response = (CameraResponse(len(views.train_ids))
+                    if effects_decision is not None and effects_decision.camera_response else None)
+        trainer = Trainer(model, views, cfg1, run_dir=out_dir / "stage1",
+                          effects=config.effects if effects_decision is not None else None, camera_response=response)
+        model, seconds = _train(trainer, out_dir / "stage1", progress)
+        save_ply(model, out_dir / FOLD_MODEL)
+        atomic.write_json(out_dir / FOLD_RESPONSE, None if trainer.response is None else trainer.response.to_json())
+        parts.finish("stage1", seconds)
+        del init, trainer, model
+    # every part continues from the model as stored, so a resumed check starts where an
+    # uninterrupted one did
+    base = load_ply(out_dir / FOLD_MODEL)
+    saved_response = json.loads((out_dir / FOLD_RESPONSE).read_text())
+    response = None if saved_response is None else CameraResponse.from_json(saved_response)
     eval_frames = sorted({int(round(x)) for x in np.linspace(0, scene.num_frames - 1, sc.eval_frames)})
-    background = trainer.background
+    background = torch.tensor(cfg1.background, dtype=torch.float32)
     backend = cfg1.backend
-    psnr = {"skip": _held_back_psnr(base, views, held, eval_frames, backend, background)}
+    if "skip" not in parts.psnr:
+        parts.finish("skip", psnr=_held_back_psnr(base, views, held, eval_frames, backend, background))
 
-    t0 = time.perf_counter()
-    cont = Trainer(copy.deepcopy(base), views, matched_config(cfg1, config.stage2), camera_response=copy.deepcopy(response))
-    cont.train(progress=progress)
-    psnr["continue"] = _held_back_psnr(cont.model, views, held, eval_frames, backend, background)
-    seconds["continue"] = time.perf_counter() - t0
-    del cont
+    if "continue" not in parts.psnr:
+        trainer = Trainer(copy.deepcopy(base), views, matched_config(cfg1, config.stage2), run_dir=out_dir / "continue",
+                          camera_response=copy.deepcopy(response))
+        model, seconds = _train(trainer, out_dir / "continue", progress)
+        t0 = time.perf_counter()
+        score = _held_back_psnr(model, views, held, eval_frames, backend, background)
+        parts.finish("continue", seconds + time.perf_counter() - t0, score)
+        del trainer, model
 
-    t0 = time.perf_counter()
-    refresh = make_refresh_callback(out_dir, views, config, progress=progress, backend=backend, restorer=restorer)
-    refine = Trainer(copy.deepcopy(base), views, cfg1, stage2=config.stage2,
-                     cache=RestoreCache(out_dir / "cache", fingerprint=stage2_key(config)), refresh_cache=refresh,
-                     camera_response=copy.deepcopy(response))
-    refine.train(progress=progress)
-    psnr["refine"] = _held_back_psnr(refine.model, views, held, eval_frames, backend, background)
-    seconds["refine"] = time.perf_counter() - t0
+    if "refine" not in parts.psnr:
+        refresh = make_refresh_callback(out_dir, views, config, progress=progress, backend=backend, restorer=restorer)
+        trainer = Trainer(copy.deepcopy(base), views, cfg1, stage2=config.stage2, run_dir=out_dir / "refine",
+                          cache=RestoreCache(out_dir / "cache", fingerprint=stage2_key(config)), refresh_cache=refresh,
+                          camera_response=copy.deepcopy(response))
+        model, seconds = _train(trainer, out_dir / "refine", progress)
+        t0 = time.perf_counter()
+        score = _held_back_psnr(model, views, held, eval_frames, backend, background)
+        parts.finish("refine", seconds + time.perf_counter() - t0, score)
+        del trainer, model
 
+    psnr = {c: parts.psnr[c] for c in ("skip", "continue", "refine")}
     decision = decide(psnr, sc.tie_db, sc.allow_skip)
     record = {
         "decision": decision,
@@ -103,7 +167,7 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
         "settings": {"lambda_gen": config.stage2.lambda_gen, "pseudo_mask": config.stage2.pseudo_mask,
                      "stage2_iterations": config.stage2.total_iterations, "restorer": config.restorer.kind,
                      "tie_db": sc.tie_db, "allow_skip": sc.allow_skip},
-        "seconds": seconds,
+        "seconds": {k: parts.seconds[k] for k in ("init", "stage1", "continue", "refine")},
         "reason": _reason(decision, psnr),
     }
     atomic.write_json(out_dir / DECISION_FILE, record)

@@ -308,7 +308,8 @@ def matched_stage1(ctx: StageContext, model):
 
 def self_check_stage(ctx: StageContext, restorer) -> dict[str, Any]:
     """The stage-2 self-check (``pipeline.self_check``) -> RUN/self_check/decision.json; its
-    ``decision`` (skip | continue | refine) chooses the run's final model. Disabled: refine."""
+    ``decision`` (skip | continue | refine) chooses the run's final model. Disabled: refine. A
+    killed check resumes under the same settings (``self_check_run.run_self_check``)."""
     import json
 
     from fixer4d.pipeline.self_check import DECISION_FILE
@@ -322,11 +323,10 @@ def self_check_stage(ctx: StageContext, restorer) -> dict[str, Any]:
     key = self_check_key(ctx.config)
     if ctx.run.records.done("self_check", key) and (out / DECISION_FILE).is_file():
         return json.loads((out / DECISION_FILE).read_text())
-    ctx.run.records.begin("self_check", key)
-    _clear(out, keep_aside=False)
-    t0 = time.perf_counter()
+    if ctx.run.records.begin("self_check", key):  # an attempt under other settings: start over
+        _clear(out, keep_aside=False)
     record = run_self_check(ctx.train_scene, ctx.config, out, restorer, progress=ctx.progress)
-    ctx.run.records.finish("self_check", key, time.perf_counter() - t0)
+    ctx.run.records.finish("self_check", key, float(sum(record.get("seconds", {}).values())))
     if ctx.progress:
         print(f"[fixer4d] stage-2 self-check: {record['reason']}", flush=True)
     return record

@@ -67,3 +67,43 @@ def test_no_fold_below_three_train_cameras(tmp_path):
         train_ids = scene.train_ids[:2]
 
     assert run_self_check(Two(), config, tmp_path, NoiseRestorer())["decision"] == "refine"
+
+
+def test_a_killed_check_resumes_to_the_same_decision(tmp_path, monkeypatch):
+    import json
+
+    from fixer4d.train.trainer import Trainer
+
+    config = tiny_config(**{"stage1.checkpoint_every": 10, "self_check.scale": 1.0, "self_check.eval_frames": 2})
+    scene = load_scene_for(config)
+    whole = run_self_check(scene, config, tmp_path / "whole", NoiseRestorer())
+
+    class Killed(Exception):
+        pass
+
+    step = Trainer.step
+    kill_at = {"stage 1": 25, "refine": 5}  # the fold's stage 1 after its checkpoint at 20, then stage 2
+
+    def killing_step(self):
+        part = "refine" if self.stage2 is not None else "stage 1"
+        if kill_at.get(part) is not None and self.step_count == kill_at[part] and self.config.iterations == 40:
+            kill_at[part] = None
+            raise Killed(part)
+        return step(self)
+
+    monkeypatch.setattr(Trainer, "step", killing_step)
+    out = tmp_path / "killed"
+    for part in ("stage 1", "refine"):
+        try:
+            run_self_check(scene, config, out, NoiseRestorer())
+        except Killed as exc:
+            assert str(exc) == part
+        else:
+            raise AssertionError(f"the check was not interrupted in {part}")
+        done = json.loads((out / "parts.json").read_text())["psnr"]
+        assert set(done) == (set() if part == "stage 1" else {"skip", "continue"})
+    model_written = (out / "model_stage1.ply").stat().st_mtime_ns
+    resumed = run_self_check(scene, config, out, NoiseRestorer())
+    assert (out / "model_stage1.ply").stat().st_mtime_ns == model_written  # the fold's stage 1 was not redone
+    assert resumed["psnr"] == whole["psnr"] and resumed["decision"] == whole["decision"]
+    assert not any(out.glob("*/checkpoints"))  # finished parts leave no checkpoints behind
