@@ -2,17 +2,20 @@
 run's validation cameras.
 
     python benchmarks/restoration_gate.py RUN --cameras-from VALIDATION [--stride S] [--out FILE.json]
+        [--background-tols 0.02,0.05,0.1,0.2]
 
 RUN is a finished `fixer4d run` folder (its stage-1 model, restorer and config are used as they
 are); VALIDATION a folder or bundled spec with the same train cameras and other held-out cameras
 (as `fixer4d eval --cameras-from`). For every held-out camera and every S-th frame the camera is
 restored exactly as the "Restoration (init)" row restores it (the two nearest train cameras as
 references, a three-frame clip through the camera, the middle frame), and the squared error of
-six images is summed per pixel class:
+these images is summed per pixel class:
 
 - render: the stage-1 render; restored: the restorer's output as it is (the paper's row);
-- fill: the render with its unobserved pixels filled from the observed ones
-  (``restore.unobserved_fill.fill_unobserved``), no restorer;
+- fill: the render with its unobserved pixels filled from the observed ones at or behind their
+  depth (``restore.unobserved_fill.fill_unobserved`` with the render's depth), no restorer;
+- fill_plain: the same fill with every boundary pixel weighing the same (no depth);
+- fill_tol<T> (with --background-tols): the fill with ``BACKGROUND_DEPTH_TOL`` = T;
 - gated: the render + confidence x unobserved x (restored - render), no hole rule;
 - gate_render: the gate falling back on the render (``fill=False``: stage 2's gated targets by
   default), holes restored whatever the confidence;
@@ -37,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 
 import fixer4d  # noqa: E402,F401  (sets the OpenMP wait policy before torch is imported)
 
-IMAGES = ("render", "restored", "fill", "gated", "gate_render", "gate")
+IMAGES = ("render", "restored", "fill_plain", "fill", "gated", "gate_render", "gate")
 CLASSES = ("all", "unobserved", "hole", "unobserved_solid", "observed")
 
 
@@ -47,18 +50,28 @@ def pixel_classes(unobserved: np.ndarray, alpha: np.ndarray) -> dict[str, np.nda
             "unobserved_solid": hidden & (alpha >= 0.5), "observed": ~hidden}
 
 
-def images(request, result, visibility) -> dict[str, np.ndarray]:
-    """The six (H, W, 3) images of the clip's middle frame (both gates are the pipeline's own)."""
+def images(request, result, visibility, tols: tuple[float, ...] = ()) -> dict[str, np.ndarray]:
+    """The (H, W, 3) images of the clip's middle frame (both gates are the pipeline's own)."""
     from fixer4d.pipeline.restoration import clip_frame, gate_restoration
-    from fixer4d.restore.unobserved_fill import fill_unobserved
+    from fixer4d.restore.unobserved_fill import (SURFACE_ALPHA, UNKNOWN_ABOVE, background_boundary_weights,
+                                                 fill_unobserved, harmonic_fill)
 
     request, result = clip_frame(request, result, 1)
     r, o = request.rgb[0], result.rgb[0]
     conf, hidden = result.confidence[0], request.unobserved[0]
-    return {"render": r, "restored": o, "fill": fill_unobserved(request.rgb, request.unobserved)[0],
-            "gated": r + (conf * hidden)[..., None] * (o - r),
-            "gate_render": gate_restoration(request, result, visibility, fill=False).rgb[0],
-            "gate": gate_restoration(request, result, visibility, fill=True).rgb[0]}
+    out = {"render": r, "restored": o, "fill_plain": fill_unobserved(request.rgb, request.unobserved)[0],
+           "fill": fill_unobserved(request.rgb, request.unobserved, request.depth, request.alpha)[0],
+           "gated": r + (conf * hidden)[..., None] * (o - r),
+           "gate_render": gate_restoration(request, result, visibility, fill=False).rgb[0],
+           "gate": gate_restoration(request, result, visibility, fill=True).rgb[0]}
+    u = np.clip(np.nan_to_num(hidden, nan=0.0), 0.0, 1.0)
+    known = u <= UNKNOWN_ABOVE
+    for tol in tols:
+        surface = np.nan_to_num(request.alpha[0], nan=0.0) >= SURFACE_ALPHA
+        weights = background_boundary_weights(request.depth[0], known, surface, tol)
+        filled = harmonic_fill(np.clip(r, 0.0, 1.0), known, weights)
+        out[f"fill_tol{tol:g}"] = np.clip(r + u[..., None] * (filled - r), 0.0, 1.0)
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -67,7 +80,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cameras-from", required=True, help="a validation folder or bundled spec")
     parser.add_argument("--stride", type=int, default=6, help="every S-th frame")
     parser.add_argument("--out", type=Path, default=None, help="write the table as JSON")
+    parser.add_argument("--background-tols", default="", help="comma-separated BACKGROUND_DEPTH_TOL values to "
+                        "add as fill_tol<T> columns")
     args = parser.parse_args(argv)
+    tols = tuple(float(t) for t in args.background_tols.split(",") if t.strip())
+    names = IMAGES + tuple(f"fill_tol{t:g}" for t in tols)
 
     from fixer4d.model.io import load_ply
     from fixer4d.pipeline.other_cameras import check_same_train_cameras
@@ -83,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     check_same_train_cameras(own, scene)
     model = load_ply(args.run / "model_stage1.ply")
     restorer = run_restorer(config, args.run)
-    sums = {c: {k: 0.0 for k in IMAGES} for c in CLASSES}
+    sums = {c: {k: 0.0 for k in names} for c in CLASSES}
     counts = dict.fromkeys(CLASSES, 0)
     for cam_idx in scene.test_ids:
         cams, ids = clip_through(scene, scene.cameras[cam_idx])
@@ -91,21 +108,21 @@ def main(argv: list[str] | None = None) -> int:
             request = make_request(model, scene, cams, frame, ids, visibility=config.stage2.visibility)
             result = restorer.restore(request)
             truth = scene.frame(frame, cam_idx)
-            imgs = images(request, result, config.stage2.visibility)
+            imgs = images(request, result, config.stage2.visibility, tols)
             errors = {k: ((np.clip(v, 0, 1) - truth) ** 2).mean(-1) for k, v in imgs.items()}
             for c, mask in pixel_classes(request.unobserved[1], request.alpha[1]).items():
                 counts[c] += int(mask.sum())
-                for k in IMAGES:
+                for k in names:
                     sums[c][k] += float(errors[k][mask].sum())
     total = counts["all"]
     table = {c: {"fraction": counts[c] / total if total else 0.0,
-                 **{k: (psnr_from_mse(sums[c][k] / counts[c]) if counts[c] else None) for k in IMAGES}}
+                 **{k: (psnr_from_mse(sums[c][k] / counts[c]) if counts[c] else None) for k in names}}
              for c in CLASSES}
     out = {"run": str(args.run), "cameras_from": str(args.cameras_from), "stride": args.stride,
            "restorer": config.restorer.kind, "commit": source_commit(), "psnr_db": table}
     for c, row in table.items():
         print(f"{c:17s} {100 * row['fraction']:5.1f} % " + " ".join(
-            f"{k} {row[k]:.2f}" if row[k] is not None else f"{k} n/a" for k in IMAGES))
+            f"{k} {row[k]:.2f}" if row[k] is not None else f"{k} n/a" for k in names))
     if args.out is not None:
         from fixer4d.atomic import write_json
 

@@ -28,7 +28,8 @@ END = "<!-- RESULTS:END -->"
 # self-check, restoration rows ungated); "_val" ones score a run on the validation cameras
 # (fixer4d eval --cameras-from); "_seedS" ones are the run with `--seed S`. A stem "mean:A,B,C"
 # is a row of the means of those files' figures. "_nofill" rows are the same commands with the
-# Restoration rows' gate falling back on the render (eval.fill_unobserved=false). Rows "without camera response", "unobserved
+# Restoration rows' gate falling back on the render (eval.fill_unobserved=false); "_plainfill"
+# ones with the fill before it weighed the background (every boundary pixel the same). Rows "without camera response", "unobserved
 # pixels only" and "observed weight 0.25" are earlier runs (their commit and date are in the row;
 # they ran on another machine of the same kind, whose figures differ in the last digits): they
 # compare with each other, not with the rows above them. The README shows the rows in
@@ -49,6 +50,12 @@ TABLE = (("demo", "demo (test: 12 held-out cameras)"),
          ("panoptic_paper_val", "*validation*: Panoptic cameras 4, 14, paper's stage 2"),
          ("panoptic_c_val", "*validation*: split c cameras 2, 12"),
          ("panoptic_c_paper_val", "*validation*: split c cameras 2, 12, paper's stage 2"),
+         ("demo_plainfill", "earlier: demo, depth-blind unobserved fill"),
+         ("panoptic_plainfill", "earlier: Panoptic (test camera 30), depth-blind unobserved fill"),
+         ("panoptic_c_plainfill", "earlier: split c (test camera 15), depth-blind unobserved fill"),
+         ("demo_plainfill_val", "earlier *validation*: demo_val, depth-blind unobserved fill"),
+         ("panoptic_plainfill_val", "earlier *validation*: Panoptic 4, 14, depth-blind unobserved fill"),
+         ("panoptic_c_plainfill_val", "earlier *validation*: split c 2, 12, depth-blind unobserved fill"),
          ("demo_nofill", "earlier: demo, gate without the unobserved fill"),
          ("panoptic_nofill", "earlier: Panoptic (test camera 30), gate without the unobserved fill"),
          ("panoptic_c_nofill", "earlier: split c (test camera 15), gate without the unobserved fill"),

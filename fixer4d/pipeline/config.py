@@ -109,10 +109,11 @@ class EvalConfig:
     # 18.42 (Panoptic 4/14, split c 2/12): ungated falls 0.24 dB under the render it starts from.
     gate_restoration: bool = True
     # what the gated rows fall back on where the restorer does not act: the render with its
-    # unobserved pixels (holes included) filled from the observed ones (restore.unobserved_fill);
-    # false: the render, its holes restored whatever the confidence. Chosen on the validation
-    # cameras, Restoration (init) on Panoptic 4/14, split c 2/12, demo_val: fill 20.97 / 20.87 /
-    # 25.41 dB, render 19.89 / 20.56 / 25.36 (docs/stage2.md).
+    # unobserved pixels (holes included) filled from the observed ones around them, at or behind
+    # their depth (restore.unobserved_fill); false: the render, its holes restored whatever the
+    # confidence. Chosen on the validation cameras, Restoration (init) on Panoptic 4/14, split c
+    # 2/12, demo_val: fill 21.11 / 20.88 / 25.41 dB (depth-blind: 20.97 / 20.87 / 25.42), render
+    # 19.89 / 20.56 / 25.36 (docs/stage2.md sections 1b, 1c).
     fill_unobserved: bool = True
 
     def __post_init__(self) -> None:

@@ -136,7 +136,8 @@ def gate_restoration(request, result, visibility: VisibilityConfig, fill: bool):
 
     With ``fill`` (``eval.fill_unobserved`` for the rows, ``stage2.fill_unobserved`` for the
     targets) the fallback is the render with its unobserved pixels, holes included, filled from
-    the observed ones (``restore.unobserved_fill.fill_unobserved``), and the restorer acts in
+    the observed ones around them at or behind their depth (``restore.unobserved_fill.fill_unobserved``
+    with the render's depth and alpha), and the restorer acts in
     proportion to its confidence x unobserved; the result's confidence is the larger of that
     weight and the fill's (where the target departs from the render). Without it the fallback is
     the render as it is, which holds only the background colour in a hole, so a hole takes the
@@ -147,7 +148,8 @@ def gate_restoration(request, result, visibility: VisibilityConfig, fill: bool):
     from fixer4d.restore.visibility import hole_weight
 
     if fill and request.unobserved is not None:
-        gated = blend_with_render(fill_unobserved(request.rgb, request.unobserved), result, request.unobserved)
+        filled = fill_unobserved(request.rgb, request.unobserved, request.depth, request.alpha)
+        gated = blend_with_render(filled, result, request.unobserved)
         # the returned confidence says where the target departs from the render: the restorer's
         # share, and the fill's wherever it replaces the render
         u = np.clip(np.nan_to_num(request.unobserved, nan=0.0), 0.0, 1.0)

@@ -214,7 +214,10 @@ def _final_rows(ctx: S.StageContext, report: _Report, model, decision: str, rest
 def gate_settings(gate, fill: bool) -> dict[str, Any] | None:
     """What a restoration row's images depend on besides the models and the restorer: the gate's
     thresholds and fallback, None for the ungated rows."""
-    return None if gate is None else {**dataclasses.asdict(gate), "fill_unobserved": fill}
+    from fixer4d.restore.unobserved_fill import BACKGROUND_DEPTH_TOL
+
+    return None if gate is None else {**dataclasses.asdict(gate), "fill_unobserved": fill,
+                                      **({"fill_background_tol": BACKGROUND_DEPTH_TOL} if fill else {})}
 
 
 def peak_rss_mb() -> float:

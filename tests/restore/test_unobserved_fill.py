@@ -8,7 +8,8 @@ import pytest
 from fixer4d.errors import InputError
 from fixer4d.pipeline.restoration import gate_restoration
 from fixer4d.restore.base import RestoreRequest, RestoreResult
-from fixer4d.restore.unobserved_fill import fill_unobserved, harmonic_fill
+from fixer4d.restore.unobserved_fill import (MIN_BOUNDARY_WEIGHT, background_boundary_weights, fill_unobserved,
+                                             harmonic_fill)
 from fixer4d.restore.visibility import VisibilityConfig
 from tests.restore.test_visibility import _camera
 
@@ -54,6 +55,80 @@ def test_border_regions_are_free_and_nothing_known_leaves_the_values():
     np.testing.assert_array_equal(harmonic_fill(values, np.zeros_like(known)), values)
     with pytest.raises(InputError):
         harmonic_fill(values[..., 0], known)
+
+
+def _disocclusion(surface_in_gap: bool):
+    """A red occluder (depth 1, columns < 20) beside a blue wall (depth 5, columns >= 30) with an
+    unseen strip between them: the wall behind the occluder's edge (depth 5) or a hole."""
+    h, w = 20, 50
+    rgb = np.zeros((1, h, w, 3), np.float32)
+    rgb[0, :, :20] = (1.0, 0.0, 0.0)
+    rgb[0, :, 30:] = (0.0, 0.0, 1.0)
+    rgb[0, :, 20:30] = (0.5, 0.5, 0.5)  # whatever the model smeared there
+    depth = np.full((1, h, w), 5.0, np.float32)
+    depth[0, :, :20] = 1.0
+    alpha = np.ones((1, h, w), np.float32)
+    unobserved = np.zeros((1, h, w), np.float32)
+    unobserved[0, :, 20:30] = 1.0
+    if not surface_in_gap:
+        alpha[0, :, 20:30] = 0.0
+        depth[0, :, 20:30] = 0.0
+    return rgb, unobserved, depth, alpha
+
+
+@pytest.mark.parametrize("surface_in_gap", [True, False], ids=["unseen wall", "hole"])
+def test_a_disocclusion_is_filled_from_the_background(surface_in_gap):
+    rgb, unobserved, depth, alpha = _disocclusion(surface_in_gap)
+    plain = fill_unobserved(rgb, unobserved)[0, :, 20:30]
+    background = fill_unobserved(rgb, unobserved, depth, alpha)[0, :, 20:30]
+    blue = np.array([0.0, 0.0, 1.0], np.float32)
+    # the plain membrane ramps from the occluder's red to the wall's blue across the strip; with
+    # the depth, the occluder's edge (80 % in front) weighs exp(-8) and the strip is the wall's
+    assert np.abs(plain - blue).max() > 0.4
+    assert np.abs(background - blue).max() < 0.01
+    # observed pixels are untouched either way
+    full = fill_unobserved(rgb, unobserved, depth, alpha)
+    np.testing.assert_array_equal(full[0, :, :20], rgb[0, :, :20])
+    np.testing.assert_array_equal(full[0, :, 30:], rgb[0, :, 30:])
+
+
+def test_background_weights_change_nothing_where_no_boundary_is_in_front():
+    rng = np.random.default_rng(3)
+    values = rng.random((24, 30, 3)).astype(np.float32)
+    known = np.ones((24, 30), bool)
+    known[6:18, 8:22] = False
+    depth = np.full((24, 30), 2.0)
+    depth[~known] = 1.5  # the unseen surface is in front of everything around it
+    weights = background_boundary_weights(depth, known, np.ones_like(known))
+    np.testing.assert_array_equal(weights, 1.0)
+    np.testing.assert_array_equal(harmonic_fill(values, known, weights), harmonic_fill(values, known))
+    # nothing unknown, or no depth at all: uniform weights
+    np.testing.assert_array_equal(background_boundary_weights(depth, np.ones_like(known), known), 1.0)
+    np.testing.assert_array_equal(background_boundary_weights(np.zeros_like(depth), known, known), 1.0)
+    with pytest.raises(InputError):
+        background_boundary_weights(depth, known, known, tol=0.0)
+
+
+def test_a_region_walled_in_by_an_occluder_alone_still_takes_its_colour():
+    # every boundary pixel is far in front: the weights hit their floor, the system stays solvable
+    # and the fill obeys the maximum principle
+    values = np.zeros((16, 16, 3), np.float32)
+    values[..., 1] = 0.25
+    known = np.ones((16, 16), bool)
+    known[4:12, 4:12] = False
+    depth = np.where(known, 0.1, 10.0)
+    weights = background_boundary_weights(depth, known, np.ones_like(known))
+    assert weights.min() == pytest.approx(MIN_BOUNDARY_WEIGHT)
+    out = harmonic_fill(values + np.where(known, 0.0, 0.9)[..., None], known, weights)
+    np.testing.assert_allclose(out[~known], values[~known], atol=1e-5)
+
+
+def test_depth_and_alpha_go_together():
+    rgb, unobserved, depth, alpha = _disocclusion(True)
+    with pytest.raises(InputError):
+        fill_unobserved(rgb, unobserved, depth, None)
+    with pytest.raises(InputError):
+        fill_unobserved(rgb, unobserved, depth[:, :5], alpha)
 
 
 def test_fill_unobserved_blends_by_the_unobserved_weight():
