@@ -53,8 +53,7 @@ def pixel_classes(unobserved: np.ndarray, alpha: np.ndarray) -> dict[str, np.nda
 def images(request, result, visibility, tols: tuple[float, ...] = ()) -> dict[str, np.ndarray]:
     """The (H, W, 3) images of the clip's middle frame (both gates are the pipeline's own)."""
     from fixer4d.pipeline.restoration import clip_frame, gate_restoration
-    from fixer4d.restore.unobserved_fill import (SURFACE_ALPHA, UNKNOWN_ABOVE, background_boundary_weights,
-                                                 fill_unobserved, harmonic_fill)
+    from fixer4d.restore.unobserved_fill import fill_unobserved
 
     request, result = clip_frame(request, result, 1)
     r, o = request.rgb[0], result.rgb[0]
@@ -64,13 +63,8 @@ def images(request, result, visibility, tols: tuple[float, ...] = ()) -> dict[st
            "gated": r + (conf * hidden)[..., None] * (o - r),
            "gate_render": gate_restoration(request, result, visibility, fill=False).rgb[0],
            "gate": gate_restoration(request, result, visibility, fill=True).rgb[0]}
-    u = np.clip(np.nan_to_num(hidden, nan=0.0), 0.0, 1.0)
-    known = u <= UNKNOWN_ABOVE
     for tol in tols:
-        surface = np.nan_to_num(request.alpha[0], nan=0.0) >= SURFACE_ALPHA
-        weights = background_boundary_weights(request.depth[0], known, surface, tol)
-        filled = harmonic_fill(np.clip(r, 0.0, 1.0), known, weights)
-        out[f"fill_tol{tol:g}"] = np.clip(r + u[..., None] * (filled - r), 0.0, 1.0)
+        out[f"fill_tol{tol:g}"] = fill_unobserved(request.rgb, request.unobserved, request.depth, request.alpha, tol)[0]
     return out
 
 

@@ -54,10 +54,14 @@ def shared_static_key(config: RunConfig) -> tuple[str, ...]:
 
 
 def stage2_key(config: RunConfig) -> str:
-    """Stage 2 and its pseudo-targets: the stage-1 model, stage-2 settings, restorer, trajectories."""
+    """Stage 2 and its pseudo-targets: the stage-1 model, stage-2 settings, restorer, trajectories
+    (and the unobserved fill's depth tolerance when the targets fall back on the fill)."""
+    from fixer4d.restore.unobserved_fill import BACKGROUND_DEPTH_TOL
+
     d = config.to_dict()
+    fill = ("fill_background_tol", BACKGROUND_DEPTH_TOL) if config.stage2.fill_unobserved else ()
     return stage_key("stage2", stage1_key(config, config.init_method), d["stage2"], restorer_key(config),
-                     d["trajectories"])
+                     d["trajectories"], *fill)
 
 
 def restorer_key(config: RunConfig) -> str:

@@ -57,8 +57,8 @@ class _Parts:
         atomic.write_json(self.path, {"psnr": self.psnr, "seconds": self.seconds})
 
 
-def _train(trainer, run_dir: Path, progress: bool):
-    """Train ``trainer`` from its newest checkpoint under ``run_dir`` (if any) to the end; returns
+def _train(trainer, progress: bool):
+    """Train ``trainer`` from its newest checkpoint under its run_dir (if any) to the end; returns
     (its model, seconds of training over every attempt); the checkpoints are removed after."""
     import shutil
 
@@ -66,7 +66,7 @@ def _train(trainer, run_dir: Path, progress: bool):
     t0 = time.perf_counter()
     trainer.train(progress=progress)
     seconds = time.perf_counter() - t0 + prior
-    shutil.rmtree(run_dir, ignore_errors=True)
+    shutil.rmtree(trainer.run_dir, ignore_errors=True)
     return trainer.model, seconds
 
 
@@ -117,7 +117,7 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
                     if effects_decision is not None and effects_decision.camera_response else None)
         trainer = Trainer(model, views, cfg1, run_dir=out_dir / "stage1",
                           effects=config.effects if effects_decision is not None else None, camera_response=response)
-        model, seconds = _train(trainer, out_dir / "stage1", progress)
+        model, seconds = _train(trainer, progress)
         save_ply(model, out_dir / FOLD_MODEL)
         atomic.write_json(out_dir / FOLD_RESPONSE, None if trainer.response is None else trainer.response.to_json())
         parts.finish("stage1", seconds)
@@ -133,25 +133,21 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
     if "skip" not in parts.psnr:
         parts.finish("skip", psnr=_held_back_psnr(base, views, held, eval_frames, backend, background))
 
-    if "continue" not in parts.psnr:
-        trainer = Trainer(copy.deepcopy(base), views, matched_config(cfg1, config.stage2), run_dir=out_dir / "continue",
-                          camera_response=copy.deepcopy(response))
-        model, seconds = _train(trainer, out_dir / "continue", progress)
+    def candidate(name: str, trainer) -> None:
+        """Train a candidate from the fold's model, score the held-back camera, record both."""
+        model, seconds = _train(trainer, progress)
         t0 = time.perf_counter()
         score = _held_back_psnr(model, views, held, eval_frames, backend, background)
-        parts.finish("continue", seconds + time.perf_counter() - t0, score)
-        del trainer, model
+        parts.finish(name, seconds + time.perf_counter() - t0, score)
 
+    if "continue" not in parts.psnr:
+        candidate("continue", Trainer(copy.deepcopy(base), views, matched_config(cfg1, config.stage2),
+                                      run_dir=out_dir / "continue", camera_response=copy.deepcopy(response)))
     if "refine" not in parts.psnr:
         refresh = make_refresh_callback(out_dir, views, config, progress=progress, backend=backend, restorer=restorer)
-        trainer = Trainer(copy.deepcopy(base), views, cfg1, stage2=config.stage2, run_dir=out_dir / "refine",
-                          cache=RestoreCache(out_dir / "cache", fingerprint=stage2_key(config)), refresh_cache=refresh,
-                          camera_response=copy.deepcopy(response))
-        model, seconds = _train(trainer, out_dir / "refine", progress)
-        t0 = time.perf_counter()
-        score = _held_back_psnr(model, views, held, eval_frames, backend, background)
-        parts.finish("refine", seconds + time.perf_counter() - t0, score)
-        del trainer, model
+        candidate("refine", Trainer(copy.deepcopy(base), views, cfg1, stage2=config.stage2, run_dir=out_dir / "refine",
+                                    cache=RestoreCache(out_dir / "cache", fingerprint=stage2_key(config)),
+                                    refresh_cache=refresh, camera_response=copy.deepcopy(response)))
 
     psnr = {c: parts.psnr[c] for c in ("skip", "continue", "refine")}
     decision = decide(psnr, sc.tie_db, sc.allow_skip)

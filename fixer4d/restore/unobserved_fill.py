@@ -138,7 +138,7 @@ def background_boundary_weights(depth: np.ndarray, known: np.ndarray, surface: n
 
 
 def fill_unobserved(rgb: np.ndarray, unobserved: np.ndarray, depth: np.ndarray | None = None,
-                    alpha: np.ndarray | None = None) -> np.ndarray:
+                    alpha: np.ndarray | None = None, tol: float = BACKGROUND_DEPTH_TOL) -> np.ndarray:
     """The clip with its unobserved pixels replaced by the harmonic fill from the observed pixels
     around them, in proportion to how unobserved they are.
 
@@ -147,7 +147,7 @@ def fill_unobserved(rgb: np.ndarray, unobserved: np.ndarray, depth: np.ndarray |
     (unobserved <= ``UNKNOWN_ABOVE``); every pixel becomes render + unobserved x (fill - render),
     so an observed pixel, where the fill is the render, comes back unchanged. depth, alpha:
     (F, H, W) render depth and alpha: the boundary weighs the background
-    (``background_boundary_weights``); without them every boundary pixel weighs the same.
+    (``background_boundary_weights`` with ``tol``); without them every boundary pixel weighs the same.
     Returns (F, H, W, 3) float32 in [0, 1].
     """
     rgb = np.clip(np.nan_to_num(np.asarray(rgb, dtype=np.float32), nan=0.0), 0.0, 1.0)
@@ -164,6 +164,6 @@ def fill_unobserved(rgb: np.ndarray, unobserved: np.ndarray, depth: np.ndarray |
         if observed.all():
             continue
         weights = None if depth is None else background_boundary_weights(
-            depth[f], observed, np.nan_to_num(alpha[f], nan=0.0) >= SURFACE_ALPHA)
+            depth[f], observed, np.nan_to_num(alpha[f], nan=0.0) >= SURFACE_ALPHA, tol)
         out[f] = rgb[f] + u[f][..., None] * (harmonic_fill(rgb[f], observed, weights) - rgb[f])
     return np.clip(out, 0.0, 1.0)
