@@ -18,6 +18,20 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 PANOPTIC_DIR = Path(__file__).resolve().parents[1].parent / "shared/data/panoptic_basketball"
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _auto_device_trains_on_the_cpu():
+    """Trainers whose config leaves ``stage1.device`` at "auto" train on the CPU here, on a machine
+    with a GPU too: the figures the tests hold were measured on the CPU, and CUDA runs are not
+    bit-reproducible. A test of the GPU path asks for "cuda" by name."""
+    import fixer4d.train.trainer as trainer_module
+
+    resolve = trainer_module.training_device
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(trainer_module, "training_device",
+                      lambda device, backend: resolve("cpu" if device == "auto" else device, backend))
+        yield
+
+
 @pytest.fixture(scope="session")
 def tiny_scene():
     """SyntheticScene of assets/scenes/tiny.json (read-only: share it, do not mutate it)."""

@@ -52,6 +52,10 @@ class DensifyStats:
     def __len__(self) -> int:
         return int(self.grad_accum.shape[0])
 
+    def to(self, device: torch.device | str) -> "DensifyStats":
+        """These statistics on ``device``."""
+        return DensifyStats(self.grad_accum.to(device), self.denom.to(device), self.max_radii.to(device))
+
     @torch.no_grad()
     def update(self, means2d_grad: torch.Tensor, radii: torch.Tensor, width: int, height: int) -> None:
         """Add one view: ``means2d_grad`` (N, 2) dL/d(pixel position), ``radii`` (N,) pixels.
@@ -206,7 +210,10 @@ def densify_and_prune(model: torch.nn.Module, optimizer: torch.optim.Optimizer |
         idx = torch.nonzero(split).reshape(-1).repeat(split_children)
         children = _rows(model, idx)
         std = scales[idx]
-        local = torch.randn(std.shape, generator=generator, dtype=std.dtype, device=std.device) * std
+        # drawn on the generator's device (the trainer's is on the CPU) so that a CUDA run splits
+        # with the same offsets as a CPU run of the same seed
+        device = std.device if generator is None else generator.device
+        local = torch.randn(std.shape, generator=generator, dtype=std.dtype, device=device).to(std.device) * std
         rot = quat_to_matrix(model.quats.detach()[idx])
         children["means"] = children["means"] + torch.einsum("nij,nj->ni", rot, local)
         children["log_scales"] = torch.log(std / split_scale_divisor)

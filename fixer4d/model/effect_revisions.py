@@ -48,6 +48,10 @@ class TemporalStats:
     def __len__(self) -> int:
         return int(self.grad.shape[0])
 
+    def to(self, device: torch.device | str) -> "TemporalStats":
+        """These statistics on ``device``."""
+        return TemporalStats(self.grad.to(device), self.count.to(device))
+
     @torch.no_grad()
     def update(self, means2d_grad: torch.Tensor, radii: torch.Tensor, width: int, height: int, t: float) -> None:
         """Add one view rendered at clip time t (same conventions as DensifyStats.update)."""
@@ -83,7 +87,7 @@ def demote_candidates(model: SpacetimeGaussians) -> torch.Tensor:
         ok &= (1.0 - torch.exp(-(far / s) ** 2)) < DEMOTE_OPACITY_VARIATION
     if cfg.motion_degree > 0:
         coeff = model.motion.detach().view(-1, cfg.motion_degree, 3)
-        disp = torch.zeros(model.num_gaussians, dtype=coeff.dtype)
+        disp = torch.zeros(model.num_gaussians, dtype=coeff.dtype, device=coeff.device)
         for dt_sign in (-1.0, 1.0):
             dt = (far * dt_sign).unsqueeze(-1)
             acc = sum(coeff[:, k] * dt ** (k + 1) for k in range(cfg.motion_degree))

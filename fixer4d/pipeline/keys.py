@@ -16,8 +16,10 @@ __all__ = ["init_key", "stage1_key", "restorer_key", "stage2_key", "matched_key"
 
 # ---------------------------------------------------------------------------------------------
 def training_settings(stage1_dict: dict[str, Any]) -> dict[str, Any]:
-    """Stage-1 settings that change the trained model (not progress display or checkpoint cadence)."""
-    return {k: v for k, v in stage1_dict.items() if k not in ("progress", "checkpoint_every", "keep_checkpoints")}
+    """Stage-1 settings that change the trained model (not progress display, checkpoint cadence or
+    the device trained on)."""
+    return {k: v for k, v in stage1_dict.items()
+            if k not in ("progress", "checkpoint_every", "keep_checkpoints", "device")}
 
 
 def scene_settings(scene: dict[str, Any]) -> dict[str, Any]:

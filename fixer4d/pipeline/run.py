@@ -27,6 +27,7 @@ from fixer4d.pipeline.run_folder import RunFolder, load_scene_for, stage_key
 from fixer4d.pipeline.shared_static import SHARED_DIR, export_shared_static
 from fixer4d.pipeline.stage_cache import StageCache
 from fixer4d.render.views import model_render_fn
+from fixer4d.train.device import training_device
 
 log = logging.getLogger("fixer4d.pipeline")
 
@@ -41,6 +42,7 @@ def open_context(config: RunConfig, out: str | Path, *, progress: bool = True,
     validate_scene(scene)  # a video that opens but does not decode fails here, naming file and frame
     if config.restorer.kind == "cogvideo":  # an unavailable restorer stops before any work
         run_restorer(config)
+    training_device(config.stage1.device, config.stage1.backend)  # a device that is not there, likewise
     run = RunFolder.create(out, config)
     return S.StageContext(run=run, scene=scene, progress=progress,
                           cache=StageCache(stage_cache) if stage_cache is not None else None)

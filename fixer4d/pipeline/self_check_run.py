@@ -67,7 +67,7 @@ def _train(trainer, progress: bool):
     trainer.train(progress=progress)
     seconds = time.perf_counter() - t0 + prior
     shutil.rmtree(trainer.run_dir, ignore_errors=True)
-    return trainer.model, seconds
+    return trainer.host_model(), seconds
 
 
 def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bool = False) -> dict[str, Any]:

@@ -144,8 +144,9 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
     trainer, decision = stage1_trainer(ctx, clouds, model_path.parent)
     prior = trainer.train_seconds if trainer.resume() else 0.0
     trainer.train()
-    save_ply(trainer.model, model_path)
-    report = effects_report(trainer.model, decision, trainer.revisions)
+    model = trainer.host_model()
+    save_ply(model, model_path)
+    report = effects_report(model, decision, trainer.revisions)
     if trainer.response is not None:
         report["camera_response"] = trainer.response.to_json()
     atomic.write_json(model_path.parent / EFFECTS_NAME, report)
@@ -153,7 +154,7 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
     _drop_checkpoints(model_path.parent, 1)
     if ctx.cache is not None:
         ctx.cache.store(key, [model_path, model_path.parent / EFFECTS_NAME], ctx.run.records.seconds(name))
-    return trainer.model
+    return model
 
 
 def stage1_trainer(ctx: StageContext, init, run_dir: Path | None):
@@ -273,9 +274,10 @@ def stage2(ctx: StageContext, model, refresh: Callable[[Any, int], None] | None 
                       camera_response=stage1_response(ctx))
     prior = trainer.train_seconds if trainer.resume() else 0.0
     trainer.train()
-    save_ply(trainer.model, final)
+    model = trainer.host_model()
+    save_ply(model, final)
     ctx.run.records.finish("stage2", key, time.perf_counter() - t0 + prior)
-    return trainer.model
+    return model
 
 
 def matched_stage1(ctx: StageContext, model):
@@ -300,10 +302,11 @@ def matched_stage1(ctx: StageContext, model):
     trainer = Trainer(copy.deepcopy(model), ctx.train_scene, cfg, run_dir=out, camera_response=stage1_response(ctx))
     prior = trainer.train_seconds if trainer.resume() else 0.0
     trainer.train()
-    save_ply(trainer.model, path)
+    model = trainer.host_model()
+    save_ply(model, path)
     ctx.run.records.finish("matched", key, time.perf_counter() - t0 + prior)
     _drop_checkpoints(out, 1)
-    return trainer.model
+    return model
 
 
 def self_check_stage(ctx: StageContext, restorer) -> dict[str, Any]:

@@ -27,8 +27,13 @@ from fixer4d.errors import BackendUnavailable
 from fixer4d.restore.base import ProgressFn, RestoreRequest, RestoreResult
 
 WEIGHTS_ENV = "FIXER4D_COGVIDEO_WEIGHTS"
-# CogVideoX's VAE compresses time by 4: clips of 4k + 1 frames map to whole latent frames.
+# CogVideoX's VAE compresses time by 4: clips of 4k + 1 frames map to k + 1 latent frames.
 TEMPORAL_COMPRESSION = 4
+# diffusers' CogVideoX VAE decodes latent frames two at a time after a first group of three, and an
+# even number of latent frames comes back as 4 (k + 1) frames (the first latent frame repeated, the
+# clip shifted by 3): only an odd number of latent frames, i.e. 8k + 1 input frames, decodes back
+# frame for frame, so clips are padded to a multiple of this plus one.
+CLIP_FRAME_MULTIPLE = 2 * TEMPORAL_COMPRESSION
 # The transformer works on 16x16-pixel latent patches (VAE x8, patch x2): sizes must be multiples.
 SPATIAL_MULTIPLE = 16
 # An endpoint camera is the reference camera when their centres are this close relative to the
@@ -122,7 +127,7 @@ class CogVideoV2VRestorer:
         fixed = self._endpoint_frames(request)
         for k, image in fixed.items():
             frames[k] = image
-        n_in = TEMPORAL_COMPRESSION * int(np.ceil((F - 1) / TEMPORAL_COMPRESSION)) + 1
+        n_in = CLIP_FRAME_MULTIPLE * int(np.ceil((F - 1) / CLIP_FRAME_MULTIPLE)) + 1
         order = list(range(F)) + [F - 1] * (n_in - F)
         w = max(SPATIAL_MULTIPLE, cfg.width // SPATIAL_MULTIPLE * SPATIAL_MULTIPLE)
         h = max(SPATIAL_MULTIPLE, cfg.height // SPATIAL_MULTIPLE * SPATIAL_MULTIPLE)

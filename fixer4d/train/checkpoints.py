@@ -24,9 +24,9 @@ CHECKPOINT_DIR = "checkpoints"
 _CKPT_NAME = re.compile(r"^stage(\d)_(\d{7})\.pt$")
 # The temporary that fixer4d.atomic.atomic_path writes a checkpoint to before the rename.
 _CKPT_TEMP = re.compile(r"^\.stage(\d)_\d{7}\.pt\..+$")
-# Stage-1 settings that do not change a result (progress display, checkpoint cadence): a run may
-# resume with other values.
-_RESULT_NEUTRAL = ("progress", "checkpoint_every", "keep_checkpoints")
+# Stage-1 settings that do not change a result (progress display, checkpoint cadence, the device
+# trained on): a run may resume with other values.
+_RESULT_NEUTRAL = ("progress", "checkpoint_every", "keep_checkpoints", "device")
 
 
 def training_settings(config: Stage1Config, stage2: Stage2Config | None) -> dict[str, Any]:

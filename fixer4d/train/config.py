@@ -13,6 +13,7 @@ from typing import Any
 
 from fixer4d.errors import InputError
 from fixer4d.restore.visibility import VisibilityConfig
+from fixer4d.train.device import DEVICES
 
 # Stage2Config.pseudo_mask values: where the pseudo-loss acts.
 PSEUDO_MASKS = ("unobserved", "all")
@@ -57,6 +58,11 @@ class Stage1Config:
     iterations: int = 1500
     seed: int = 0
     backend: str = "auto"
+    # Where the trainer optimizes (fixer4d.train.device): "auto" takes CUDA when it and gsplat are
+    # there, else the CPU; "cpu" or "cuda" insist. It does not enter the stage keys or the
+    # checkpoints' settings: like the thread count it changes last digits, not the method, and
+    # a run begun on one device resumes on the other.
+    device: str = "auto"
     views_per_step: int = 2
     # Which frame each step trains on: "iid" draws it uniformly at random; "shuffled" visits
     # every frame once per pass over the clip, in a random order drawn from (seed, pass) (3DGS's
@@ -144,6 +150,8 @@ class Stage1Config:
         self.background = tuple(float(x) for x in self.background)  # type: ignore[assignment]
         if self.iterations < 0:
             raise InputError(f"Stage1Config.iterations must be >= 0, got {self.iterations}")
+        if self.device not in DEVICES:
+            raise InputError(f"Stage1Config.device {self.device!r}: choose one of {list(DEVICES)}")
         if self.frame_order not in FRAME_ORDERS:
             raise InputError(f"Stage1Config.frame_order {self.frame_order!r}: choose one of {list(FRAME_ORDERS)}")
         if self.views_per_step < 1:

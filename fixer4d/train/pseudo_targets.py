@@ -174,7 +174,8 @@ class PseudoTargets:
         s2 = self.config
         total = int(self.entry_offsets[-1])
         picks = rng.integers(0, total, size=s2.batch_pseudo)
-        loss = torch.zeros(())
+        device = model.means.device  # the cached clips stay in host memory; one frame is copied over
+        loss = torch.zeros((), device=device)
         for flat in picks:
             e_idx = int(np.searchsorted(self.entry_offsets, flat, side="right") - 1)
             entry = self.entries[e_idx]
@@ -186,14 +187,14 @@ class PseudoTargets:
             out = render_view(snap, cam)
             tic = time.perf_counter()
             rgb, conf = self.clip(entry)
-            target = rgb[f]
+            target = rgb[f].to(device)
             if tuple(target.shape[:2]) != (cam.height, cam.width):
                 raise InputError(f"cache entry {entry.key}: frame {f} is {tuple(target.shape[:2])} but its camera is "
                                  f"{cam.height}x{cam.width}; the cache is stale, refresh it")
             weighted = (s2.confidence_weighting and s2.pseudo_target == "restored") or s2.pseudo_mask != "all"
-            weight = conf[f] if weighted else None
+            weight = conf[f].to(device) if weighted else None
             loss = loss + masked_l1(out.rgb, target, weight)
             if evidence is not None:
-                evidence.append(masked_l1(out.rgb, target, self.evidence_weight(entry, f)) / max(len(picks), 1))
+                evidence.append(masked_l1(out.rgb, target, self.evidence_weight(entry, f).to(device)) / max(len(picks), 1))
             timing["t_loss"] += time.perf_counter() - tic
         return loss / max(len(picks), 1)

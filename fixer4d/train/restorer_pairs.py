@@ -42,7 +42,7 @@ from fixer4d.atomic import atomic_path, write_json
 from fixer4d.errors import InputError
 from fixer4d.eval.metrics import psnr
 from fixer4d.geometry.camera import Camera
-from fixer4d.render.api import render
+from fixer4d.render.views import render_views
 from fixer4d.restore.base import RestoreRequest
 from fixer4d.restore.config import META_FILE, VALIDATION_FILE, WEIGHTS_FILE, RestoreConfig
 from fixer4d.restore.learned import LearnedRestorer, request_features, restore_features, train_network
@@ -64,10 +64,9 @@ _REPORT_MAX_DB = 120.0
 
 
 def _render(model, cam: Camera, t: float, backend: str, background) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    with torch.no_grad():
-        out = render(model.at(t, camera_center=cam.center), cam, background=background, backend=backend)
-    return (out.rgb.clamp(0, 1).numpy().astype(np.float32), out.depth.numpy().astype(np.float32),
-            out.alpha.numpy().astype(np.float32))
+    """(rgb (H, W, 3), depth (H, W), alpha (H, W)) float32 host arrays of ``model`` at ``cam``, time t."""
+    rgb, depth, alpha = render_views(model, [cam], t, backend, background)
+    return rgb[0], depth[0], alpha[0]
 
 
 def _nearest(views: TrainOnlyView, target: int, candidates: Sequence[int]) -> list[int]:

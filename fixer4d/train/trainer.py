@@ -43,6 +43,7 @@ from fixer4d.scene.base import MultiViewVideo
 from fixer4d.train.checkpoints import (CHECKPOINT_FORMAT, check_resumable, list_checkpoints, read_checkpoint,
                                        remove_partial_checkpoints, training_settings, write_checkpoint)
 from fixer4d.train.config import Stage1Config, Stage2Config
+from fixer4d.train.device import training_device
 from fixer4d.train.losses import psnr_torch, stg_loss
 from fixer4d.train.model_init import scene_extent
 from fixer4d.train.pseudo_targets import PseudoCache, PseudoTargets, RefreshFn
@@ -98,7 +99,9 @@ class Trainer:
             raise InputError("stage 2 needs a restoration cache (RUN/cache); run the pipeline or `fixer4d run` first")
         if model.num_gaussians == 0:
             raise InputError("the model has no Gaussians; initialize it with model_from_clouds")
-        self.model = model.check("initial model")
+        # the model moves to the training device (in place: nn.Module.to); a stage takes it back with host_model()
+        self.device = training_device(config.device, config.backend)
+        self.model = model.check("initial model").to(self.device)
         self.scene = scene
         self.config = config
         self.stage2 = stage2
@@ -109,26 +112,26 @@ class Trainer:
         self.stage = self.schedule.stage
         self.train_ids = list(scene.train_ids)
         self.extent = scene_extent(scene.train_cameras, model.means)
-        self.background = torch.tensor(config.background, dtype=torch.float32)
+        self.background = torch.tensor(config.background, dtype=torch.float32, device=self.device)
         seed = self.schedule.seed
         self._seed = int(seed)
         self._frame_pass: tuple[int, np.ndarray] | None = None  # (pass index, frame order) of "shuffled"
         self.rng = np.random.default_rng(seed)
         self.generator = torch.Generator().manual_seed(seed)
-        if model.means.device.type == "cuda":
+        if self.device.type == "cuda":
             # CUDA scatter kernels are nondeterministic by default; CPU ones are deterministic.
             torch.use_deterministic_algorithms(True, warn_only=True)
         self.step_count = 0
         self.optimizer = self._make_optimizer()
         # per-train-camera colour response (None: the cameras agree on colour)
-        self.response = camera_response
+        self.response = None if camera_response is None else camera_response.to(self.device)
         self.response_optimizer = (None if camera_response is None else
                                    torch.optim.Adam(camera_response.parameters(), lr=RESPONSE_LR))
-        self.stats = DensifyStats.zeros(model.num_gaussians, model.means.device)
+        self.stats = DensifyStats.zeros(model.num_gaussians, self.device)
         # effects revised on the density schedule (auto mode, stage 1): demote / split
         self.revise = (self.schedule.revises_effects and effects is not None and effects.mode == "auto"
                        and effects.revise)
-        self.temporal_stats = TemporalStats.zeros(model.num_gaussians if self.revise else 0, device=model.means.device)
+        self.temporal_stats = TemporalStats.zeros(model.num_gaussians if self.revise else 0, device=self.device)
         self.revisions: dict[str, int] = {"demoted": 0, "split_dynamic": 0}
         self.history: list[dict[str, float]] = []
         self.train_seconds = 0.0  # wall time spent in train(), summed over resumed sessions
@@ -193,7 +196,7 @@ class Trainer:
         loss_stg = loss_stg / n_views
         if self.response is not None:
             loss_stg = loss_stg + RESPONSE_REG * self.response.regularizer()
-        loss_gen = torch.zeros(())
+        loss_gen = torch.zeros((), device=self.device)
         pseudo_outputs: list[RenderedView] = []
         evidence = [] if self._gathers_evidence() else None
         if self.pseudo is not None and self.schedule.draws_pseudo_views:
@@ -236,7 +239,7 @@ class Trainer:
         """Sum over the train views ``views`` (indices into train_ids) at ``frame`` (time ``t``) of
         L_STG, and each view's PSNR; the renders go to ``outputs``."""
         shared = self.model.config.sh_degree == 0  # colours do not depend on the camera
-        loss_stg = torch.zeros(())
+        loss_stg = torch.zeros((), device=self.device)
         psnrs = []
         snap = None
         for v in views:
@@ -248,7 +251,7 @@ class Trainer:
             timing["t_at"] += time.perf_counter() - tic
             out = self._render_view(snap, cam, outputs, timing)
             tic = time.perf_counter()
-            target = torch.from_numpy(np.ascontiguousarray(self.scene.frame(frame, cam_id)))
+            target = torch.from_numpy(np.ascontiguousarray(self.scene.frame(frame, cam_id))).to(self.device)
             recorded = out.rgb if self.response is None else self.response.apply(out.rgb, int(v))
             loss_stg = loss_stg + stg_loss(recorded, target, self._pixel_weight(int(v), frame))
             psnrs.append(psnr_torch(recorded, target))
@@ -339,7 +342,7 @@ class Trainer:
             self._moving_packed = np.packbits(masks, axis=-1)
         width = self.scene.cameras[self.train_ids[view]].width
         m = np.unpackbits(self._moving_packed[view, frame], axis=-1, count=width).astype(np.float32)
-        return torch.from_numpy(1.0 + w * m)
+        return torch.from_numpy(1.0 + w * m).to(self.device)
 
     def _render_view(self, snap: Snapshot, cam: Camera, outputs: list[RenderedView],
                      timing: dict[str, float]) -> RenderOutput:
@@ -442,6 +445,12 @@ class Trainer:
         with self._lock, torch.no_grad():
             return self.model.at(float(t), camera_center).detach()
 
+    def host_model(self) -> SpacetimeGaussians:
+        """The model moved to host memory (in place), what a stage hands on once training is over:
+        PLYs, later stages, the viewer and the restoration renders read host tensors."""
+        with self._lock:
+            return self.model.cpu()
+
     def render_fn(self) -> Callable[[Camera, float], np.ndarray]:
         """``fn(camera, t) -> (H, W, 3) float32`` rendering the current model (for evaluation);
         each render takes its snapshot under the trainer's lock."""
@@ -480,9 +489,9 @@ class Trainer:
             self.extent = float(state["extent"])
             self.optimizer = self._make_optimizer()
             self.optimizer.load_state_dict(state["optimizer"])
-            self.stats = DensifyStats.from_state_dict(state["stats"])
+            self.stats = DensifyStats.from_state_dict(state["stats"]).to(self.device)
             if "temporal_stats" in state:
-                self.temporal_stats = TemporalStats.from_state_dict(state["temporal_stats"])
+                self.temporal_stats = TemporalStats.from_state_dict(state["temporal_stats"]).to(self.device)
                 self.revisions = dict(state.get("revisions", self.revisions))
             self.rng.bit_generator.state = state["numpy_rng"]
             self.generator.set_state(state["torch_generator"])

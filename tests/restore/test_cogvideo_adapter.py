@@ -1,6 +1,6 @@
 """CogVideoV2VRestorer against a fake diffusers: the pipeline is loaded from the local weights
 only, called with the clip as diffusers' CogVideoXVideoToVideoPipeline documents it (a list of
-PIL frames, 4k + 1 of them, at a multiple of 16 pixels; ``output_type="np"``), and its output
+PIL frames, 8k + 1 of them, at a multiple of 16 pixels; ``output_type="np"``), and its output
 (``frames``: (batch, frames, h, w, 3) float32 in [0, 1]) comes back as a RestoreResult of the
 request's size with the real references at the endpoints. No CUDA tensor is made."""
 from __future__ import annotations
@@ -15,7 +15,7 @@ import torch
 from PIL import Image
 
 from fixer4d.errors import BackendUnavailable
-from fixer4d.restore.cogvideo import (GENERATED_CONFIDENCE, TEMPORAL_COMPRESSION, WEIGHTS_ENV, CogVideoConfig,
+from fixer4d.restore.cogvideo import (CLIP_FRAME_MULTIPLE, GENERATED_CONFIDENCE, WEIGHTS_ENV, CogVideoConfig,
                                       CogVideoV2VRestorer)
 
 from .conftest import tiny_request
@@ -137,12 +137,12 @@ def test_call_follows_the_documented_arguments(fake_diffusers, weights):
                     "strength": 0.5, "output_type": "np", "prompt": "p", "negative_prompt": "n",
                     "guidance_scale": 4.0}
     assert isinstance(generator, FakeGenerator) and generator.device == "cuda" and generator.seed == 7
-    # 4k + 1 frames (whole latent frames), the clip's last frame repeated to fill them
-    assert len(video) == TEMPORAL_COMPRESSION + 1
+    # 8k + 1 frames (an odd number of latent frames), the clip's last frame repeated to fill them
+    assert len(video) == CLIP_FRAME_MULTIPLE + 1
     assert all(isinstance(f, Image.Image) and f.mode == "RGB" and f.size == GENERATED_SIZE for f in video)
     pixels = np.stack([np.asarray(f) for f in video])
     assert pixels.dtype == np.uint8
-    assert all(np.array_equal(pixels[k], pixels[2]) for k in (3, 4))
+    assert all(np.array_equal(pixels[k], pixels[2]) for k in range(3, len(video)))
     # the endpoints are the real reference images, the middle frame the render (a ramp over [0, 255])
     for k, value in ((0, REFERENCE_VALUES[0]), (2, REFERENCE_VALUES[1])):
         assert np.all(pixels[k] == round(value * 255))
