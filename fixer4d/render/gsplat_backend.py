@@ -15,6 +15,7 @@ background with a zero depth channel).
 """
 from __future__ import annotations
 
+import functools
 import importlib
 
 import torch
@@ -27,13 +28,33 @@ from fixer4d.render.output import RenderOutput
 
 
 def unavailable_reason() -> str | None:
-    """None when gsplat can rasterize here, else a sentence saying why not."""
+    """None when gsplat can rasterize here, else a sentence saying why not.
+
+    With CUDA and gsplat installed this loads gsplat's CUDA extension: PyPI's gsplat builds it
+    with nvcc on first use (about a minute on 16 cores, once per machine), and where it cannot
+    (no CUDA toolkit, a failed build) the answer says so, so that "auto" choices fall back to the
+    CPU instead of failing at the first render."""
     if not torch.cuda.is_available():
         return "CUDA is not available (torch.cuda.is_available() is False); use backend='cpu'"
     try:
         importlib.import_module("gsplat")
     except ImportError as exc:
         return f"gsplat is not installed ({exc}); `pip install gsplat` on a CUDA machine, or use backend='cpu'"
+    return extension_problem()
+
+
+@functools.lru_cache(maxsize=1)
+def extension_problem() -> str | None:
+    """None when gsplat's CUDA extension loads, else why not (asked once per process: a failed
+    build is not retried at every render)."""
+    try:
+        backend = importlib.import_module("gsplat.cuda._backend")
+    except Exception as exc:  # a failed nvcc/ninja build surfaces as any exception of the import
+        return (f"gsplat's CUDA extension failed to build or load ({type(exc).__name__}: {str(exc)[:300]}); "
+                "check nvcc and ninja (gsplat builds it on first use), or use backend='cpu'")
+    if getattr(backend, "_C", None) is None:
+        return ("gsplat's CUDA extension is not built: gsplat found no CUDA toolkit to build it with (it needs "
+                "nvcc on first use); install the CUDA toolkit, or use backend='cpu'")
     return None
 
 

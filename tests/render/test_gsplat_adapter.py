@@ -170,6 +170,48 @@ def test_cpu_tensors_are_refused_by_the_cuda_backend(monkeypatch):
         render(_model().at(0.5), front_camera(WIDTH, HEIGHT), backend="gsplat")
 
 
+@pytest.fixture
+def cuda_with_gsplat(monkeypatch):
+    """A machine that reports CUDA and has a ``gsplat`` package, whose ``gsplat.cuda._backend``
+    the test sets (a module, or None: its import fails); the extension check is asked afresh."""
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setitem(sys.modules, "gsplat", types.ModuleType("gsplat"))
+    monkeypatch.setitem(sys.modules, "gsplat.cuda", types.ModuleType("gsplat.cuda"))
+    gsplat_backend.extension_problem.cache_clear()
+
+    def backend(module: types.ModuleType | None) -> None:
+        monkeypatch.setitem(sys.modules, "gsplat.cuda._backend", module)
+
+    yield backend
+    gsplat_backend.extension_problem.cache_clear()
+
+
+def _backend_module(extension) -> types.ModuleType:
+    module = types.ModuleType("gsplat.cuda._backend")
+    module._C = extension
+    return module
+
+
+def test_gsplat_whose_extension_loads_is_available(cuda_with_gsplat):
+    cuda_with_gsplat(_backend_module(object()))
+    assert gsplat_backend.unavailable_reason() is None
+
+
+@pytest.mark.parametrize("module, words", [
+    (_backend_module(None), "no CUDA toolkit to build it"),  # gsplat's own answer without nvcc: _C = None
+    (None, "failed to build or load"),  # the extension's import raised (a failed build)
+])
+def test_gsplat_without_its_cuda_extension_is_unavailable_and_auto_trains_on_the_cpu(cuda_with_gsplat, module,
+                                                                                       words):
+    from fixer4d.train.device import training_device
+
+    cuda_with_gsplat(module)
+    assert words in gsplat_backend.unavailable_reason()
+    assert training_device("auto", "auto") == torch.device("cpu")
+    with pytest.raises(BackendUnavailable, match=words):
+        training_device("cuda", "auto")
+
+
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the answer on a machine without CUDA")
 def test_without_cuda_the_backend_says_why():
     with pytest.raises(BackendUnavailable, match="CUDA is not available"):
