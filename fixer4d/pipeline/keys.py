@@ -9,6 +9,7 @@ from typing import Any
 
 from fixer4d.pipeline.config import RunConfig
 from fixer4d.pipeline.run_folder import stage_key
+from fixer4d.train.checkpoints import RESULT_NEUTRAL
 
 __all__ = ["init_key", "stage1_key", "restorer_key", "stage2_key", "matched_key", "self_check_key", "training_settings",
            "shared_static_key"]
@@ -18,8 +19,7 @@ __all__ = ["init_key", "stage1_key", "restorer_key", "stage2_key", "matched_key"
 def training_settings(stage1_dict: dict[str, Any]) -> dict[str, Any]:
     """Stage-1 settings that change the trained model (not progress display, checkpoint cadence or
     the device trained on)."""
-    return {k: v for k, v in stage1_dict.items()
-            if k not in ("progress", "checkpoint_every", "keep_checkpoints", "device")}
+    return {k: v for k, v in stage1_dict.items() if k not in RESULT_NEUTRAL}
 
 
 def scene_settings(scene: dict[str, Any]) -> dict[str, Any]:

@@ -26,13 +26,13 @@ _CKPT_NAME = re.compile(r"^stage(\d)_(\d{7})\.pt$")
 _CKPT_TEMP = re.compile(r"^\.stage(\d)_\d{7}\.pt\..+$")
 # Stage-1 settings that do not change a result (progress display, checkpoint cadence, the device
 # trained on): a run may resume with other values.
-_RESULT_NEUTRAL = ("progress", "checkpoint_every", "keep_checkpoints", "device")
+RESULT_NEUTRAL = ("progress", "checkpoint_every", "keep_checkpoints", "device")
 
 
 def training_settings(config: Stage1Config, stage2: Stage2Config | None) -> dict[str, Any]:
     """The settings a checkpoint records and a resume must match: "config" (the Stage1Config
     without the result-neutral fields) and "stage2" (the Stage2Config, None in stage 1)."""
-    return {"config": {k: v for k, v in config.to_dict().items() if k not in _RESULT_NEUTRAL},
+    return {"config": {k: v for k, v in config.to_dict().items() if k not in RESULT_NEUTRAL},
             "stage2": None if stage2 is None else stage2.to_dict()}
 
 
