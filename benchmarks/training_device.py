@@ -70,22 +70,6 @@ def reconstruct_on(scene: str, device: str, sets: dict, out: Path) -> dict:
             "gaussians": load_ply(Path(out) / "model_stage1.ply").num_gaussians}
 
 
-def parse_sets(items: list[str]) -> dict:
-    """--set KEY=VALUE items -> overrides (values parsed as JSON where they parse)."""
-    import json
-
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise SystemExit(f"--set {item!r}: expected KEY=VALUE")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("scene", nargs="?", default="demo", help="a scene as `fixer4d reconstruct` takes it")
@@ -97,10 +81,11 @@ def main(argv: list[str] | None = None) -> int:
 
     from fixer4d.atomic import write_json
     from fixer4d.bench.machine import machine_info, print_timing_caveats
+    from fixer4d.pipeline.config_tree import parse_set_overrides
     from fixer4d.pipeline.run_folder import source_commit
 
     devices = args.devices.split(",") if args.devices else default_devices()
-    sets = parse_sets(args.sets)
+    sets = parse_set_overrides(args.sets)
     machine = machine_info()
     with tempfile.TemporaryDirectory(prefix="fixer4d-devices-") as tmp:
         root = args.runs or Path(tmp)
