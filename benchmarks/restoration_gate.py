@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     from fixer4d.pipeline.other_cameras import check_same_train_cameras
     from fixer4d.pipeline.restoration import clip_through, make_request, run_restorer
     from fixer4d.pipeline.run_folder import load_scene_for, read_run_config, source_commit
-    from fixer4d.psnr import psnr_from_mse
+    from fixer4d.eval.class_psnr import ClassPSNR
     from fixer4d.scene import load_scene
 
     config = read_run_config(args.run)
@@ -94,29 +94,18 @@ def main(argv: list[str] | None = None) -> int:
     check_same_train_cameras(own, scene)
     model = load_ply(args.run / "model_stage1.ply")
     restorer = run_restorer(config, args.run)
-    sums = {c: {k: 0.0 for k in names} for c in CLASSES}
-    counts = dict.fromkeys(CLASSES, 0)
+    psnr = ClassPSNR(names, CLASSES)
     for cam_idx in scene.test_ids:
         cams, ids = clip_through(scene, scene.cameras[cam_idx])
         for frame in range(0, scene.num_frames, args.stride):
             request = make_request(model, scene, cams, frame, ids, visibility=config.stage2.visibility)
             result = restorer.restore(request)
-            truth = scene.frame(frame, cam_idx)
-            imgs = images(request, result, config.stage2.visibility, tols)
-            errors = {k: ((np.clip(v, 0, 1) - truth) ** 2).mean(-1) for k, v in imgs.items()}
-            for c, mask in pixel_classes(request.unobserved[1], request.alpha[1]).items():
-                counts[c] += int(mask.sum())
-                for k in names:
-                    sums[c][k] += float(errors[k][mask].sum())
-    total = counts["all"]
-    table = {c: {"fraction": counts[c] / total if total else 0.0,
-                 **{k: (psnr_from_mse(sums[c][k] / counts[c]) if counts[c] else None) for k in names}}
-             for c in CLASSES}
+            psnr.add(scene.frame(frame, cam_idx), images(request, result, config.stage2.visibility, tols),
+                     pixel_classes(request.unobserved[1], request.alpha[1]))
+    table = psnr.table()
     out = {"run": str(args.run), "cameras_from": str(args.cameras_from), "stride": args.stride,
            "restorer": config.restorer.kind, "commit": source_commit(), "psnr_db": table}
-    for c, row in table.items():
-        print(f"{c:17s} {100 * row['fraction']:5.1f} % " + " ".join(
-            f"{k} {row[k]:.2f}" if row[k] is not None else f"{k} n/a" for k in names))
+    psnr.print()
     if args.out is not None:
         from fixer4d.atomic import write_json
 

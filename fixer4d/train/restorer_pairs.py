@@ -74,7 +74,7 @@ def _nearest(views: TrainOnlyView, target: int, candidates: Sequence[int]) -> li
     return sorted(candidates, key=lambda i: (float(np.linalg.norm(views.cameras[i].center - c)), i))
 
 
-def _pair_request(model, views: TrainOnlyView, target: int, frame: int, backend: str, background) -> RestoreRequest:
+def pair_request(model, views: TrainOnlyView, target: int, frame: int, backend: str, background) -> RestoreRequest:
     """A one-frame request at train camera ``target`` with references and extras from the other train cameras."""
     others = _nearest(views, target, [i for i in views._allowed if i != target])
     if len(others) < 2:
@@ -113,11 +113,12 @@ def pair_frames(num_frames: int, count: int) -> list[int]:
     return sorted({int(round(x)) for x in np.linspace(0, num_frames - 1, max(1, count))})
 
 
-def build_fold(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Config, left_out: int,
-               config: RestoreConfig, progress: bool = False) -> dict[str, np.ndarray]:
-    """The pairs of the fold leaving out train camera ``left_out``: arrays feats (N, C, H, W)
-    float16, targets (N, H, W, 3) float16, cams (N,), frames (N,), loo (N,) bool (True = the
-    left-out camera's render, False = an early-checkpoint render of a trained camera)."""
+def fold_trainer(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Config, left_out: int,
+                 config: RestoreConfig) -> tuple[Trainer, TrainOnlyView]:
+    """The leave-one-out training of the fold leaving out train camera ``left_out``, not yet
+    stepped (``loo_iterations`` at ``loo_scale``), and the other train cameras at full resolution:
+    the model trains at loo_scale but its pairs are rendered at full resolution, so the restorer
+    learns on the image statistics (blur widths, hole sizes in pixels) it will restore."""
     if left_out not in scene.train_ids:
         raise InputError(f"restorer pairs: camera {left_out} is not a train camera of {scene.name}")
     lc = config.learned
@@ -125,21 +126,29 @@ def build_fold(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Confi
     views = TrainOnlyView(scene, trained, lc.loo_scale)
     cfg = _loo_config(stage1, lc.loo_iterations)
     trainer = Trainer(_init_model(clouds, views, cfg), views, cfg, run_dir=None)
+    return trainer, (TrainOnlyView(scene, trained, 1.0) if lc.loo_scale != 1.0 else views)
+
+
+def build_fold(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Config, left_out: int,
+               config: RestoreConfig, progress: bool = False) -> dict[str, np.ndarray]:
+    """The pairs of the fold leaving out train camera ``left_out``: arrays feats (N, C, H, W)
+    float16, targets (N, H, W, 3) float16, cams (N,), frames (N,), loo (N,) bool (True = the
+    left-out camera's render, False = an early-checkpoint render of a trained camera)."""
+    lc = config.learned
+    trainer, full = fold_trainer(scene, clouds, stage1, left_out, config)
+    trained = [i for i in scene.train_ids if i != left_out]
     warp = ReferenceWarpRestorer(config.warp)
     frames = pair_frames(scene.num_frames, lc.pair_frames)
-    backend, background = cfg.backend, trainer.background
+    backend, background = trainer.config.backend, trainer.background
     samples: list[tuple[np.ndarray, np.ndarray, int, int, bool]] = []
-    # the model trains at loo_scale but the pairs are rendered at full resolution: the restorer
-    # then learns on the image statistics (blur widths, hole sizes in pixels) it will restore
-    full = TrainOnlyView(scene, trained, 1.0) if lc.loo_scale != 1.0 else views
 
     def add(target: int, loo: bool) -> None:
         for f in frames:
-            req = _pair_request(trainer.model, full, target, f, backend, background)
+            req = pair_request(trainer.model, full, target, f, backend, background)
             feats, _ = request_features(req, warp)
             samples.append((feats[0], full.frame(f, target), target, f, loo))
 
-    trainer.train(max(1, int(round(lc.early_fraction * cfg.iterations))), progress=progress)
+    trainer.train(max(1, int(round(lc.early_fraction * trainer.config.iterations))), progress=progress)
     for cam in trained:
         add(cam, False)
     trainer.train(progress=progress)
@@ -188,7 +197,7 @@ def seen_samples(model, scene: MultiViewVideo, config: RestoreConfig, background
     rows = []
     for cam in scene.train_ids:
         for f in pair_frames(scene.num_frames, config.learned.pair_frames):
-            feats, _ = request_features(_pair_request(model, views, cam, f, "auto", background), warp)
+            feats, _ = request_features(pair_request(model, views, cam, f, "auto", background), warp)
             rows.append((feats[0], views.frame(f, cam), cam, f))
     return {"feats": np.stack([r[0] for r in rows]).astype(np.float16),
             "targets": np.stack([r[1] for r in rows]).astype(np.float16),
