@@ -82,14 +82,8 @@ def main(argv: list[str] | None = None) -> int:
                 "gate": gate_restoration(request, result, visibility, fill=True).rgb[0]}
         hidden = request.unobserved[0] > 0.5
         psnr.add(full.frame(f, held), imgs, {"all": np.ones_like(hidden), "unobserved": hidden, "observed": ~hidden})
-    table = psnr.table()
-    out = {"run": str(args.run), "held_back_train_camera": int(held), "frames": frames,
-           "restorer": config.restorer.kind, "commit": source_commit(), "psnr_db": table}
-    psnr.print()
-    if args.out is not None:
-        from fixer4d.atomic import write_json
-
-        write_json(args.out, out)
+    psnr.report(args.out, run=str(args.run), held_back_train_camera=int(held), frames=frames,
+                restorer=config.restorer.kind, commit=source_commit())
     return 0
 
 

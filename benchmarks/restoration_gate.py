@@ -102,14 +102,8 @@ def main(argv: list[str] | None = None) -> int:
             result = restorer.restore(request)
             psnr.add(scene.frame(frame, cam_idx), images(request, result, config.stage2.visibility, tols),
                      pixel_classes(request.unobserved[1], request.alpha[1]))
-    table = psnr.table()
-    out = {"run": str(args.run), "cameras_from": str(args.cameras_from), "stride": args.stride,
-           "restorer": config.restorer.kind, "commit": source_commit(), "psnr_db": table}
-    psnr.print()
-    if args.out is not None:
-        from fixer4d.atomic import write_json
-
-        write_json(args.out, out)
+    psnr.report(args.out, run=str(args.run), cameras_from=str(args.cameras_from), stride=args.stride,
+                restorer=config.restorer.kind, commit=source_commit())
     return 0
 
 

@@ -8,7 +8,8 @@ pixels).
 """
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from pathlib import Path
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -49,11 +50,19 @@ class ClassPSNR:
                        for k in self.images}}
                 for c in self.classes}
 
-    def print(self, width: int = 17) -> None:
-        """One line per class: its share in percent and each image's PSNR."""
-        for c, row in self.table().items():
-            print(f"{c:{width}s} {100 * row['fraction']:5.1f} % " + " ".join(
+    def report(self, out: str | Path | None = None, **meta: Any) -> dict[str, Any]:
+        """Print one line per class (its share in percent and each image's PSNR) and return
+        ``{**meta, "psnr_db": table()}``, also written to ``out`` as JSON when given."""
+        table = self.table()
+        for c, row in table.items():
+            print(f"{c:17s} {100 * row['fraction']:5.1f} % " + " ".join(
                 f"{k} {row[k]:.2f}" if row[k] is not None else f"{k} n/a" for k in self.images))
+        record = {**meta, "psnr_db": table}
+        if out is not None:
+            from fixer4d.atomic import write_json
+
+            write_json(out, record)
+        return record
 
 
 __all__ = ["ClassPSNR"]
