@@ -11,7 +11,8 @@ from fixer4d.pipeline.config import RunConfig
 from fixer4d.pipeline.run_folder import stage_key
 from fixer4d.train.checkpoints import RESULT_NEUTRAL
 
-__all__ = ["init_key", "stage1_key", "restorer_key", "stage2_key", "matched_key", "self_check_key", "training_settings",
+__all__ = ["init_key", "stage1_key", "restorer_key", "stage2_key", "matched_key", "self_check_key",
+           "SELF_CHECK_DECISION_SETTINGS", "training_settings",
            "shared_static_key"]
 
 
@@ -84,6 +85,13 @@ def matched_key(config: RunConfig) -> str:
     return stage_key("matched", stage1_key(config, config.init_method), training_settings(continued))
 
 
+# The self-check's settings that only decide from the fold's figures: changing them re-decides
+# from the finished fold instead of training it again.
+SELF_CHECK_DECISION_SETTINGS = ("tie_db", "allow_skip")
+
+
 def self_check_key(config: RunConfig) -> str:
-    """The stage-2 self-check: everything stage 2 depends on, and the check's own settings."""
-    return stage_key("self_check", stage2_key(config), config.to_dict()["self_check"], config.init_frame_stride)
+    """The stage-2 self-check's fold: everything stage 2 depends on, and the check's own settings
+    but those of the decision (``SELF_CHECK_DECISION_SETTINGS``)."""
+    fold = {k: v for k, v in config.to_dict()["self_check"].items() if k not in SELF_CHECK_DECISION_SETTINGS}
+    return stage_key("self_check", stage2_key(config), fold, config.init_frame_stride)

@@ -80,10 +80,12 @@ def self_check_line(check: dict[str, Any]) -> str:
     if not psnr:
         return f"Stage-2 self-check: {check.get('decision')} ({check.get('reason', '')})"
     secs = sum((check.get("seconds") or {}).values())
+    tie = (check.get("settings") or {}).get("tie_db")
+    margin = "" if tie is None else f" (a candidate must beat the simplest by more than {tie:g} dB)"
     return (f"Stage-2 self-check on held-back train camera {check['held_back_camera']} (fold of cameras "
             f"{check['fold_cameras']} at scale {check['scale']:g}, {secs:.0f} s): before {psnr['skip']:.2f} dB, "
-            f"more training {psnr['continue']:.2f} dB, stage 2 {psnr['refine']:.2f} dB -> **{check['decision']}**: "
-            f"the final model is {_FINAL[check['decision']]}.")
+            f"more training {psnr['continue']:.2f} dB, stage 2 {psnr['refine']:.2f} dB{margin} -> "
+            f"**{check['decision']}**: the final model is {_FINAL[check['decision']]}.")
 
 
 _FINAL = {"skip": "the stage-1 model", "continue": "the matched-iterations control (no pseudo-views)",

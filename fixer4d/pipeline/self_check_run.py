@@ -164,16 +164,17 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
                      "stage2_iterations": config.stage2.total_iterations, "restorer": config.restorer.kind,
                      "tie_db": sc.tie_db, "allow_skip": sc.allow_skip},
         "seconds": {k: parts.seconds[k] for k in ("init", "stage1", "continue", "refine")},
-        "reason": _reason(decision, psnr),
+        "reason": _reason(decision, psnr, sc.tie_db),
     }
     atomic.write_json(out_dir / DECISION_FILE, record)
     log.info("stage-2 self-check on train camera %s: %s", held, record["reason"])
     return record
 
 
-def _reason(decision: str, psnr: dict[str, float]) -> str:
+def _reason(decision: str, psnr: dict[str, float], tie_db: float) -> str:
     figures = ", ".join(f"{k} {v:.2f} dB" for k, v in psnr.items())
-    what = {"skip": "no more training: stage 2 and the longer control both lowered the held-back camera",
+    what = {"skip": f"no more training: neither stage 2 nor the longer control raised the held-back camera by more "
+                    f"than {tie_db:g} dB",
             "continue": "more training on the observed views, without pseudo-views: the pseudo-loss did not pay",
             "refine": "stage 2 with pseudo-views: it beat the same amount of plain training on the held-back "
                       "camera"}[decision]

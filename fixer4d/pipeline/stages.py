@@ -34,7 +34,8 @@ from fixer4d import atomic
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
 from fixer4d.pipeline.config import RunConfig
-from fixer4d.pipeline.keys import init_key, matched_key, restorer_key, self_check_key, stage1_key, stage2_key
+from fixer4d.pipeline.keys import (SELF_CHECK_DECISION_SETTINGS, init_key, matched_key, restorer_key, self_check_key,
+                                   stage1_key, stage2_key)
 from fixer4d.pipeline.run_folder import RunFolder, stage_key
 from fixer4d.pipeline.stage_cache import StageCache
 
@@ -325,8 +326,11 @@ def self_check_stage(ctx: StageContext, restorer) -> dict[str, Any]:
     out = ctx.path / "self_check"
     key = self_check_key(ctx.config)
     if ctx.run.records.done("self_check", key) and (out / DECISION_FILE).is_file():
-        return json.loads((out / DECISION_FILE).read_text())
-    if ctx.run.records.begin("self_check", key):  # an attempt under other settings: start over
+        record = json.loads((out / DECISION_FILE).read_text())
+        if all(record.get("settings", {}).get(k) == getattr(sc, k) for k in SELF_CHECK_DECISION_SETTINGS):
+            return record
+        # only the decision's settings changed: decided again below from the finished fold
+    elif ctx.run.records.begin("self_check", key):  # an attempt under other settings: start over
         _clear(out, keep_aside=False)
     record = run_self_check(ctx.train_scene, ctx.config, out, restorer, progress=ctx.progress)
     ctx.run.records.finish("self_check", key, float(sum(record.get("seconds", {}).values())))
