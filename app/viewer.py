@@ -134,6 +134,7 @@ class Viewer(Viewport, View3D, Document):
         self._notifications_seen = 0
         self.show_notifications = False
         self.show_help = False
+        self.show_report = False  # File > Run report (panels.report)
         self.hint = FIRST_LAUNCH_HINT if first_launch else ""
         self.blur_max = 1.0  # top of the blur map's colour scale (set by the debug panel)
         self._pressed: list[tuple[str, bool]] = []  # key presses not handled yet: (key, ctrl)
@@ -189,7 +190,7 @@ class Viewer(Viewport, View3D, Document):
         for name, draw in self.panels:
             draw(self)  # each panel guards its own body (panels._layout.panel)
         self._notifications_window()
-        from app.panels import files, help, prompts
+        from app.panels import files, help, prompts, report
 
         with guard(self, "file"):
             files.draw_dialog(self)
@@ -197,6 +198,8 @@ class Viewer(Viewport, View3D, Document):
             prompts.draw(self)
         with guard(self, "help"):
             help.draw(self)
+        with guard(self, "report"):
+            report.draw(self)
         with guard(self, "autosave"):
             self.autosave_tick()
         imgui.render()

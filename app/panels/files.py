@@ -60,6 +60,9 @@ def draw_menu(viewer) -> None:
                 viewer.open_version(p)
             viewer.record_item(f"menu_version_{p.name}")
         imgui.end_menu()
+    from app.panels import report
+
+    report.draw_menu_item(viewer)
     imgui.separator()
     if imgui.menu_item("Save as new model version", "Ctrl+S", False, st.gaussians is not None)[0]:
         viewer.save_edited_model()
