@@ -32,6 +32,8 @@ def read_report(run_dir: str | Path | None) -> dict[str, Any] | None:
     try:
         report = json.loads(path.read_text())
         rows = report["rows"]
+        if not (isinstance(rows, list) and all(isinstance(r, dict) for r in rows)):
+            raise TypeError("its rows are not a list of records")
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{path}: not a fixer4d report ({exc})") from exc
     from fixer4d.pipeline.report import self_check_line
@@ -46,8 +48,11 @@ def read_report(run_dir: str | Path | None) -> dict[str, Any] | None:
             cells = {header: (status if i == 0 else "") for i, (_, header, _) in enumerate(COLUMNS)}
         shown.append((str(row.get("method", "?")), cells))
     check = report.get("self_check")
-    return {"scene": str(report.get("scene", "")), "rows": shown,
-            "self_check": self_check_line(check).replace("**", "") if check else None,
+    try:
+        line = self_check_line(check).replace("**", "") if isinstance(check, dict) and check else None
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: not a fixer4d report (its self-check record: {exc!r})") from exc
+    return {"scene": str(report.get("scene", "")), "rows": shown, "self_check": line,
             "held_out": not any(r.get("held_out") is False for r in rows)}
 
 

@@ -40,9 +40,10 @@ def test_read_report_rows_and_decision(tmp_path):
     assert dict(shown["rows"][1][1])["PSNR"] == "failed: no points" and dict(shown["rows"][1][1])["LPIPS"] == ""
     assert "**" not in shown["self_check"] and "skip" in shown["self_check"] and "more than 0.1 dB" in shown["self_check"]
     assert shown["held_out"]
-    (tmp_path / "report.json").write_text("{not json")
-    with pytest.raises(ValueError, match="not a fixer4d report"):
-        read_report(tmp_path)
+    for bad in ("{not json", "[]", '{"rows": 3}', '{"rows": [1, 2]}', '{"rows": [], "self_check": {"psnr": {"skip": 1}}}'):
+        (tmp_path / "report.json").write_text(bad)
+        with pytest.raises(ValueError, match="not a fixer4d report"):
+            read_report(tmp_path)
 
 
 @pytest.mark.gl
