@@ -42,11 +42,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     from fixer4d.errors import InputError
+    from fixer4d.eval.class_psnr import ClassPSNR
     from fixer4d.init import load_frame_clouds
     from fixer4d.init.decompose import DecomposedInit, has_decomposed
     from fixer4d.pipeline.restoration import RESTORER_DIR, gate_restoration, run_restorer
     from fixer4d.pipeline.run_folder import load_scene_for, read_run_config, source_commit
-    from fixer4d.eval.class_psnr import ClassPSNR
     from fixer4d.render.views import render_views
     from fixer4d.restore.config import VALIDATION_FILE
     from fixer4d.restore.unobserved_fill import fill_unobserved
