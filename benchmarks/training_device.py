@@ -51,7 +51,7 @@ def reconstruct_on(scene: str, device: str, sets: dict, out: Path) -> dict:
     """Init + stage 1 + held-out evaluation of ``scene`` training on ``device`` into ``out``."""
     from fixer4d.model.io import load_ply
     from fixer4d.pipeline import report as R
-    from fixer4d.pipeline.cli_reconstruct import RECONSTRUCT_ONLY
+    from fixer4d.cli.reconstruct import RECONSTRUCT_ONLY
     from fixer4d.pipeline.config import resolve
     from fixer4d.pipeline.run import run_pipeline
 

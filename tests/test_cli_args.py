@@ -32,7 +32,7 @@ def test_bench_all_names_files_like_each_benchmark(monkeypatch, tmp_path, capsys
     train_step.json; `bench all --help` showed the first benchmark's help."""
     import types
 
-    from fixer4d.bench import cli as bench_cli
+    from fixer4d.cli import bench as bench_cli
 
     outs = {}
 

@@ -2,7 +2,7 @@
 
 * fixer4d/ and app/ (the viewer) have no import cycle, each alone and together.
 * fixer4d's packages sit in layers (``LAYERS``, geometry at the bottom): a module imports only
-  its own layer and the ones below it; command-line modules (``cli``, ``*_cli``) are the top.
+  its own layer and the ones below it; the command line (``fixer4d.cli``) is the top.
 * fixer4d never imports app: no import statement (``test_the_library_has_no_gui_import``) and
   no dynamic load either (importlib / ``__import__`` naming ``app``: ``dynamic_app_loads``); a
   package above the library registers itself through an entry point instead.
@@ -191,7 +191,7 @@ def test_the_library_has_no_gui_import():
 
 
 # fixer4d's packages from the bottom layer up; a module may import its own layer and lower ones.
-# Command-line modules (``cli``, ``cli_*``, ``*_cli``, ``__main__``) are the top layer; the package
+# The command line (``fixer4d.cli``, and any ``__main__``) is the top layer; the package
 # root (``fixer4d/__init__.py``: process settings, no fixer4d imports) is the bottom.
 LAYERS = (("errors", "atomic", "signals", "threads", "psnr", "cpus"), ("geometry",), ("scene", "calib", "model", "restore"), ("render", "jit"),
           ("init", "eval"), ("train",), ("pipeline",), ("bench", "study"))
@@ -203,7 +203,7 @@ def layer_of(module: str) -> int:
     if len(parts) == 1:
         return 0
     last = parts[-1]
-    if last in ("cli", "__main__") or last.startswith("cli_") or last.endswith("_cli"):
+    if parts[1] == "cli" or last == "__main__":
         return len(LAYERS)
     for k, names in enumerate(LAYERS):
         if parts[1] in names:

@@ -1,7 +1,7 @@
 """fixer4d.model: spacetime Gaussians (spacetime.py; view-dependent colour sh.py, initial extents
 initial_scales.py), their snapshot (snapshot.py) and I/O (io.py).
 
-Names are resolved lazily so that `import fixer4d.model.cli` (the `export` verb) stays light.
+Names are resolved lazily so that `import fixer4d.cli.export` (the `export` verb) stays light.
 """
 from __future__ import annotations
 

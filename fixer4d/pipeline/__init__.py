@@ -9,7 +9,8 @@
     stage_cache.py  finished stage outputs shared between the runs of a study
     report.py       Table-2 rows, report.json / report.md
     run.py          ``run_pipeline``: every stage in order, failures isolated per row
-    cli_*.py        the thin verbs run / reconstruct / refine / eval
+
+Its verbs (run / reconstruct / refine / eval) are in ``fixer4d.cli``.
 
 Names are loaded lazily so that ``import fixer4d.pipeline`` stays light.
 """

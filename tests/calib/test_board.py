@@ -180,7 +180,7 @@ def test_a_camera_missing_from_the_board_videos_is_named(tmp_path, capsys):
 def test_focal_from_a_board_rig_is_rescaled_and_must_agree(tmp_path, tiny4, capture_writer):
     """`--focal-from RIG`: the rig's focal at the videos' size (a board filmed at twice the size);
     cameras whose focals differ cannot share the self-calibration's one focal."""
-    from fixer4d.calib.cli import focal_from
+    from fixer4d.cli.calibrate import focal_from
     from fixer4d.calib.rig import Rig
     from fixer4d.scene.capture import CaptureFiles
 

@@ -5,7 +5,7 @@ import pytest
 
 from fixer4d.errors import InputError
 from fixer4d.init import InitConfig, load_frame_clouds, run_init
-from fixer4d.init.cli import parse_frames
+from fixer4d.cli.init import parse_frames
 from toyscene import ToyScene
 
 

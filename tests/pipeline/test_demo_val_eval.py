@@ -8,7 +8,7 @@ import json
 import pytest
 
 from fixer4d.errors import InputError
-from fixer4d.pipeline.cli_reconstruct import RECONSTRUCT_ONLY
+from fixer4d.cli.reconstruct import RECONSTRUCT_ONLY
 from fixer4d.pipeline.other_cameras import evaluate_on_other_cameras
 
 from pipeline_tiny import TINY

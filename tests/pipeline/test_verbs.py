@@ -10,7 +10,7 @@ import pytest
 from fixer4d.cli import main
 from fixer4d.errors import InputError
 from fixer4d.pipeline import report as R
-from fixer4d.pipeline.cli_eval import find_model, method_name_for
+from fixer4d.cli.eval import find_model, method_name_for
 from pipeline_tiny import TINY
 
 TINY_ARGS = ["--iterations", "40", "--eval-stride", "2", "--quiet"] + [
@@ -111,7 +111,7 @@ def test_eval_helpers_and_errors(tmp_path, capsys):
 def test_a_segmented_run_folder_points_to_its_segments(tmp_path, capsys):
     """export / eval / refine on a segmented run's top folder said "run reconstruct first" although
     the run was complete: its models live in one run folder per segment."""
-    from fixer4d.model.cli import missing_model_message
+    from fixer4d.cli.export import missing_model_message
 
     run = tmp_path / "whole"
     for name in ("seg00_00000-00052", "seg01_00050-00102"):

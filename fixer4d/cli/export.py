@@ -76,9 +76,9 @@ def run(args: argparse.Namespace) -> int:
     fmt = export_format(args)
     src = resolve_model_path(args.source)
     if fmt != "model":
-        from fixer4d.model import export_formats_cli
+        from fixer4d.cli import export_formats
 
-        return export_formats_cli.run(args, fmt, src)
+        return export_formats.run(args, fmt, src)
     model = load_model(src)
     out = save_model(model, args.out)
     print(f"{src} -> {out}: {model.num_gaussians} Gaussians ({model.num_dynamic} dynamic), "

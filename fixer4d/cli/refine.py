@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 
 from fixer4d.errors import InputError
-from fixer4d.pipeline.cli_common import add_paper_stage2_argument, maybe_print_config, paper_stage2_overrides
+from fixer4d.cli.config_args import add_paper_stage2_argument, maybe_print_config, paper_stage2_overrides
 
 # Sections refine may change: anything else would make the stage-1 model stale.
 REFINABLE = ("stage2.", "restorer.", "trajectories.", "eval.", "self_check.")
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
 
     folder = RunFolder.open(args.run)
     if not (folder.path / "model_stage1.ply").is_file():
-        from fixer4d.model.cli import missing_model_message
+        from fixer4d.cli.export import missing_model_message
 
         raise InputError(missing_model_message(folder.path, ("model_stage1.ply",)))
     overrides = {k: v for k, v in {

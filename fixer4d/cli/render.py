@@ -91,8 +91,8 @@ def _side_by_side(render_fn, scene, cam_index: int):
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from fixer4d.model.cli import resolve_model_path
-    from fixer4d.pipeline.cli_output import clip_times, open_source
+    from fixer4d.cli.export import resolve_model_path
+    from fixer4d.cli.output_source import clip_times, open_source
     from fixer4d.render.video import is_video_path, model_frame_fn, render_video
 
     if args.side_by_side and args.camera is None:

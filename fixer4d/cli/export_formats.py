@@ -34,7 +34,7 @@ def _progress(total: int, desc: str, quiet: bool):
 
 def _ply_sequence(args: argparse.Namespace, src) -> int:
     from fixer4d.model.formats.ply_sequence import export_ply_sequence
-    from fixer4d.pipeline.cli_output import clip_times
+    from fixer4d.cli.output_source import clip_times
     from fixer4d.render.constants import ALPHA_MIN
 
     if args.frames is None and src.config is None:
@@ -56,7 +56,7 @@ def _splatv(args: argparse.Namespace, src) -> int:
     from fixer4d.atomic import write_json
     from fixer4d.eval.format_fidelity import reduction_psnr
     from fixer4d.model.formats import splatv
-    from fixer4d.pipeline.cli_output import framing_camera
+    from fixer4d.cli.output_source import framing_camera
 
     if args.frames is not None or args.fps is not None or args.min_opacity is not None:
         raise InputError("--frames/--fps/--min-opacity apply to --format ply-sequence; a .splatv holds the whole clip")
@@ -79,7 +79,7 @@ def _splatv(args: argparse.Namespace, src) -> int:
 
 def run(args: argparse.Namespace, fmt: str, model_path: Path) -> int:
     """Export ``model_path`` (resolved from args.source by the export verb) as ``fmt``."""
-    from fixer4d.pipeline.cli_output import open_source
+    from fixer4d.cli.output_source import open_source
 
     src = open_source(args.source, model_path)
     if fmt == "ply-sequence":

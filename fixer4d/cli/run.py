@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fixer4d.pipeline.cli_common import (add_config_arguments, add_paper_stage2_argument, frame_range_override,
+from fixer4d.cli.config_args import (add_config_arguments, add_paper_stage2_argument, frame_range_override,
                                          maybe_print_config, paper_stage2_overrides, resolve_from_args)
 
 

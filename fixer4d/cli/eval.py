@@ -14,7 +14,7 @@ import argparse
 from pathlib import Path
 
 from fixer4d.errors import InputError
-from fixer4d.model.cli import RUN_MODELS, missing_model_message
+from fixer4d.cli.export import RUN_MODELS, missing_model_message
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

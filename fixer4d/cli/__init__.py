@@ -1,8 +1,9 @@
 """The `fixer4d` command line: a thin dispatcher.
 
-Each verb lives in the package of the stage it drives, as a module with two functions:
+Each verb is a module of this package, above the library it drives, with two functions:
 ``add_arguments(parser)`` and ``run(args) -> int``. This file only lists them, so adding a verb
-never touches another stage's code, and `fixer4d --help` imports nothing heavy.
+never touches another verb's code, and `fixer4d --help` imports nothing heavy. The library
+below parses no arguments and never imports this package.
 """
 from __future__ import annotations
 
@@ -14,18 +15,18 @@ from fixer4d.errors import Fixer4DError, InputError, Terminated
 
 # verb -> (module, one-line help)
 VERBS: dict[str, tuple[str, str]] = {
-    "run": ("fixer4d.pipeline.cli_run", "the whole method: poses -> init -> stage 1 -> (restore -> refine) x R -> evaluate"),
-    "reconstruct": ("fixer4d.pipeline.cli_reconstruct", "stage 1: STGS on the four observed views from a sparse or MVS init"),
-    "refine": ("fixer4d.pipeline.cli_refine", "stage 2: restoration-guided refinement of a reconstructed run"),
-    "eval": ("fixer4d.pipeline.cli_eval", "evaluate a run folder on the held-out cameras"),
-    "init": ("fixer4d.init.cli", "per-frame point clouds: sparse (COLMAP) or dense (MVS)"),
-    "trajectories": ("fixer4d.geometry.trajectory_cli", "pair trajectories and arcs of a scene's train cameras -> presets"),
-    "calibrate": ("fixer4d.calib.cli", "the rig of a capture folder: from a ChArUco board filmed by its cameras, else from its own frames -> rig.json"),
-    "make-scene": ("fixer4d.scene.cli", "write a synthetic scene spec to disk in the Neural3DV layout"),
-    "study": ("fixer4d.study_cli", "accuracy vs time: sweep the pipeline's knobs, draw the Pareto front"),
-    "bench": ("fixer4d.bench.cli", "benchmarks that print and save their numbers (raycast, raster, train-step, ...)"),
-    "export": ("fixer4d.model.cli", "convert a model (.ply/.npz) or a run's latest model"),
-    "render": ("fixer4d.render.cli", "a video or PNG frames of a model along a camera path, rig camera or trajectory"),
+    "run": ("fixer4d.cli.run", "the whole method: poses -> init -> stage 1 -> (restore -> refine) x R -> evaluate"),
+    "reconstruct": ("fixer4d.cli.reconstruct", "stage 1: STGS on the four observed views from a sparse or MVS init"),
+    "refine": ("fixer4d.cli.refine", "stage 2: restoration-guided refinement of a reconstructed run"),
+    "eval": ("fixer4d.cli.eval", "evaluate a run folder on the held-out cameras"),
+    "init": ("fixer4d.cli.init", "per-frame point clouds: sparse (COLMAP) or dense (MVS)"),
+    "trajectories": ("fixer4d.cli.trajectories", "pair trajectories and arcs of a scene's train cameras -> presets"),
+    "calibrate": ("fixer4d.cli.calibrate", "the rig of a capture folder: from a ChArUco board filmed by its cameras, else from its own frames -> rig.json"),
+    "make-scene": ("fixer4d.cli.make_scene", "write a synthetic scene spec to disk in the Neural3DV layout"),
+    "study": ("fixer4d.cli.study", "accuracy vs time: sweep the pipeline's knobs, draw the Pareto front"),
+    "bench": ("fixer4d.cli.bench", "benchmarks that print and save their numbers (raycast, raster, train-step, ...)"),
+    "export": ("fixer4d.cli.export", "convert a model (.ply/.npz) or a run's latest model"),
+    "render": ("fixer4d.cli.render", "a video or PNG frames of a model along a camera path, rig camera or trajectory"),
 }
 
 
@@ -99,6 +100,3 @@ def _interrupted(verb: str, exc: KeyboardInterrupt) -> int:
     print(f"\nfixer4d {verb}: {what}{resume}", file=sys.stderr)
     return 143 if isinstance(exc, Terminated) else 130
 
-
-if __name__ == "__main__":
-    sys.exit(main())

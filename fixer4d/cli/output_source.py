@@ -54,7 +54,7 @@ class OutputSource:
 
 def open_source(source: str | Path, model_path: Path) -> OutputSource:
     """``source`` (a model file or a run folder) with ``model_path``, the model the verb resolved
-    for it (``fixer4d.model.cli.resolve_model_path``: a run's latest model)."""
+    for it (``fixer4d.cli.export.resolve_model_path``: a run's latest model)."""
     from fixer4d.pipeline.run_folder import CONFIG_NAME, read_run_config
 
     path = Path(source)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import argparse
 
-from fixer4d.pipeline.cli_common import add_config_arguments, frame_range_override, maybe_print_config, resolve_from_args
+from fixer4d.cli.config_args import add_config_arguments, frame_range_override, maybe_print_config, resolve_from_args
 
 # What makes a run a reconstruction: no stage 2 and no extra rows.
 RECONSTRUCT_ONLY = {"stage2.rounds": 0, "baseline_sparse": False, "eval.restoration_rows": False,
