@@ -71,7 +71,6 @@ class AdaptiveResolution:
     moving: bool = False
     scale: float = 1.0  # scale of the last render
     rest: int = 0  # frames since the key last changed
-    max_scale: float = 1.0  # the "full size" scale (lowered while live training shares the CPU)
     lod: bool = True  # level of detail while moving (fewer splats), besides the smaller scale
     splats: int = 0  # Gaussians in the model (level of detail keeps at least LOD_MIN_SPLATS)
     fraction: float = 1.0  # fraction of the splats the last planned render draws
@@ -84,22 +83,22 @@ class AdaptiveResolution:
         if self.final:
             self.moving = False
             return None
-        if (self.scale < self.max_scale or self.fraction < 1.0) and self.rest < REFINE_AFTER_FRAMES:
+        if (self.scale < 1.0 or self.fraction < 1.0) and self.rest < REFINE_AFTER_FRAMES:
             return None  # maybe still moving: keep the quick image a moment
         self.moving = False
         self.fraction = 1.0
-        return self.max_scale
+        return 1.0
 
     def _moving_plan(self) -> float:
         self.fraction = 1.0
         if not self.enabled or self.full_cost_ms is None:
-            return self.max_scale
+            return 1.0
         q = self.budget_ms / max(self.full_cost_ms, 1e-3)  # work fraction of a full-size frame
         if self.lod and self.splats > 0 and q < 1.0:
             self.fraction = min(1.0, max(q, LOD_MIN_SPLATS / self.splats))
         s = math.sqrt(q)
-        if s >= self.max_scale:
-            return self.max_scale
+        if s >= 1.0:
+            return 1.0
         return max(MIN_SCALE, math.floor(s / SCALE_STEP) * SCALE_STEP)
 
     def work(self, scale: float, fraction: float = 1.0) -> float:
@@ -115,7 +114,7 @@ class AdaptiveResolution:
             COST_SMOOTHING * full + (1.0 - COST_SMOOTHING) * self.full_cost_ms
         self.scale = scale
         self.fraction = fraction
-        self.final = scale >= self.max_scale and complete and fraction >= 1.0
+        self.final = scale >= 1.0 and complete and fraction >= 1.0
 
     def invalidate(self) -> None:
         """Render again next frame although the key did not change."""

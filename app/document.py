@@ -203,13 +203,15 @@ class Document:
         as "demo": trained live); anything but a version replaces the source, with its own
         session."""
         from app.files import is_model_file, is_run_folder, remember_recent, resolve_input
+        from fixer4d.scene.synthetic import is_builtin_name
 
-        try:
-            path = resolve_input(text, self.output_dir)
+        text = text.strip()
+        try:  # a bundled scene name ("demo") names the scene, as everywhere in fixer4d
+            path = None if is_builtin_name(text) else resolve_input(text, self.output_dir)
         except InputError:
             if Path(text).expanduser().is_absolute() or "/" in text:
                 raise
-            path = None  # a bundled scene name ("demo"): trained live
+            path = None  # not a file here: maybe a scene name load_scene knows
         if path is not None and self.source.run_dir is not None and path.is_file() \
                 and path.parent == Path(self.source.run_dir) and is_model_file(path):
             return self.open_version(path)
@@ -220,7 +222,7 @@ class Document:
         src, g, session_dir = self.services.open_source(text if path is None else str(path))
         self.switch_source(src, g, session_dir)
         remember_recent(Path(self.services.config_dir), text if path is None else str(path))
-        return f"opened {src.label}"
+        return src.notice or f"opened {src.label}"
 
     def switch_source(self, src: Any, gaussians: Any, session_dir: Path) -> None:
         """Replace what the viewer shows: the current session is saved and its background work
@@ -252,5 +254,13 @@ class Document:
         for key in ("_compare_ui", "_debug_ui", "_video_ui"):
             self.__dict__.pop(key, None)
         self.check_autosave()
+        self.show_notice(src)
         if src.training is not None:
             src.training.start()
+
+    def show_notice(self, src: Any) -> None:
+        """Say how the source was resolved when that needs saying (``ViewerSource.notice``): in
+        the status line and the notifications."""
+        if src.notice:
+            self.state.status = src.notice
+            self.notifications.info("open", src.notice)

@@ -4,9 +4,14 @@
     fixer4d-view MODEL.ply            a model file (with its run's scene when it sits in a run folder)
     fixer4d-view runs/demo            a run folder: model_final.ply (or model_stage1.ply), cache
     fixer4d-view path/to/scene        any scene load_scene opens, trained live
+    fixer4d-view demo                 the built-in scene (a bare bundled name; ./demo is a folder)
     fixer4d-view --screenshot out.png --frames 30 [SOURCE]
                                       render 30 frames (after the first model arrives), save the
                                       window image, exit (scripts, bug reports)
+
+A SOURCE that does not open (no such path, not a model) ends the program with one line on
+stderr and exit status 2, before any window; with --errors-in-window (the desktop entry) the
+window opens with the chooser and the message instead.
 """
 from __future__ import annotations
 
@@ -26,6 +31,7 @@ from app.sources import LIVE_INIT_FRAMES, LIVE_INIT_METHOD, app_services, config
 from app.viewer import INTERACTION_S, Viewer
 from app.viewer_source import ViewerSource
 from fixer4d.errors import Fixer4DError, InputError
+from fixer4d.scene.synthetic import is_builtin_name
 
 DEFAULT_SIZE = (1440, 900)
 # Longest a --screenshot run waits for the first model (live init + model build) before it
@@ -75,7 +81,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"live training: evenly spaced frames with an init cloud (default {LIVE_INIT_FRAMES})")
     p.add_argument("--no-session", action="store_true", help="neither restore nor save the viewer session")
     p.add_argument("--verbose", action="store_true", help="errors with their traceback on stderr")
+    p.add_argument("--errors-in-window", action="store_true",
+                   help="a SOURCE that does not open is reported in the window, which opens with the chooser, "
+                        "instead of exit status 2 (the desktop entry, started without a terminal)")
     return p
+
+
+# Exit status for a SOURCE that does not open (the CLI's convention for bad input).
+EXIT_BAD_SOURCE = 2
+
+
+class SourceError(Exception):
+    """The command line's SOURCE did not open (main: one line on stderr, EXIT_BAD_SOURCE)."""
 
 
 # The window's keys that have shortcuts (app.viewer.SHORTCUTS), by glfw key code name.
@@ -161,11 +178,25 @@ def open_start_source(args: argparse.Namespace, source: str | None) -> tuple[Vie
     try:
         src, gaussians, session_dir = open_source(source, scale=args.scale, iterations=args.iterations,
                                                   init=args.init, init_frames=args.init_frames)
-        remember_recent(config_dir(), str(Path(source).resolve()) if Path(source).exists() else source)
-    except Exception as exc:  # started without a terminal: say it in the window, not only on stderr
+        if not args.screenshot:  # a scripted screenshot is not the user opening something
+            remember_recent(config_dir(), source if src.training is not None and is_builtin_name(source)
+                            else str(Path(source).expanduser().resolve()))
+    except Exception as exc:
         report_startup_error(source, exc, args.verbose)
+        if not args.errors_in_window:
+            raise SourceError(f"cannot open {source}: {one_line_message(exc)}") from exc
+        # started without a terminal: say it in the window
         return ViewerSource(label=f"could not open {source}"), None, config_dir() / "start", exc
+    if src.notice:
+        print(f"fixer4d-view: {src.notice}", file=sys.stderr)
     return src, gaussians, session_dir, None
+
+
+def one_line_message(exc: BaseException) -> str:
+    """An exception as one line: the message alone for fixer4d's input errors (they name the
+    problem and the fix), else ``Type: message``; line breaks folded."""
+    text = str(exc) if isinstance(exc, Fixer4DError) else f"{type(exc).__name__}: {exc}"
+    return " ".join(text.split())
 
 
 def open_gl_window(glfw: Any, args: argparse.Namespace, label: str) -> Any:
@@ -346,6 +377,9 @@ def main(argv: list[str] | None = None) -> int:
     configure_software_gl()
     try:
         status = run_window(args)
+    except SourceError as exc:
+        print(f"fixer4d-view: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_SOURCE
     except Fixer4DError as exc:
         print(f"fixer4d-view: error: {exc}", file=sys.stderr)
         return 1

@@ -45,19 +45,37 @@ def open_source(source: str, *, scale: float = 1.0, iterations: int | None = Non
                 init_frames: int = LIVE_INIT_FRAMES) -> tuple[ViewerSource, Any, Path]:
     """Resolve a source the user named. Returns (ViewerSource, initial GaussianArrays or None,
     folder for the viewer's session files). A folder of videos (a capture) or any scene
-    ``load_scene`` opens is trained live."""
-    from fixer4d.scene import load_scene
+    ``load_scene`` opens is trained live; a bare bundled name ("demo") is the bundled scene even
+    where a folder of that name exists (``ViewerSource.notice`` then says so)."""
+    from fixer4d.scene.synthetic import is_builtin_name
 
     from app.files import is_model_file, is_run_folder
 
     path = Path(source).expanduser()
+    if is_builtin_name(source):  # as everywhere in fixer4d: a bare name is the bundled scene
+        src, g, session_dir = open_scene(source, scale, iterations, init, init_frames)
+        if path.exists():
+            src.notice = (f"opened the built-in scene '{source}'; a folder of that name is here too: open it as "
+                          f"./{source}")
+        return src, g, session_dir
     if is_run_folder(path):
         return open_run(path.resolve())
     if path.is_file() and is_model_file(path):
         return open_model(path.resolve())
+    return open_scene(source, scale, iterations, init, init_frames)
+
+
+def open_scene(source: str, scale: float, iterations: int | None, init: str,
+               init_frames: int) -> tuple[ViewerSource, Any, Path]:
+    """A scene ``load_scene`` opens (bundled name, spec .json, scene or capture folder), to be
+    trained live; its session lives under the user's config folder."""
+    from fixer4d.scene import load_scene
+    from fixer4d.scene.synthetic import is_builtin_name
+
+    path = Path(source).expanduser()
     scene = load_scene(source, scale=scale)
     training = TrainingSession(lambda report: live_stage1_trainer(scene, iterations, init, init_frames, report))
-    session_dir = config_dir() / _slug(str(path.resolve()) if path.exists() else source)
+    session_dir = config_dir() / _slug(source if is_builtin_name(source) or not path.exists() else str(path.resolve()))
     cache, restore = make_restore(session_dir / "cache")
     src = ViewerSource(scene=scene, label=f"{scene.name} (live training)", training=training, cache=cache,
                        restore=restore)

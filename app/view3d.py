@@ -18,9 +18,6 @@ from fixer4d.geometry.camera import Camera
 
 # Largest viewport render (pixels per side): keeps llvmpipe interactive on big windows.
 MAX_RENDER_SIDE = 1600
-# Largest render scale of the 3D view while live training runs: every full-size splat frame on a
-# software GL takes CPU from the trainer (the view is upscaled; pausing training restores it).
-TRAINING_RENDER_SCALE = 0.5
 # Frustum drawing depth as a fraction of the scene radius.
 FRUSTUM_DEPTH_FRACTION = 0.06
 COLOR_TRAIN = (0.2, 0.9, 0.3, 1.0)
@@ -31,6 +28,8 @@ COLOR_PREVIEW = (1.0, 1.0, 1.0, 1.0)
 # Image modes whose picture is not a function of (view, frame) alone: the blur map is computed
 # for one resting view, so playback in that mode does not go through the frame cache.
 UNCACHED_MODES = ("blur",)
+# The status line's words for an image of every splat at full size, exact depth order.
+FULL_DETAIL = "full quality: 100% of the splats at full scale"
 
 
 class View3D:
@@ -56,19 +55,21 @@ class View3D:
         return (cam.K.tobytes(), cam.c2w.tobytes(), cam.width, cam.height, st.gaussians_version,
                 st.splat_mode, st.debug_mode, tuple(st.background), self.scalar_version, st.show_frusta,
                 st.show_trajectories, id(st.trajectories), tuple(id(t) for t in st.trajectories),
-                st.selected_trajectory, st.previewing, st.preview_alpha, self.adaptive.max_scale)
+                st.selected_trajectory, st.previewing, st.preview_alpha)
 
     def _view_key(self, cam: Camera) -> tuple:
         """Everything the 3D image depends on: when it is unchanged the last image stands."""
         return self._base_key(cam) + (round(self.state.time, 9),)
 
     def render_view(self, width: int, height: int, *, wait_sort: bool = False) -> moderngl.Texture | None:
-        """Render splats + overlays at the current camera and time (adaptive resolution while the
-        view changes, full size once it rests, the frame cache while only the time changes,
-        nothing new while nothing changed) and return the texture to show. ``display_camera`` is
-        the full-size view camera (viewport pixels), ``render_camera`` the one the image was
-        drawn with (``wait_sort``: full size with the exact depth order, for tests and
-        screenshots). ``view_mode`` says which kind of image is showing."""
+        """Render splats + overlays at the current camera and time and return the texture to
+        show: adaptive resolution and level of detail only while the camera moves; with the
+        camera at rest every splat at full size (a new model from live training, an edit or a
+        mode change included), from the frame cache while only the time changes, nothing new
+        while nothing changed. ``display_camera`` is the full-size view camera (viewport
+        pixels), ``render_camera`` the one the image was drawn with (``wait_sort``: full size
+        with the exact depth order, for tests and screenshots). ``view_mode`` says which kind
+        of image is showing."""
         st = self.state
         self._sync_model()  # the frame may have changed since the frame began (timeline panel)
         if st.gaussians is None:
@@ -76,17 +77,13 @@ class View3D:
             return None
         cam = self.view_camera(width, height)
         self.display_camera = cam
-        tr = self.source.training
-        training = tr is not None and tr.state in ("setup", "running")
-        # live training shares the CPU: the 3D view then rests at a reduced size
-        max_scale = TRAINING_RENDER_SCALE if training and not wait_sort else 1.0
-        if max_scale != self.adaptive.max_scale:
-            self.adaptive.max_scale = max_scale
-            self.adaptive.invalidate()
+        pose = (cam.K.tobytes(), cam.c2w.tobytes(), cam.width, cam.height)
+        camera_rests, self._last_pose = pose == self._last_pose, pose
         base, key = self._base_key(cam), self._view_key(cam)
         self.adaptive.splats = st.gaussians.n
         cacheable = self.use_frame_cache and not wait_sort and st.debug_mode not in UNCACHED_MODES
-        time_only = cacheable and base == self._last_base and key != self.adaptive.last_key
+        only_time_moved = base == self._last_base and key != self.adaptive.last_key
+        time_only = cacheable and only_time_moved
         self._last_base = base
         if base != self.frame_cache.base and len(self.frame_cache):
             self.frame_cache.clear()  # camera, model, edit or mode changed: the frames are stale
@@ -98,17 +95,20 @@ class View3D:
                 self._shown = hit
                 return hit
             tic = time.perf_counter()
-            tex = self._draw(cam, 1.0 if max_scale >= 1.0 else max_scale, 1.0, wait_sort=True)
+            tex = self._draw(cam, 1.0, 1.0, wait_sort=True)
             self.adaptive.last_key = key
             self.adaptive.final, self.adaptive.moving = True, False
             self.frame_cache.put(base, st.frame, self.splats.display_framebuffer,
                                  1e3 * (time.perf_counter() - tic))
-            self.view_mode = f"full quality, filling the frame cache ({len(self.frame_cache)} frames)"
+            self.view_mode = f"{FULL_DETAIL}, filling the frame cache ({len(self.frame_cache)} frames)"
             self._shown = tex
             return tex
-        if wait_sort:
-            self.adaptive.last_key = key
-            scale, self.adaptive.fraction = 1.0, 1.0
+        # the camera rests but the picture changed (a model published by live training, an edit,
+        # a mode): every splat at full size at once, not a level-of-detail image to refine later
+        # (playback without the cache is motion and keeps level of detail)
+        if wait_sort or (camera_rests and key != self.adaptive.last_key and not only_time_moved):
+            self.adaptive.last_key, self.adaptive.rest, self.adaptive.moving = key, 0, False
+            scale, self.adaptive.fraction, wait_sort = 1.0, 1.0, True
         else:
             scale = self.adaptive.plan(key)
         if scale is None and self._shown is not None:
@@ -116,15 +116,21 @@ class View3D:
         if scale is None:  # nothing drawn yet: everything at full size
             scale, self.adaptive.fraction = 1.0, 1.0
         tex = self._draw(cam, scale, self.adaptive.fraction, wait_sort=wait_sort)
-        a = self.adaptive
-        if a.final or wait_sort:
-            self.view_mode = "full quality"
-        else:
-            share = self.splats.stats.fraction
-            splats = "all splats" if share >= 1.0 else f"the {100 * share:.0f}% most visible splats"
-            self.view_mode = f"moving: level of detail, {splats} at {a.scale:.2f} scale"
+        self.view_mode = self._detail_line()
         self._shown = tex
         return tex
+
+    def _detail_line(self) -> str:
+        """What the last render drew, for the status line: full detail (every splat at full
+        size; with live training, the step of the model shown) or the level of detail."""
+        a, tr = self.adaptive, self.source.training
+        if not a.final:
+            share = self.splats.stats.fraction
+            splats = "100% of the splats" if share >= 1.0 else f"the {100 * share:.0f}% most visible splats"
+            return f"moving: level of detail, {splats} at {a.scale:.2f} scale"
+        if tr is not None and tr.state in ("setup", "running", "paused"):
+            return f"{FULL_DETAIL} (live training: the model taken at step {self._model_step})"
+        return FULL_DETAIL
 
     def shown_image(self) -> np.ndarray | None:
         """(H, W, 3) uint8 of the image the 3D view showed last (row 0 at the top): a fresh

@@ -75,6 +75,7 @@ class Viewer(Viewport, View3D, Document):
             except Exception as exc:  # a bad session must not stop the app; say so
                 state.status = str(exc)
         self.check_autosave()
+        self.show_notice(source)
 
     def _init_imgui(self, ini_path: Path | None, platform_init: Callable[[], None] | None) -> None:
         """The imgui and implot contexts (docking on, layout kept in ``ini_path`` or nowhere), the
@@ -100,6 +101,7 @@ class Viewer(Viewport, View3D, Document):
         self.view_mode = "no model"  # which kind of image the 3D view shows (the status line says it)
         self._shown: moderngl.Texture | None = None  # the texture the viewport showed last
         self._last_base: tuple | None = None
+        self._last_pose: tuple | None = None  # the view camera's K, pose and size last frame
         self.tool = "navigate"  # navigate | box | brush
         self.select_through = False  # box selection: front surface only unless set
         self._drag_start: tuple[float, float] | None = None
@@ -107,6 +109,7 @@ class Viewer(Viewport, View3D, Document):
         self._segment: int | None = None  # a segmented run: the segment whose Gaussians are shown
         self._model_serial = 0
         self._model_taken = -1e9  # time.monotonic() when the last published model was taken
+        self._model_step = 0  # the live trainer's step when the shown model was taken
         self.viewport_rect = (0.0, 0.0, 1.0, 1.0)  # screen x, y, w, h of the 3D image
         self.render_camera: Camera | None = None  # the camera of the last 3D image (maybe reduced)
         self.display_camera: Camera | None = None  # the full-size view camera (viewport pixels)
@@ -279,7 +282,7 @@ class Viewer(Viewport, View3D, Document):
             got = tr.models.take(self._model_serial)
             if got is not None:
                 self._model_serial, g = got
-                self._model_taken = now
+                self._model_taken, self._model_step = now, tr.step
                 keep_selection = self.state.gaussians is not None and self.state.gaussians.n == g.n
                 sel = self.state.selection if keep_selection else None
                 self.state.set_gaussians(g)
@@ -365,8 +368,7 @@ class Viewer(Viewport, View3D, Document):
 
     # ---- menu and keys ----------------------------------------------------------------------------
     def _menu(self) -> None:
-        from app.panels import files, help
-        from app.panels._layout import tip
+        from app.panels import files, help, status
 
         if not imgui.begin_main_menu_bar():
             return
@@ -378,15 +380,7 @@ class Viewer(Viewport, View3D, Document):
                 self.state.redo()
             imgui.end_menu()
         help.draw_menu(self)
-        unsaved = "  (unsaved edits)" if self.state.unsaved else ""
-        imgui.text_disabled(f"  {self.source.label}{unsaved}   {self.frame_ms:.0f} ms   [{self.view_mode}]")
-        self.record_item("status_mode")
-        tip("which image the 3D view shows: full quality, playback from the frame cache, or a level-of-detail "
-            "image while the camera moves")
-        line = self.state.status or self.hint  # the first-launch hint until something has a status
-        if line:
-            imgui.text_disabled(f"  {line}")
-            self.record_item("status_line")
+        status.draw(self)
         imgui.end_main_menu_bar()
 
     def key_event(self, key: str, down: bool, ctrl: bool = False) -> None:

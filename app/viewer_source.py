@@ -30,6 +30,8 @@ class ViewerSource:
     model_path: the model file shown, or None (live training).
     segments: a segmented run's ``app.segments.SegmentTimeline`` (the shown Gaussians follow the
       segment that owns the current frame), or None.
+    notice: what the user should know about how the source was resolved (shown when it opens),
+      e.g. a bundled scene name that is also a folder here.
     """
 
     scene: Any = None
@@ -41,6 +43,7 @@ class ViewerSource:
     render_backend: str = "auto"
     model_path: Path | None = None
     segments: Any = None
+    notice: str = ""
 
 
 def _missing(what: str) -> Callable[..., Any]:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from app.panels._layout import error_text, tip
+from app.panels._layout import elide, error_text, tip
 
 # Dialog actions: title, button label, whether the path must exist (read) or is written.
 ACTIONS = {
@@ -97,25 +97,33 @@ def draw_dialog(viewer) -> None:
     viewer.record_item("dialog_path")
     tip("a full path, or one relative to the folder below; for Open: a run folder, a model file, a scene "
         "folder or spec, a folder of videos (a capture), or 'demo'", viewer)
-    imgui.text_disabled(f"relative paths are under {viewer.output_dir}")
+    imgui.text_disabled(elide(f"relative paths are under {viewer.output_dir}", PATH_FIELD_WIDTH))
     if ui["action"] == "open":
         from app.files import recent
 
-        shortcuts = [str(p) for p in viewer.model_versions()]
-        shortcuts += [r for r in recent(viewer.services.config_dir) if r not in shortcuts]
-        if shortcuts:
-            imgui.text("model versions of this run, recently opened:")
-        for text in shortcuts:
-            if imgui.selectable(text, text == ui["path"])[0]:
-                ui["path"] = text
+        versions = [str(p) for p in viewer.model_versions()]
+        lists = (("model versions of this run:", versions),
+                 ("opened before in the viewer:", [r for r in recent(viewer.services.config_dir) if r not in versions]))
+        for heading, items in lists:
+            if items:
+                imgui.text(heading)
+            for text in items:
+                if imgui.selectable(elide(text, PATH_FIELD_WIDTH) + f"##{heading}{text}", text == ui["path"])[0]:
+                    ui["path"] = text
+                tip(f"put {text} in the path field", viewer)
         if imgui.button("the built-in demo scene (trained live)"):
             ui["path"] = "demo"
+        tip("the bundled synthetic demo scene, trained live in the viewer ('demo' always names it; a folder "
+            "called demo is ./demo)", viewer)
     if ui["error"]:
         error_text(ui["error"])
     ok = imgui.button(verb)
     viewer.record_item("dialog_ok")
+    tip(f"{verb} the path above", viewer)
     imgui.same_line()
-    if imgui.button("cancel") or imgui.is_key_pressed(imgui.Key.escape, False):
+    cancel = imgui.button("cancel")
+    tip("close this dialog (Esc)", viewer)
+    if cancel or imgui.is_key_pressed(imgui.Key.escape, False):
         imgui.close_current_popup()
     elif ok:
         try:
@@ -134,6 +142,7 @@ def run_action(viewer, action: str, text: str) -> str:
     """Do a dialog action with the typed path; returns the status line (full paths)."""
     from app import trajectories as traj
     from app.files import resolve_input
+    from app.state import UNDO_HINT
 
     st = viewer.state
     train = [] if viewer.source.scene is None else viewer.source.scene.train_cameras
@@ -141,8 +150,8 @@ def run_action(viewer, action: str, text: str) -> str:
         return viewer.open_path(text)
     if action == "import_preset":
         path = resolve_input(text, viewer.output_dir)
-        st.set_trajectories(traj.load_preset(path), f"import {path}", selected=0)
-        return f"imported {len(st.trajectories)} trajectories from {path}"
+        st.set_trajectories(traj.load_preset(path), f"import {path}", selected=0, destructive=True)
+        return f"imported {len(st.trajectories)} trajectories from {path} in place of the list: {UNDO_HINT}"
     if action == "import_camera_path":
         path = resolve_input(text, viewer.output_dir)
         st.add_trajectory(traj.load_camera_path(path))

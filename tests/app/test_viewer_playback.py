@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from app.state import AppState
+from app.view3d import FULL_DETAIL
 from app.viewer import ViewerSource
 from doc_shots import save_shot
 from viewer_helpers import gl_ctx, make_gaussians, make_viewer  # noqa: F401 (fixtures)
@@ -34,7 +35,7 @@ def test_playback_from_the_cache_shows_the_full_quality_frame(make_viewer, tmp_p
     for f in (2, 4):  # the reference: paused at frame f, resting at full quality
         st.set_frame(f)
         d.settle()
-        assert v.adaptive.final and v.view_mode == "full quality"
+        assert v.adaptive.final and v.view_mode == FULL_DETAIL
         paused[f] = v.shown_image().astype(np.int16)
     v.use_frame_cache = True
     st.set_frame(0)

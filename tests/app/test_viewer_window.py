@@ -61,19 +61,22 @@ def test_desktop_entry_names_the_viewer_and_its_icon():
     d = entry["Desktop Entry"]
     assert d["Type"] == "Application" and d["Terminal"] == "false"
     assert d["Exec"].split()[0] == "fixer4d-view" and "%f" in d["Exec"]  # make install-desktop makes it absolute
+    assert "--errors-in-window" in d["Exec"].split()  # no terminal: a bad file is reported in the window
     assert (ROOT / "assets" / "desktop" / f"{d['Icon']}.svg").is_file()
     assert 'fixer4d-view = "app.main:main"' in (ROOT / "pyproject.toml").read_text()
     assert "install-desktop:" in (ROOT / "Makefile").read_text()
 
 
 def test_a_source_that_fails_to_open_is_shown_in_the_window(xvfb_display, tmp_path):
+    """--errors-in-window (the desktop entry, no terminal): the window opens and says why."""
     from PIL import Image
 
     shot = tmp_path / "shot.png"
     env = dict(os.environ, DISPLAY=xvfb_display, XDG_CONFIG_HOME=str(tmp_path / "cfg"),
                PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     missing = tmp_path / "no_such_run"
-    cmd = [sys.executable, "-m", "app.main", "--screenshot", str(shot), "--frames", "4", "--size", "960x600", str(missing)]
+    cmd = [sys.executable, "-m", "app.main", "--screenshot", str(shot), "--frames", "4", "--size", "960x600",
+           "--errors-in-window", str(missing)]
     proc = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 1 and "no model to show" in proc.stderr
     img = np.asarray(Image.open(shot)).astype(int)
