@@ -22,6 +22,8 @@ from fixer4d.geometry.camera import Camera
 SESSION_VERSION = 1
 # Undo history depth: each Gaussian edit keeps the removed Gaussians, so the stack is bounded.
 MAX_UNDO = 100
+# What the status line adds to a destructive edit.
+UNDO_HINT = "Ctrl+Z (Edit > Undo) brings it back"
 # Default number of frames on a new trajectory (the paper's clips are short).
 DEFAULT_TRAJECTORY_FRAMES = 16
 
@@ -57,11 +59,13 @@ class TrajectorySpec:
 
 @dataclass
 class Edit:
-    """One undoable change: ``do`` and ``undo`` mutate the state; ``label`` shows in the UI."""
+    """One undoable change: ``do`` and ``undo`` mutate the state; ``label`` shows in the UI. A
+    ``destructive`` edit (something removed or replaced) says how to take it back."""
 
     label: str
     do: Callable[["AppState"], None]
     undo: Callable[["AppState"], None]
+    destructive: bool = False
 
 
 @dataclass
@@ -131,7 +135,7 @@ class AppState:
         self.undo_stack.append(edit)
         del self.undo_stack[:-MAX_UNDO]
         self.redo_stack.clear()
-        self.status = edit.label
+        self.status = f"{edit.label}: {UNDO_HINT}" if edit.destructive else edit.label
 
     def undo(self) -> bool:
         if not self.undo_stack:
@@ -152,8 +156,10 @@ class AppState:
         return True
 
     # ---- trajectories -------------------------------------------------------------------------
-    def set_trajectories(self, new: list[TrajectorySpec], label: str, selected: int | None = None) -> None:
-        """Replace the trajectory list as one undoable edit."""
+    def set_trajectories(self, new: list[TrajectorySpec], label: str, selected: int | None = None,
+                         destructive: bool = False) -> None:
+        """Replace the trajectory list as one undoable edit (``destructive``: it removes or
+        replaces trajectories, and the status line says how to undo it)."""
         before, before_sel = list(self.trajectories), self.selected_trajectory
         after = list(new)
         after_sel = self.selected_trajectory if selected is None else selected
@@ -165,7 +171,7 @@ class AppState:
         def undo(s: AppState) -> None:
             s.trajectories, s.selected_trajectory = list(before), before_sel
 
-        self.apply(Edit(label, do, undo))
+        self.apply(Edit(label, do, undo, destructive))
 
     def update_trajectory(self, index: int, label: str, **changes: Any) -> None:
         """Change fields of one trajectory (e.g. amplitude=0.3) as an undoable edit."""
@@ -180,7 +186,7 @@ class AppState:
     def delete_trajectory(self, index: int) -> None:
         name = self.trajectories[index].name
         self.set_trajectories(self.trajectories[:index] + self.trajectories[index + 1:], f"delete trajectory {name}",
-                              selected=min(index, len(self.trajectories) - 2))
+                              selected=min(index, len(self.trajectories) - 2), destructive=True)
 
     def add_keyframe(self, index: int, camera: Camera) -> None:
         """Append the current view as a key of custom trajectory ``index``."""
@@ -263,7 +269,7 @@ class AppState:
             s.origin, s.origin_base, s.origin_count = origin
             s.gaussians_version += 1
 
-        self.apply(Edit(label, do, undo))
+        self.apply(Edit(label, do, undo, destructive=True))
 
     def delete_selected(self) -> int:
         """Delete the selected Gaussians (undoable). Returns how many were removed."""

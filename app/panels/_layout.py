@@ -1,11 +1,13 @@
-"""Panel plumbing: first-use placement and the guard every panel body runs in.
+"""Panel plumbing: first-use placement, the guard every panel body runs in, and widgets that
+keep the layout still (elided one-line paths, fixed-height status slots).
 
 ``panel(viewer, name, title, x, y, w, h)`` opens the panel's window and yields whether its body
 should be drawn. Whatever the body raises (a bad file, a bug, an imgui assertion such as an
 unbalanced push/pop) is caught there: imgui's error recovery closes everything the body opened
 (child windows, groups, ID and style stacks, disabled blocks) plus the panel's own window, the
 error goes to the viewer's notifications area and the log, and the frame goes on. Nothing else
-in the frame is lost.
+in the frame is lost. Every panel reserves its vertical scrollbar, so content that grows past
+the bottom never narrows (and re-wraps) what is above it.
 """
 from __future__ import annotations
 
@@ -58,6 +60,18 @@ def rescale_layout(viewer, old: tuple[float, float], new: tuple[float, float]) -
             viewer.pending_window_rects[name] = (x0 * sx, y0 * sy, x1 * sx, y1 * sy)
 
 
+def recover(saved) -> None:
+    """Close what was opened since ``saved`` (an ``ErrorRecoveryState``), quietly: the exception
+    that interrupted the block is reported to the user, so imgui's own "Missing End()" lines
+    for the unwinding would only repeat it on stderr every frame."""
+    io = imgui.get_io()
+    logging, io.config_error_recovery_enable_debug_log = io.config_error_recovery_enable_debug_log, False
+    try:
+        imgui.internal.error_recovery_try_to_recover_state(saved)
+    finally:
+        io.config_error_recovery_enable_debug_log = logging
+
+
 @contextmanager
 def guard(viewer, name: str) -> Iterator[None]:
     """Run a block of imgui calls; on any exception restore imgui's stacks to what they were
@@ -67,7 +81,7 @@ def guard(viewer, name: str) -> Iterator[None]:
     try:
         yield
     except Exception as exc:  # the app keeps running; the user reads what went wrong
-        imgui.internal.error_recovery_try_to_recover_state(saved)
+        recover(saved)
         viewer.report_error(name, exc)
 
 
@@ -87,14 +101,14 @@ def panel(viewer, name: str, title: str, x: float, y: float, w: float, h: float)
     if alone(viewer, name):
         imgui.set_next_window_bg_alpha(0.0)
     try:
-        expanded, _ = imgui.begin(title)
+        expanded, _ = imgui.begin(title, None, imgui.WindowFlags_.always_vertical_scrollbar.value)
         pos, size = imgui.get_window_pos(), imgui.get_window_size()
         viewer.item_rects[f"window_{name}"] = viewer.window_rects[name] = viewer.known_window_rects[name] = (
             pos.x, pos.y, pos.x + size.x, pos.y + size.y)
         viewer.docked_windows[name] = imgui.is_window_docked()
         yield expanded
     except Exception as exc:
-        imgui.internal.error_recovery_try_to_recover_state(saved)  # ends the panel window too
+        recover(saved)  # ends the panel window too
         viewer.report_error(name, exc)
     else:
         imgui.end()
@@ -115,6 +129,15 @@ def error_text(text: str) -> None:
     imgui.push_style_color(imgui.Col_.text.value, imgui.ImVec4(1.0, 0.4, 0.35, 1.0))
     imgui.text_wrapped(text)
     imgui.pop_style_color()
+
+
+def error_text_line(text: str, viewer=None) -> None:
+    """``one_line`` in the error colour (the whole message on hover)."""
+    imgui.push_style_color(imgui.Col_.text.value, imgui.ImVec4(1.0, 0.4, 0.35, 1.0))
+    try:
+        one_line(text, viewer, disabled=False)
+    finally:
+        imgui.pop_style_color()
 
 
 def button_width(label: str) -> float:
@@ -152,3 +175,27 @@ def radio_row(items: tuple[str, ...] | list[str], current: str, id_suffix: str =
         if imgui.radio_button(f"{item}##{id_suffix}", item == current):
             chosen = item
     return chosen
+
+
+def elide(text: str, width: float) -> str:
+    """``text`` shortened in the middle ("/home/me/.../viewer/videos/a.mp4") to fit ``width``
+    pixels in the current font; unchanged when it fits."""
+    if imgui.calc_text_size(text).x <= width:
+        return text
+    lo, hi = 0, len(text)  # the most characters kept (half each side) that still fit
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if imgui.calc_text_size(text[: (mid + 1) // 2] + "..." + text[len(text) - mid // 2:]).x <= width:
+            lo = mid
+        else:
+            hi = mid - 1
+    return text[: (lo + 1) // 2] + "..." + (text[len(text) - lo // 2:] if lo // 2 else "")
+
+
+def one_line(text: str, viewer=None, disabled: bool = True, hint: str = "") -> None:
+    """``text`` (a path, a message) on exactly one line, elided in the middle to the space left
+    on the line; when shortened, the mouse over it shows it whole (plus ``hint``)."""
+    shown = elide(text, max(imgui.get_content_region_avail().x, 8.0))
+    (imgui.text_disabled if disabled else imgui.text)(shown)
+    if shown != text or hint:
+        tip("\n".join(t for t in (text if shown != text else "", hint) if t), viewer)

@@ -7,7 +7,7 @@ from __future__ import annotations
 from imgui_bundle import imgui
 
 from app import trajectories as traj
-from app.panels._layout import button_width, panel, same_line_if_fits, tip
+from app.panels._layout import button_width, error_text_line, one_line, panel, same_line_if_fits, tip
 from app.state import TrajectorySpec
 
 # Slider ranges: A in units of the rig radius, frame counts per clip.
@@ -70,15 +70,20 @@ def file_row(viewer, ui: dict, field: str) -> None:
     imgui.text("preset file (fixer4d JSON)" if field == "preset" else "camera_path file (nerfstudio JSON)")
     imgui.set_next_item_width(-1)
     _, ui[field] = imgui.input_text(f"##{field}", ui[field])
-    if ui[field].strip():
-        imgui.push_text_wrap_pos(0.0)
-        imgui.text_disabled(str(viewer.output_path(ui[field])))
-        imgui.pop_text_wrap_pos()
+    tip("a path relative to the run folder (or the session folder), or a full path" if field == "preset" else
+        "a nerfstudio camera_path JSON: export writes the selected trajectory, import adds it as a custom one",
+        viewer)
+    # the full path on one line (elided, whole on hover): a long one must not push the buttons down
+    one_line(str(viewer.output_path(ui[field])) if ui[field].strip() else "(no file name)", viewer)
     export = imgui.button(f"export##{field}")
     viewer.record_item(f"export_{field}")
+    tip("write the trajectories (all of them) to this file" if field == "preset" else
+        "write the selected trajectory as a nerfstudio camera path to this file", viewer)
     imgui.same_line()
     do_import = imgui.button(f"import##{field}")
     viewer.record_item(f"import_{field}")
+    tip("replace the trajectories by the file's (one undoable edit)" if field == "preset" else
+        "add the file's camera path as a custom trajectory", viewer)
     if export:
         viewer.state.status = files.run_action(viewer, f"export_{field}", ui[field])
     if do_import:
@@ -86,6 +91,8 @@ def file_row(viewer, ui: dict, field: str) -> None:
 
 
 def _selected(viewer, k: int, pending: dict) -> None:
+    """The selected trajectory's controls. Every row keeps its place whatever a job does: the
+    video's progress, result or error has a one-line slot of its own under "render video"."""
     st = viewer.state
     spec = st.trajectories[k]
     if spec.pair is not None:
@@ -104,17 +111,21 @@ def _selected(viewer, k: int, pending: dict) -> None:
         imgui.text(f"custom: {len(spec.keyframes)} keyframes")
         if imgui.button("add keyframe (current view)"):
             st.add_keyframe(k, viewer.render_camera or st.view.camera(640, 480))
+        tip("append the 3D view's camera as the last keyframe (Ctrl+Z undoes)", viewer)
     frames = pending.get(("F", k), spec.n_frames)
     changed, frames = imgui.slider_int("frames", frames, *FRAMES_RANGE)
+    tip("frames along the trajectory (the clip length of its restorations and videos)", viewer)
     if changed:
         pending[("F", k)] = frames
     if imgui.is_item_deactivated_after_edit():
         st.update_trajectory(k, f"frames of {spec.name} = {frames}", n_frames=int(pending.pop(("F", k), frames)))
     changed, rev = imgui.checkbox("reverse", spec.reverse)
+    tip("run the trajectory from its last camera to its first", viewer)
     if changed:
         st.update_trajectory(k, f"reverse {spec.name}", reverse=rev)
     imgui.same_line()
     changed, vis = imgui.checkbox("visible", spec.visible)
+    tip("draw this trajectory's path in the 3D view", viewer)
     if changed:
         st.update_trajectory(k, f"{'show' if vis else 'hide'} {spec.name}", visible=vis)
     _, st.previewing = imgui.checkbox("preview", st.previewing)
@@ -122,63 +133,72 @@ def _selected(viewer, k: int, pending: dict) -> None:
     imgui.same_line()
     imgui.set_next_item_width(-1)
     _, st.preview_alpha = imgui.slider_float("##alpha", st.preview_alpha, 0.0, 1.0, "alpha %.3f")
-    if imgui.button("delete trajectory"):
-        st.delete_trajectory(k)
+    tip("where along the trajectory the preview camera is (0 = first camera, 1 = last)", viewer)
     video_row(viewer, k)
+    delete = imgui.button("delete trajectory")
+    viewer.record_item("delete_trajectory")
+    tip("remove the selected trajectory from the list (Ctrl+Z brings it back)", viewer)
+    if delete:
+        st.delete_trajectory(k)
 
 
 def video_row(viewer, k: int) -> None:
-    """"Render video": the selected trajectory from the current frame, as a background job with
-    progress, cancel and the path of the result (with a button that opens it)."""
+    """"Render video" (the selected trajectory from the current frame, as a background job) on a
+    row of its own, and one line under it that holds the job's progress and cancel, its result
+    (the path, elided, with "open video") or its error: the rows below never move."""
     from app.video_job import VideoJob, trajectory_times
 
     st = viewer.state
     ui = viewer.__dict__.setdefault("_video_ui", {"job": None})
     job = ui["job"]
-    if job is not None and job.running:
-        imgui.progress_bar(job.progress, imgui.ImVec2(-80, 0), f"video {100 * job.progress:.0f}%")
-        imgui.same_line()
-        if imgui.small_button("cancel##video"):
-            job.cancel()
-        viewer.record_item("video_cancel")
-        return
+    running = job is not None and job.running
+    imgui.begin_disabled(running)
     start = imgui.button("render video")
+    imgui.end_disabled()
     viewer.record_item("render_video")
     tip("render the selected trajectory from the current frame to RUN/viewer/videos/<name>.mp4 in the "
         "background (torch renders of the shown model, edits included)", viewer)
-    if start:
+    if start and not running:
         spec = st.trajectories[k]
         cams = viewer.trajectory_cameras(spec)
         out = viewer.output_path(f"viewer/videos/{spec.name}_f{st.frame:04d}.mp4")
         out.parent.mkdir(parents=True, exist_ok=True)
-        ui["job"] = VideoJob(viewer.services.render_video, viewer.gaussians_render_fn(), cams,
-                             trajectory_times(st.frame, len(cams), st.num_frames), out, st.fps)
-        return
+        job = ui["job"] = VideoJob(viewer.services.render_video, viewer.gaussians_render_fn(), cams,
+                                   trajectory_times(st.frame, len(cams), st.num_frames), out, st.fps)
+    video_status_line(viewer, ui, job)
+
+
+def video_status_line(viewer, ui: dict, job) -> None:
+    """Exactly one frame-high line: the running job's progress bar and cancel, the finished
+    video's path and "open video", its error or "cancelled", or nothing yet."""
+    y = imgui.get_cursor_pos_y()
     if job is None:
-        return
-    if job.error:
-        imgui.text_colored(imgui.ImVec4(1.0, 0.35, 0.3, 1.0), f"video failed: {job.error}")
+        imgui.text_disabled("no video rendered yet")
+    elif job.running:
+        cancel_w = button_width("cancel") + imgui.get_style().item_spacing.x
+        imgui.progress_bar(job.progress, imgui.ImVec2(-cancel_w, 0), f"video {100 * job.progress:.0f}%")
+        imgui.same_line()
+        if imgui.small_button("cancel##video"):
+            job.cancel()
+        viewer.record_item("video_cancel")
+        tip("stop rendering the video (the frames written so far are discarded)", viewer)
+    elif job.error:
         if ui.get("reported") is not job:
             ui["reported"] = job
             viewer.report_error("video", job.error)
+        error_text_line(f"video failed: {job.error}", viewer)
     elif job.cancelled:
         imgui.text_disabled("video cancelled")
     elif job.result is not None:
-        imgui.text_wrapped(f"video: {job.result}")
-        if imgui.small_button("open video"):
-            open_file(job.result)
+        opened = imgui.small_button("open video")
         viewer.record_item("video_open")
-        tip("open the video with the desktop's default player", viewer)
+        tip("open the video with the desktop's default player (without one: its path is copied)", viewer)
+        imgui.same_line()
+        one_line(str(job.result), viewer)
+        if opened:
+            from app.desktop import open_with_desktop
 
-
-def open_file(path) -> None:
-    """Open a file with the desktop's default application (xdg-open / open / startfile)."""
-    import os
-    import subprocess
-    import sys
-
-    if sys.platform.startswith("win"):
-        os.startfile(str(path))  # noqa: S606 (a local file the viewer wrote)
-    else:
-        subprocess.Popen(["open" if sys.platform == "darwin" else "xdg-open", str(path)],
-                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            viewer.state.status = open_with_desktop(job.result, imgui.set_clipboard_text, "video")
+            viewer.notifications.info("video", viewer.state.status)
+    # the slot is one frame high whatever it held
+    imgui.set_cursor_pos_y(y + imgui.get_frame_height_with_spacing())
