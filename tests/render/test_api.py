@@ -1,4 +1,7 @@
-"""render(): analytic profile, conventions, errors, empty scenes, backend selection."""
+"""render(): analytic profile, conventions, errors, empty scenes, backend selection.
+
+The conventions checked here are stated once in docs/render.md (the rendering contract).
+"""
 from __future__ import annotations
 
 import importlib

@@ -1,4 +1,5 @@
-"""Internals of the fast kernel that the parity tests do not pin down directly."""
+"""Internals of the fast kernel that the parity tests do not pin down directly (cpu row of the
+parity table in docs/render.md)."""
 from __future__ import annotations
 
 import numpy as np

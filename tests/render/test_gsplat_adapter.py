@@ -7,6 +7,8 @@ and pixel ``Ks``; activated scales and opacities; quaternions wxyz; post-activat
 ``sh_degree`` None; ``packed=False``; "RGB+ED"; a (1, 3) background. The outputs must come back
 as fixer4d's RenderOutput, gradients included. With CUDA and gsplat installed, the parity test
 renders one snapshot with "gsplat" and "cpu" and compares images and gradients.
+
+The gsplat row of the parity table in docs/render.md (the rendering contract).
 """
 from __future__ import annotations
 

@@ -3,6 +3,8 @@
 A needle whose long axis projects to thousands of pixels used to vanish (float32 det = ca cc -
 cb^2 cancelled to <= 0 and the splat was culled) or deform (the (a, b, c) conic's condition
 number ~L^2 / 0.3 exceeds float32's precision). project.stable_conic fixes both.
+
+The cpu row of the parity table in docs/render.md (the rendering contract).
 """
 from __future__ import annotations
 

@@ -1,5 +1,8 @@
 """Oracle gradients through SpacetimeGaussians.at(t), for every parameter group, against
-central finite differences (float64); and the fast kernel's through the same path."""
+central finite differences (float64); and the fast kernel's through the same path.
+
+The reference row of the parity table in docs/render.md (the rendering contract).
+"""
 from __future__ import annotations
 
 import pytest

@@ -1,4 +1,8 @@
-"""Fast kernel (numba, float32) against the oracle (torch, float32): values and gradients."""
+"""Fast kernel (numba, float32) against the oracle (torch, float32): values and gradients.
+
+The cpu row of the parity table in docs/render.md (the rendering contract); its tolerances are
+the constants below.
+"""
 from __future__ import annotations
 
 import numpy as np

@@ -1,5 +1,8 @@
 """The numba projection (project_cpu.py, hand-written backward) against the readable torch
-projection (project.py, autograd): values, radii and gradients, ordinary and culled cases."""
+projection (project.py, autograd): values, radii and gradients, ordinary and culled cases.
+
+The cpu row of the parity table in docs/render.md (the rendering contract).
+"""
 from __future__ import annotations
 
 import pytest

@@ -1,4 +1,7 @@
-"""The oracle's autograd gradients against central finite differences, float64."""
+"""The oracle's autograd gradients against central finite differences, float64.
+
+The reference row of the parity table in docs/render.md (the rendering contract).
+"""
 from __future__ import annotations
 
 import pytest
