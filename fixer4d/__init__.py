@@ -7,6 +7,13 @@ import os
 import sys
 from pathlib import Path
 
+# Portable numerics (fixer4d/numerics.py): every library's CPU code path pinned so that a run gives
+# the same digits on any x86-64 host; the libraries read the pins when they load, so this comes
+# before anything imports torch, numpy or numba.
+from fixer4d import numerics as _numerics  # noqa: E402
+
+_numerics.apply()
+
 # numba's parallel kernels and torch share one OpenMP runtime. With the default (active) wait
 # policy, idle OpenMP workers spin after every parallel region and starve the next torch op on
 # a 2-core machine: measured 137 ms vs 15 ms for one 200x150 render + loss. OpenMP reads this

@@ -22,7 +22,10 @@ BENCHES: dict[str, str] = {
     "at": "fixer4d.bench.at_cost",
     "iteration": "fixer4d.bench.iteration",
     "restore": "fixer4d.bench.restore",
+    "quality": "fixer4d.bench.quality",
 }
+# Studies of hours (whole runs over seeds and camera sets): run by name only, never by `all`.
+LONG_STUDIES = ("quality",)
 
 
 def registered() -> dict[str, Callable[[list[str]], int]]:
@@ -41,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     benches = registered()
-    names = sorted(benches) if args.name == "all" else [args.name]
+    names = sorted(set(benches) - set(LONG_STUDIES)) if args.name == "all" else [args.name]
     if args.name == "all" and {"-h", "--help"} & set(args.rest):
         print("fixer4d bench all [--out DIR]: runs " + ", ".join(names) + " one after the other, each writing "
               "DIR/<name>.json (see `fixer4d bench NAME --help` for each one's options)")

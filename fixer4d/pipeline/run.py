@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from fixer4d import atomic
+from fixer4d import atomic, numerics
 from fixer4d.pipeline import report as R
 from fixer4d.pipeline import stages as S
 from fixer4d.pipeline.config import RunConfig
@@ -129,7 +129,8 @@ class _Report:
                               self.extra())
 
     def extra(self) -> dict[str, Any]:
-        out = {"restorer": S.restorer_summary(self.ctx), "peak_rss_mb": peak_rss_mb(), **self.checks}
+        out = {"restorer": S.restorer_summary(self.ctx), "peak_rss_mb": peak_rss_mb(),
+               "numerics": numerics.status(), **self.checks}
         effects = self.ctx.path / S.EFFECTS_NAME
         if effects.is_file():  # the main model's effects and why
             out["model"] = json.loads(effects.read_text())

@@ -17,8 +17,10 @@ fold's own noise), else *skip*; and the run's final model follows it: *refine* r
 *continue* keeps the matched-iterations control, *skip* keeps the stage-1 model, so the final
 model leaves the stage-1 model only for one that raised the held-back camera by more than the
 fold can resolve. Its figures and
-seconds go into the report. The learned restorer never trains on the held-back camera's frames as targets
-(it is that restorer's validation fold), so the check does not see its own answer.
+seconds go into the report. The held-back camera's frames reach nothing the fold uses: the fold's
+stages read a view of its own cameras only (the held-back camera is read only to score it), and a
+learned restorer is trained again inside the fold, from the fold's cameras, init and model (the
+run's restorer learned from every train camera), so the check does not see its own answer.
 
 This module holds the settings and the rule; ``self_check_run.run_self_check`` runs the fold.
 """

@@ -70,6 +70,23 @@ def _train(trainer, progress: bool):
     return trainer.host_model(), seconds
 
 
+def _fold_restorer(views, init_dir: Path, cfg1, base, out_dir: Path, config, parts: "_Parts", progress: bool):
+    """The learned restorer of the fold: trained like the run's (``train_scene_restorer``) but on
+    the fold's cameras, init and stage-1 model only, so that no pair it learns from (target,
+    reference or extra view) holds a frame of the held-back camera. Resumable (its own folder)."""
+    from fixer4d.init import load_frame_clouds
+    from fixer4d.init.decompose import DecomposedInit, has_decomposed
+    from fixer4d.train.restorer_pairs import train_scene_restorer
+
+    init = DecomposedInit.load(init_dir) if has_decomposed(init_dir) else load_frame_clouds(init_dir)
+    t0 = time.perf_counter()
+    restorer = train_scene_restorer(views, init, cfg1, out_dir / "restorer", config.restorer, progress=progress,
+                                    model=base)
+    if "restorer" not in parts.seconds:
+        parts.finish("restorer", time.perf_counter() - t0)
+    return restorer
+
+
 def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bool = False) -> dict[str, Any]:
     """The self-check of ``config`` on ``scene`` (module docstring) with the run's ``restorer``;
     working files under ``out_dir``. Returns the decision record (also ``out_dir/decision.json``).
@@ -101,7 +118,11 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
     out_dir.mkdir(parents=True, exist_ok=True)
     parts = _Parts(out_dir)
     held = train_ids[sc.fold % len(train_ids)]
-    views = TrainOnlyView(scene, [i for i in train_ids if i != held], sc.scale)
+    fold_ids = [i for i in train_ids if i != held]
+    # every part of the fold reads its own cameras only; the held-back camera's frames are read
+    # through ``scored``, by ``_held_back_psnr`` alone
+    views = TrainOnlyView(scene, fold_ids, sc.scale, readable=fold_ids)
+    scored = TrainOnlyView(scene, fold_ids, sc.scale)
     init_dir = out_dir / "init"
     if "init" not in parts.seconds:
         t0 = time.perf_counter()
@@ -131,13 +152,15 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
     background = torch.tensor(cfg1.background, dtype=torch.float32)
     backend = cfg1.backend
     if "skip" not in parts.psnr:
-        parts.finish("skip", psnr=_held_back_psnr(base, views, held, eval_frames, backend, background))
+        parts.finish("skip", psnr=_held_back_psnr(base, scored, held, eval_frames, backend, background))
+    if config.restorer.kind == "learned":  # the run's restorer learned from the held-back camera's frames
+        restorer = _fold_restorer(views, init_dir, cfg1, base, out_dir, config, parts, progress)
 
     def candidate(name: str, trainer) -> None:
         """Train a candidate from the fold's model, score the held-back camera, record both."""
         model, seconds = _train(trainer, progress)
         t0 = time.perf_counter()
-        score = _held_back_psnr(model, views, held, eval_frames, backend, background)
+        score = _held_back_psnr(model, scored, held, eval_frames, backend, background)
         parts.finish(name, seconds + time.perf_counter() - t0, score)
 
     if "continue" not in parts.psnr:
@@ -163,7 +186,8 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
         "settings": {"lambda_gen": config.stage2.lambda_gen, "pseudo_mask": config.stage2.pseudo_mask,
                      "stage2_iterations": config.stage2.total_iterations, "restorer": config.restorer.kind,
                      "tie_db": sc.tie_db, "allow_skip": sc.allow_skip},
-        "seconds": {k: parts.seconds[k] for k in ("init", "stage1", "continue", "refine")},
+        "seconds": {k: parts.seconds[k] for k in ("init", "stage1", "restorer", "continue", "refine")
+                    if k in parts.seconds},
         "reason": _reason(decision, psnr, sc.tie_db),
     }
     atomic.write_json(out_dir / DECISION_FILE, record)

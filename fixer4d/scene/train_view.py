@@ -34,15 +34,24 @@ class TrainOnlyView:
     Attributes as a MultiViewVideo: ``name``, ``train_ids`` (the cameras a stage may train on),
     ``test_ids`` (empty), ``num_frames``, ``fps``, ``cameras`` (every camera, scaled: poses of
     held-out cameras are not data), ``train_cameras``; methods ``time``, ``bounds``, ``frame``,
-    ``mask``, ``depth``, ``describe``. Frames of any of ``base.train_ids`` may be read (a
-    leave-one-out fold scores its held-back train camera); anything else raises HeldOutAccess.
+    ``mask``, ``depth``, ``describe``. Frames of the ``readable`` cameras may be read (default: any
+    of ``base.train_ids``, so that a leave-one-out fold can score its held-back train camera; a
+    fold's own stages get a view whose ``readable`` are its train cameras only); anything else
+    raises HeldOutAccess.
     """
 
-    def __init__(self, base, train_ids: Sequence[int] | None = None, scale: float = 1.0) -> None:
+    def __init__(self, base, train_ids: Sequence[int] | None = None, scale: float = 1.0,
+                 readable: Sequence[int] | None = None) -> None:
         allowed = set(int(i) for i in base.train_ids)
         train_ids = list(base.train_ids) if train_ids is None else [int(i) for i in train_ids]
         if not set(train_ids) <= allowed:
             raise InputError(f"train-only view: cameras {sorted(set(train_ids) - allowed)} are not train cameras")
+        if readable is not None:
+            readable_set = set(int(i) for i in readable)
+            if not set(train_ids) <= readable_set <= allowed:
+                raise InputError(f"train-only view: readable cameras {sorted(readable_set)} must hold the train "
+                                 f"cameras {train_ids} and be train cameras of {base.name}")
+            allowed = readable_set
         if not scale > 0:
             raise InputError(f"train-only view: scale must be > 0, got {scale}")
         self._base = base
@@ -55,6 +64,12 @@ class TrainOnlyView:
         self.scale = float(scale)
         self.cameras: list[Camera] = [c.scaled(scale) if scale != 1.0 else c for c in base.cameras]
         self._frames: OrderedDict[tuple[int, int], np.ndarray] = OrderedDict()
+
+    @property
+    def readable_ids(self) -> list[int]:
+        """The cameras whose frames this view reads (its train cameras and, by default, the base
+        scene's other train cameras), sorted."""
+        return sorted(self._allowed)
 
     @property
     def train_cameras(self) -> list[Camera]:

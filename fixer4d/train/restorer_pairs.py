@@ -76,7 +76,7 @@ def _nearest(views: TrainOnlyView, target: int, candidates: Sequence[int]) -> li
 
 def pair_request(model, views: TrainOnlyView, target: int, frame: int, backend: str, background) -> RestoreRequest:
     """A one-frame request at train camera ``target`` with references and extras from the other train cameras."""
-    others = _nearest(views, target, [i for i in views._allowed if i != target])
+    others = _nearest(views, target, [i for i in views.readable_ids if i != target])
     if len(others) < 2:
         raise InputError("restorer pairs: need at least 3 train cameras (a target and two references)")
     refs, extras = others[:2], others[2:]

@@ -138,3 +138,76 @@ def test_a_changed_tie_decides_again_from_the_finished_fold(tiny_run, tmp_path, 
     rows = {r["method"]: r for r in report["rows"]}
     assert rows["Full"]["psnr"] == rows["STGS w/ MVS"]["psnr"]
     assert "more than 100 dB" in (run_dir / "report.md").read_text()
+
+
+class HeldBackSpy:
+    """A scene that records every read of one train camera's frame, mask or depth, and where it
+    came from: reads made to score that camera (``_held_back_psnr`` on the call stack) are
+    counted, any other is a violation (what, the innermost fixer4d function)."""
+
+    SCORING = "_held_back_psnr"
+
+    def __init__(self, scene, cam: int) -> None:
+        self._scene, self.cam = scene, int(cam)
+        self.violations: list[tuple[str, str]] = []
+        self.scoring_reads = 0
+
+    def __getattr__(self, name):
+        return getattr(self._scene, name)
+
+    def _check(self, what: str, cam: int) -> None:
+        import inspect
+
+        if int(cam) != self.cam:
+            return
+        stack = inspect.stack(context=0)
+        if any(f.function == self.SCORING for f in stack):
+            self.scoring_reads += 1
+            return
+        inner = next((f"{f.filename.split('fixer4d/')[-1]}:{f.function}" for f in stack[2:] if "/fixer4d/" in f.filename),
+                     "?")
+        self.violations.append((what, inner))
+
+    def frame(self, frame, cam):
+        self._check("frame", cam)
+        return self._scene.frame(frame, cam)
+
+    def mask(self, frame, cam):
+        self._check("mask", cam)
+        return self._scene.mask(frame, cam)
+
+    def depth(self, frame, cam):
+        self._check("depth", cam)
+        return self._scene.depth(frame, cam)
+
+
+def test_the_held_back_camera_reaches_nothing_in_its_fold(tmp_path):
+    import json
+
+    # a learned restorer: the run's learned from every train camera, so the fold trains its own
+    config = tiny_config(**{"restorer.kind": "learned", "restorer.learned.loo_iterations": 10,
+                            "restorer.learned.steps": 10, "restorer.learned.pair_frames": 2,
+                            "self_check.eval_frames": 2})
+    base = load_scene_for(config)
+    held = base.train_ids[config.self_check.fold % len(base.train_ids)]
+    scene = HeldBackSpy(base, held)
+    record = run_self_check(scene, config, tmp_path / "check", restorer=None)
+    assert scene.violations == []  # init, trainings, densification, restorer pairs, pseudo-views
+    assert scene.scoring_reads > 0  # the spy is wired in: the score reads the camera
+    assert record["held_back_camera"] == held and "restorer" in record["seconds"]
+    fold_restorer = json.loads((tmp_path / "check" / "restorer" / "validation.json").read_text())
+    assert fold_restorer["held_out_fold_camera"] in record["fold_cameras"]
+    for pairs in (tmp_path / "check" / "restorer" / "pairs").glob("fold_*.npz"):
+        with np.load(pairs) as data:
+            assert held not in set(data["cams"].tolist())
+
+
+def test_a_fold_view_refuses_the_held_back_camera(tiny_scene):
+    import pytest
+
+    from fixer4d.scene.train_view import HeldOutAccess, TrainOnlyView
+
+    held, fold = tiny_scene.train_ids[3], tiny_scene.train_ids[:3]
+    TrainOnlyView(tiny_scene, fold).frame(0, held)  # a plain fold view may score it
+    with pytest.raises(HeldOutAccess):
+        TrainOnlyView(tiny_scene, fold, readable=fold).frame(0, held)

@@ -1,0 +1,139 @@
+"""Portable numerics: the same digits on every x86-64 host, Intel or AMD, AVX2 or AVX-512.
+
+The libraries fixer4d computes with choose their machine code by the CPU they find at run time,
+and the choices round differently:
+
+* ATen (torch's CPU kernels): an AVX-512 or an AVX2 build of each vectorized op (exp, sums,
+  reductions split by vector width);
+* MKL (torch's matmul and LAPACK): vendor- and ISA-specific kernels, a different summation order on
+  an AMD host than on an Intel one;
+* oneDNN (torch's convolutions: the learned restorer, LPIPS): JIT kernels per ISA;
+* OpenBLAS (numpy's matmul) and numpy's own SIMD loops (exp, log, sin: AVX-512 variants with
+  other last-bit results);
+* numba (the rasterizer, the loss, the plane sweep): LLVM compiles for the host CPU's name and
+  features, so vector widths, and with them every ``reassoc`` reduction, follow the host.
+
+Left to themselves these made the same commit's demo rows differ by 0.25 dB between a 2-core
+Intel Xeon and a 2-core AMD EPYC host, and the stage-2 self-check's fold by 1.9 dB (issue 42).
+``portable`` mode (the default) pins every one of them to the AVX2 + FMA code paths that every
+x86-64 server of the last decade runs alike; ``host`` mode (``FIXER4D_NUMERICS=host``) leaves
+them to pick the fastest path for the host, whose digits then depend on the CPU.
+
+The pins are environment variables each library reads once, when it loads, so ``apply`` runs in
+``fixer4d/__init__`` before torch, numpy or numba is imported; ``status`` reports what took
+effect (a library imported before fixer4d keeps its own choice) and every run records it.
+What is not pinned: the thread count (torch's and numba's parallel reductions split work by it;
+the 2-core machines this project targets all use 2) and CUDA, whose atomics make gsplat's
+backward non-deterministic in any case.
+"""
+from __future__ import annotations
+
+import os
+import sys
+from typing import Any
+
+ENV_MODE = "FIXER4D_NUMERICS"
+MODES = ("portable", "host")
+
+# numba: the Haswell CPU model (AVX2, FMA) with no AVX-512 feature, whatever the host has;
+# naming the features too keeps numba from adding the host's (it does whenever only the name is set).
+NUMBA_CPU = "haswell"
+NUMBA_FEATURES = "+64bit,+avx,+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,+movbe,+popcnt,+sse4.2,+cx16,-avx512f"
+
+#: Every library's pin in portable mode. numpy's names are its dispatch groups (2.x): X86_V4 is
+#: its AVX-512 baseline group, AVX512_ICL / AVX512_SPR the later AVX-512 extensions; OpenCV's
+#: wheel dispatches up to its AVX512-SKX group (an unknown name there prints a warning per process).
+PORTABLE_ENV: dict[str, str] = {
+    "ATEN_CPU_CAPABILITY": "avx2",
+    "MKL_CBWR": "AVX2,STRICT",
+    "MKL_ENABLE_INSTRUCTIONS": "AVX2",
+    "ONEDNN_MAX_CPU_ISA": "AVX2",
+    "DNNL_MAX_CPU_ISA": "AVX2",
+    "OPENBLAS_CORETYPE": "Haswell",
+    "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",
+    "NUMBA_CPU_NAME": NUMBA_CPU,
+    "NUMBA_CPU_FEATURES": NUMBA_FEATURES,
+    "OPENCV_CPU_DISABLE": "AVX512-SKX",
+}
+
+# Modules that read a pin when they load: apply() after any of them is too late for that pin.
+_PIN_READERS = ("torch", "numpy", "numba", "cv2")
+
+
+def mode() -> str:
+    """The numerics mode asked for by ``FIXER4D_NUMERICS`` (default ``portable``)."""
+    value = os.environ.get(ENV_MODE, "portable").strip().lower() or "portable"
+    if value not in MODES:
+        raise ValueError(f"{ENV_MODE}={value!r}: choose one of {', '.join(MODES)}")
+    return value
+
+
+def apply() -> list[str]:
+    """In portable mode, set every pin of ``PORTABLE_ENV`` (overriding the environment: a host's own
+    choice, e.g. an OPENBLAS_CORETYPE of its CPU, is what portable mode must not follow). Returns
+    the names of the libraries already imported, for which it comes too late (empty when in time
+    or in host mode)."""
+    if mode() != "portable":
+        return []
+    os.environ.update(PORTABLE_ENV)
+    return [name for name in _PIN_READERS if name in sys.modules]
+
+
+def _numba_target() -> dict[str, str] | None:
+    if "numba" not in sys.modules:
+        return None
+    from numba.core import config
+
+    return {"cpu_name": config.CPU_NAME or "host", "cpu_features": config.CPU_FEATURES or "host"}
+
+
+def status() -> dict[str, Any]:
+    """What the libraries loaded so far actually use: ``{"mode", "portable": bool, ...}``.
+    ``portable`` is True only when every loaded library follows its pin; a library not loaded yet
+    is reported as None and will follow its pin when it loads."""
+    out: dict[str, Any] = {"mode": mode()}
+    checks: list[bool] = []
+    if "torch" in sys.modules:
+        import torch
+
+        cap = torch.backends.cpu.get_cpu_capability()
+        out["aten_cpu_capability"] = cap
+        checks.append(cap in ("AVX2", "DEFAULT"))
+        out["torch_threads"] = torch.get_num_threads()
+    if "numpy" in sys.modules:
+        try:
+            from numpy._core._multiarray_umath import __cpu_features__
+        except ImportError:  # numpy < 2
+            from numpy.core._multiarray_umath import __cpu_features__
+        on = sorted(k for k in ("X86_V4", "AVX512_SKX", "AVX512_ICL", "AVX512_SPR") if __cpu_features__.get(k))
+        out["numpy_avx512"] = on
+        checks.append(not on)
+    target = _numba_target()
+    if target is not None:
+        out["numba"] = target
+        checks.append(target["cpu_name"] == NUMBA_CPU and target["cpu_features"] == NUMBA_FEATURES)
+    if "cv2" in sys.modules:
+        import cv2
+
+        wide = [f for f in cv2.getCPUFeaturesLine().split() if f.startswith("*AVX512") and not f.endswith("?")]
+        out["opencv_avx512"] = wide
+        checks.append(not wide)
+    out["env"] = {k: os.environ.get(k) for k in PORTABLE_ENV}
+    out["portable"] = out["mode"] == "portable" and all(checks) and all(
+        os.environ.get(k) == v for k, v in PORTABLE_ENV.items())
+    return out
+
+
+def describe() -> str:
+    """One line for logs and reports: the mode and whether it took effect."""
+    s = status()
+    if s["mode"] == "host":
+        return "numerics: host (the libraries' fastest code paths for this CPU; digits depend on the CPU)"
+    if s["portable"]:
+        return "numerics: portable (AVX2 code paths pinned in ATen, MKL, oneDNN, OpenBLAS, numpy, numba, OpenCV)"
+    late = [k for k in ("aten_cpu_capability", "numpy_avx512", "numba", "opencv_avx512") if k in s]
+    return (f"numerics: portable asked for but not in effect ({', '.join(f'{k}={s[k]}' for k in late)}): a library "
+            f"was imported before fixer4d; import fixer4d first")
+
+
+__all__ = ["ENV_MODE", "MODES", "PORTABLE_ENV", "mode", "apply", "status", "describe"]

@@ -1,0 +1,80 @@
+"""`fixer4d bench quality` (fixer4d/bench/quality.py): Student-t intervals, paired differences per
+seed, resumable runs through the README's commands (a fake runner writes the run folders here)."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from fixer4d.bench import quality as Q
+
+
+def test_t_quantiles_and_intervals():
+    for df, t in ((1, 12.7062), (2, 4.3027), (4, 2.7764), (30, 2.0423)):
+        assert Q.student_t_quantile(0.975, df) == pytest.approx(t, abs=1e-3)
+    iv = Q.interval([25.34, 24.57, 24.97, None])
+    assert iv["n"] == 3 and iv["mean"] == pytest.approx(24.96)
+    assert iv["sd"] == pytest.approx(0.3851, abs=1e-4)
+    assert iv["ci95"] == pytest.approx(4.3027 * 0.3851 / math.sqrt(3), abs=1e-3)
+    assert Q.interval([1.0])["ci95"] is None and Q.interval([])["mean"] is None
+
+
+def _record(seed: int, mvs: float, full: float, matched: float, decision: str = "skip") -> dict:
+    rows = [{"method": "STGS w/ MVS", "status": "ok", "psnr": mvs, "lpips": 0.1},
+            {"method": "STGS w/ MVS (matched iterations)", "status": "ok", "psnr": matched, "lpips": 0.1},
+            {"method": "Full", "status": "ok", "psnr": full, "lpips": 0.09},
+            {"method": "STGS w/ COLMAP", "status": "failed", "reason": "no points"}]
+    return {"seed": seed, "rows": rows, "self_check": {"decision": decision}}
+
+
+def test_paired_differences_are_steadier_than_the_rows():
+    # seeds move both rows by ±1 dB together; their difference is always about +0.2 dB
+    records = [_record(0, 25.0, 25.2, 25.1), _record(1, 24.0, 24.21, 24.1), _record(2, 26.0, 26.19, 26.1, "refine")]
+    s = Q.summarize_split(records)
+    assert s["rows"]["STGS w/ MVS"]["psnr"]["ci95"] > 2.0
+    diff = s["paired"]["Full - STGS w/ MVS"]["psnr"]
+    assert diff["mean"] == pytest.approx(0.2, abs=1e-9) and diff["ci95"] < 0.05
+    assert "STGS w/ COLMAP" not in s["rows"]  # a failed row has no figure to average
+    assert s["self_check"] == ["skip", "skip", "refine"]
+
+
+def test_the_bench_runs_each_set_once_and_summarizes(tmp_path, monkeypatch):
+    calls = []
+
+    def fake_runner(argv, log):
+        calls.append(argv[3:])
+        verb = argv[3]
+        if verb == "run":
+            run = Path(argv[argv.index("--out") + 1])
+            seed = int(argv[argv.index("--seed") + 1])
+            run.mkdir(parents=True)
+            (run / "config.json").write_text(json.dumps({"source_commit": "abc1234"}))
+            rec = _record(seed, 24 + seed, 24.3 + seed, 24.2 + seed)
+            (run / "report.json").write_text(json.dumps({"rows": rec["rows"], "self_check": rec["self_check"],
+                                                         "numerics": {"mode": "portable", "portable": True}}))
+        else:  # eval --cameras-from
+            run = Path(argv[4])
+            val = run / "heldout" / Path(argv[argv.index("--cameras-from") + 1]).name
+            val.mkdir(parents=True)
+            (val / "report.json").write_text(json.dumps({"rows": _record(0, 25, 25.1, 25.0)["rows"], "run": str(run)}))
+
+    sets = Q.camera_sets(tmp_path / "data")
+    for seed in (0, 1):
+        Q.run_set(sets["demo"], seed, tmp_path / "runs", tmp_path / "out", log=lambda m: None, runner=fake_runner)
+    assert [c[0] for c in calls] == ["run", "eval", "run", "eval"]
+    Q.run_set(sets["demo"], 0, tmp_path / "runs", tmp_path / "out", log=lambda m: None, runner=fake_runner)
+    assert len(calls) == 4  # a finished seed is read back, not run again
+    summary = Q.summarize(tmp_path / "out")
+    assert set(summary) == {"demo", "demo_val"}
+    assert summary["demo"]["seeds"] == [0, 1] and summary["demo"]["numerics"] == ["portable"]
+    assert summary["demo"]["paired"]["Full - STGS w/ MVS"]["psnr"]["mean"] == pytest.approx(0.3)
+    table = Q.markdown(summary)
+    assert "| [demo](benchmarks/results/quality/demo_seed0.json) (0, 1) |" in table and "+0.30 ± 0.00" in table
+    assert table.index("| [demo]") < table.index("*demo_val*")  # test splits first
+
+
+def test_a_set_whose_data_is_absent_says_so(tmp_path):
+    assert "absent" in Q.camera_sets(tmp_path / "nowhere")["panoptic"].available()
+    assert Q.camera_sets(tmp_path)["demo"].available() is None

@@ -1,0 +1,103 @@
+"""Portable numerics (fixer4d/numerics.py): the same bytes on any x86-64 host. Hosts are emulated on
+this one machine by forcing each library's choice the way another CPU would make it (numba's CPU
+name and features, ATen's capability, MKL's and OpenBLAS's code paths, numpy's dispatch): in host
+mode the choices reach the bytes, in portable mode (the default) they do not, down to a whole
+tiny pipeline's model and report."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from fixer4d import numerics
+
+PROBE = Path(__file__).with_name("numerics_probe.py")
+# What an AVX-512 Intel Xeon's libraries pick, and what an AVX2-only AMD EPYC's (Zen 3) pick.
+INTEL_AVX512 = {"NUMBA_CPU_NAME": "skylake-avx512",
+                "NUMBA_CPU_FEATURES": "+avx512f,+avx512dq,+avx512bw,+avx512vl,+avx512cd,+avx2,+fma,-prefer-256-bit",
+                "ATEN_CPU_CAPABILITY": "avx512", "MKL_CBWR": "AVX512", "OPENBLAS_CORETYPE": "SkylakeX",
+                "NPY_DISABLE_CPU_FEATURES": ""}
+AMD_AVX2 = {"NUMBA_CPU_NAME": "znver3", "NUMBA_CPU_FEATURES": "+avx2,+fma,-avx512f", "ATEN_CPU_CAPABILITY": "avx2",
+            "MKL_CBWR": "AVX2", "OPENBLAS_CORETYPE": "Zen", "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",
+            "ONEDNN_MAX_CPU_ISA": "AVX2", "OPENCV_CPU_DISABLE": "AVX512-SKX"}
+
+
+def _avx512_host() -> bool:
+    try:
+        return " avx512f " in f" {Path('/proc/cpuinfo').read_text().split('flags')[1].splitlines()[0]} "
+    except (OSError, IndexError):
+        return False
+
+
+def _env(mode: str, host: dict[str, str]) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k not in numerics.PORTABLE_ENV}
+    return {**env, **host, numerics.ENV_MODE: mode}
+
+
+def _probe(mode: str, host: dict[str, str]) -> dict:
+    done = subprocess.run([sys.executable, str(PROBE)], env=_env(mode, host), capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_portable_mode_gives_the_same_bytes_under_every_emulated_host():
+    intel, amd = _probe("portable", INTEL_AVX512), _probe("portable", AMD_AVX2)
+    assert intel["portable"] and amd["portable"]
+    assert intel["hashes"] == amd["hashes"]
+
+
+@pytest.mark.skipif(not _avx512_host(), reason="emulating an AVX-512 host's code paths needs an AVX-512 CPU")
+def test_host_mode_follows_the_host_so_the_emulation_reaches_the_libraries():
+    intel, amd = _probe("host", INTEL_AVX512), _probe("host", AMD_AVX2)
+    assert not intel["portable"] and not amd["portable"]
+    differ = {k for k in intel["hashes"] if intel["hashes"][k] != amd["hashes"][k]}
+    # OpenBLAS's kernels and numba's vector width round differently on the two hosts (what made the
+    # same commit's rows differ between an Intel and an AMD machine)
+    assert {"numpy_mm", "numba_reassoc"} <= differ
+
+
+def test_status_reports_a_library_loaded_before_the_pins():
+    code = ("import numpy, torch; import fixer4d; from fixer4d import numerics; "
+            "import json; print(json.dumps(numerics.status()))")
+    env = _env("portable", INTEL_AVX512)
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    status = json.loads(done.stdout.strip().splitlines()[-1])
+    assert status["mode"] == "portable"
+    if _avx512_host():  # numpy loaded with the emulated host's AVX-512 loops: reported, not hidden
+        assert status["portable"] is False and status["numpy_avx512"]
+
+
+def test_an_unknown_mode_is_refused(monkeypatch):
+    monkeypatch.setenv(numerics.ENV_MODE, "fast")
+    with pytest.raises(ValueError, match="portable, host"):
+        numerics.mode()
+
+
+def test_a_tiny_pipeline_gives_the_same_model_and_report_on_two_emulated_hosts(tmp_path):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("pipeline_tiny", Path(__file__).parents[1] / "pipeline" / "pipeline_tiny.py")
+    tiny = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tiny)
+    TINY = tiny.TINY
+    sets = [f"{k}={json.dumps(v) if not isinstance(v, str) else v}" for k, v in {**TINY, "baseline_sparse": False}.items()]
+    outputs = []
+    for name, host in (("intel", INTEL_AVX512), ("amd", AMD_AVX2)):
+        run = tmp_path / name
+        argv = [sys.executable, "-m", "fixer4d.cli", "run", "tiny", "--out", str(run), "--quiet"]
+        for s in sets:
+            argv += ["--set", s]
+        done = subprocess.run(argv, env=_env("portable", host), capture_output=True, text=True, timeout=900)
+        assert done.returncode == 0, done.stderr[-3000:]
+        report = json.loads((run / "report.json").read_text())
+        rows = [{k: v for k, v in r.items() if k != "seconds"} for r in report["rows"]]
+        outputs.append(((run / "model_final.ply").read_bytes(), (run / "model_stage1.ply").read_bytes(), rows,
+                        report["numerics"]["portable"]))
+    assert outputs[0][3] and outputs[1][3]
+    assert outputs[0][0] == outputs[1][0] and outputs[0][1] == outputs[1][1]
+    assert outputs[0][2] == outputs[1][2]
