@@ -59,28 +59,40 @@ def camera_of(path: str, names: list[str]) -> str | None:
 def read_calibration(path: str | Path, names: list[str]) -> Rig:
     """Read any supported calibration and keep the cameras named ``names`` (in that order).
 
-    Raises InputError naming the file when it cannot be read or lacks one of ``names``.
+    Raises InputError naming the file when it cannot be read, lacks one of ``names`` or (a rig.json)
+    calibrates a camera that ``names`` lacks.
     """
     path = Path(path)
     if not path.exists():
         raise InputError(f"--calibration {path}: no such file or folder")
+    through_paths = False  # COLMAP and nerfstudio name a camera through its image paths
     if path.is_dir() or path.name in _COLMAP_FILES or path.name in ("images.bin", "images.txt"):
         rig = read_colmap(path if path.is_dir() else path.parent, names)
+        through_paths = True
     elif path.suffix == ".npy":
         rig = read_llff(path, names)
     elif path.suffix == ".json":
-        from fixer4d.scene.base import read_json_object
+        from fixer4d.jsonfile import read_json_object
 
         data = read_json_object(path, str(path), "pass a rig.json, transforms.json, poses_bounds.npy or COLMAP model")
-        rig = read_transforms(path, names) if "frames" in data else read_rig_json(path)
+        through_paths = "frames" in data
+        rig = read_transforms(path, names) if through_paths else read_rig_json(path)
     else:
         raise InputError(f"--calibration {path}: unknown calibration format; pass a rig.json, a nerfstudio "
                          f"transforms.json, a poses_bounds.npy or a COLMAP sparse model folder (cameras.bin/images.bin)")
     by_name = rig.by_name()
     missing = [n for n in names if n not in by_name]
     if missing:
-        raise InputError(f"{path}: no camera named {missing} (it has {sorted(by_name)}); name the calibration's "
-                         f"images after the capture's videos/folders (e.g. cam01.png or cam01/000000.jpg)")
+        fix = ("name the calibration's images after the capture's videos/folders (e.g. cam01.png or "
+               "cam01/000000.jpg)" if through_paths else
+               "rename the videos/folders after the calibration's cameras, or the cameras in the calibration "
+               "after the videos")
+        raise InputError(f"{path}: no camera named {missing} (it has {sorted(by_name)}); {fix}")
+    orphans = sorted(set(by_name) - set(names))
+    if orphans:
+        raise InputError(f"{path}: calibrates cameras {orphans} that have no video or image folder in the capture "
+                         f"(its cameras: {names}); a run uses every calibrated camera: add their videos, or remove "
+                         f"them from the calibration to run on the {len(names)} cameras there are")
     rig.cameras = [by_name[n] for n in names]
     return rig
 
@@ -111,7 +123,7 @@ def read_colmap(folder: Path, names: list[str]) -> Rig:
 
 def read_transforms(path: Path, names: list[str]) -> Rig:
     """nerfstudio transforms.json -> Rig."""
-    from fixer4d.scene.base import read_json_object
+    from fixer4d.jsonfile import read_json_object
 
     data = read_json_object(path, str(path), "re-export it (nerfstudio ns-process-data)")
     frames = data.get("frames")
@@ -145,7 +157,7 @@ def read_transforms(path: Path, names: list[str]) -> Rig:
 
 def read_llff(path: Path, names: list[str]) -> Rig:
     """poses_bounds.npy (rows in sorted camera-name order) -> Rig."""
-    from fixer4d.scene.n3dv import llff_to_cameras, read_poses_bounds
+    from fixer4d.geometry.llff import llff_to_cameras, read_poses_bounds
 
     pb = read_poses_bounds(path)
     if pb.ndim == 2 and pb.shape[0] != len(names):

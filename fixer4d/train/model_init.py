@@ -69,9 +69,15 @@ def model_from_clouds(clouds: Sequence[Any], scene: MultiViewVideo, config: Stag
         points, colors, times, group = points[keep], colors[keep], times[keep], group[keep]
 
     scales = np.zeros(points.shape[0])
+    lone = np.zeros(points.shape[0], bool)
     for g in np.unique(group):
         sel = group == g
-        scales[sel] = knn_scales(points[sel]) if sel.sum() >= 2 else np.nan
+        if sel.sum() >= 2:
+            scales[sel] = knn_scales(points[sel])
+        else:
+            lone |= sel
+    if lone.any():  # a frame's only point has no neighbour in its frame: measure it against every frame's
+        scales[lone] = knn_scales(points)[lone]
     if points.shape[0] < MIN_INIT_POINTS:
         fb_points, fb_times = _fallback_points(scene, rng)
         log.warning("init has %d point(s) (< %d): adding %d random points inside the scene bounds; "

@@ -41,8 +41,20 @@ def test_capture_without_calibration_names_what_to_do(tmp_path, tiny4, capture_w
     scene, ids = tiny4
     capture_writer(scene, tmp_path, ids[:2])
     Rig(_true_rig(scene, ids).cameras[:1]).write(tmp_path / "rig.json")
-    with pytest.raises(InputError, match="no camera named"):
+    with pytest.raises(InputError, match="no camera named") as err:
         load_scene(tmp_path)
+    assert "images" not in str(err.value) and "rename the videos/folders" in str(err.value)
+
+
+def test_a_calibrated_camera_without_video_is_refused(tmp_path, tiny4, capture_writer):
+    """Three videos beside a four-camera rig.json: refused naming the camera, never run on three silently."""
+    scene, ids = tiny4
+    capture_writer(scene, tmp_path, ids[:3])
+    _true_rig(scene, ids).write(tmp_path / "rig.json")
+    orphan = scene.cameras[ids[3]].name
+    with pytest.raises(InputError, match=rf"calibrates cameras \['{orphan}'\] that have no video") as err:
+        load_scene(tmp_path)
+    assert "add their videos, or remove them from the calibration" in str(err.value)
 
 
 def test_offsets_synchronize_and_mismatches_are_refused(tmp_path, tiny4, capture_writer):
