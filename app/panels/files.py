@@ -60,7 +60,7 @@ def draw_menu(viewer) -> None:
                 viewer.open_version(p)
             viewer.record_item(f"menu_version_{p.name}")
         imgui.end_menu()
-    from app.panels import report
+    import app.panels.report as report
 
     report.draw_menu_item(viewer)
     imgui.separator()

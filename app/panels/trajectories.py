@@ -65,7 +65,7 @@ def draw(viewer) -> None:
 def file_row(viewer, ui: dict, field: str) -> None:
     """A path field (relative paths under the run/session folder, the full path shown below)
     with export and import buttons; errors go to the panel's guard."""
-    from app.panels import files
+    import app.panels.files as files
 
     imgui.text("preset file (fixer4d JSON)" if field == "preset" else "camera_path file (nerfstudio JSON)")
     imgui.set_next_item_width(-1)

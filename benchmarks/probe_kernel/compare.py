@@ -12,7 +12,7 @@ render() path (numba projection + current kernels). Every variant trains its own
 same model, and the variants take turns iteration by iteration, so a change in the machine's
 load hits them alike: on the shared 2-core machine only these ratios are meaningful, never
 the absolute seconds. All variants run with the same numba vector width (numba's CPU features
-are set once per process: see fixer4d/render/simd.py). Reports per variant median wall and
+are set once per process: see fixer4d/simd.py). Reports per variant median wall and
 process-CPU seconds per iteration, blended fragments, ns/fragment of wall, the ratios old/new
 and the load average.
 """
@@ -69,7 +69,7 @@ def main(argv=None) -> int:
     torch.set_num_threads(1)
     # before any kernel module (old ones included) makes numba build its CPU target: every
     # variant gets the library's vector width (16 lanes on AVX-512 unless FIXER4D_NUMBA_AVX512=0)
-    from fixer4d.render.simd import prefer_512_bit_vectors
+    from fixer4d.simd import prefer_512_bit_vectors
 
     print("numba CPU features set:", "host, -prefer-256-bit" if prefer_512_bit_vectors() else "default")
 

@@ -203,7 +203,7 @@ def machine_info(reference: bool = False) -> dict:
            "cgroup_cpu_quota": cgroup_cpu_quota(), "usable_cpus": usable_cpus(),
            "numba_threads": numba.get_num_threads(),
            "torch_threads": torch.get_num_threads(), "python": platform.python_version(),
-           # fixer4d/render/simd.py: 16-lane float32 loops on AVX-512 hosts unless switched off
+           # fixer4d/simd.py: 16-lane float32 loops on AVX-512 hosts unless switched off
            "numba_avx512_vectors": "-prefer-256-bit" in os.environ.get("NUMBA_CPU_FEATURES", ""),
            "torch": torch.__version__, "numba": numba.__version__, "platform": platform.platform(),
            "load_avg_1_5_15min": [round(x, 2) for x in os.getloadavg()]}

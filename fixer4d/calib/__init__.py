@@ -4,7 +4,7 @@
 an explicit calibration file, else one found beside the videos (``formats.find_calibration``),
 else ``calibrate_capture`` cached per capture under the user's cache folder, so a viewer or a
 second run does not repeat it. ``calibrate_capture`` is the one calibration of a capture without
-a calibration file (also `fixer4d run`'s, into its run folder: ``run.calibrate_into_run``): from
+a calibration file (also `fixer4d run`'s, into its run folder: ``fixer4d.pipeline.capture_rig``): from
 the board videos in CAPTURE/board/ when that holds a board.json (``board.find_board``), else a
 self-calibration (``sfm.calibrate_sfm`` checked by ``gate.check_rig``). ``calibrate`` is the
 self-calibration of `fixer4d calibrate`.
@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 from fixer4d.errors import InputError
 
-if TYPE_CHECKING:  # the package is imported by fixer4d.scene.capture (through calib.rig): no module-level cycle
+if TYPE_CHECKING:  # scene imports calib, never the other way
     from fixer4d.calib.rig import Rig
     from fixer4d.scene.capture import CaptureFiles
 
@@ -58,14 +58,14 @@ def calibrate_capture(files: "CaptureFiles", out: str | Path, progress: bool = T
     from fixer4d.calib.board import find_board
     from fixer4d.calib.board_calib import calibrate_board
     from fixer4d.calib.rig import read_rig_json
-    from fixer4d.scene.capture import CaptureFiles
 
     board = find_board(files.root)
     if progress:
         print(f"[fixer4d] {files.root}: no calibration file; calibrating the rig "
               f"{_origin(board[0] if board else None)} -> {out}", flush=True)
     if board:
-        calibrate_board(CaptureFiles(board[0]), board[1], files.names, progress=progress).write(out)
+        board_files = type(files)(board[0])  # the board videos, opened as a capture like ``files`` (calib never imports scene)
+        calibrate_board(board_files, board[1], files.names, progress=progress).write(out)
     else:
         calibrate(files, out, progress=progress)
     return read_rig_json(out)

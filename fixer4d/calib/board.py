@@ -115,7 +115,7 @@ class BoardSpec:
 
 def read_board_json(path: str | Path) -> BoardSpec:
     """A board.json; InputError naming the file and the bad entry."""
-    from fixer4d.scene.base import read_json_object
+    from fixer4d.jsonfile import read_json_object
 
     path = Path(path)
     fix = f"write one with `fixer4d calibrate --board {SPEC_SYNTAX.split(',')[0]} --write-board board.png`"

@@ -22,6 +22,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from itertools import combinations
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
@@ -31,7 +32,9 @@ from fixer4d.calib.gate import MAX_REPROJECTION_PX, field_of_view_problems
 from fixer4d.calib.rig import Rig, RigCamera, distort_points
 from fixer4d.calib.sfm import spread_frames
 from fixer4d.errors import InputError
-from fixer4d.scene.capture import CaptureFiles
+
+if TYPE_CHECKING:  # calib reads a capture's frames through the object it is given; scene imports calib
+    from fixer4d.scene.capture import CaptureFiles
 
 # Frames sampled per camera: a board waved for a minute at 30 fps shows ~60 distinct poses once
 # spread over the clip; calibrateCamera stays well under a second per camera with that many views.

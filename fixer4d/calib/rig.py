@@ -118,7 +118,7 @@ def rig_from_cameras(cameras: list[Camera], source: str, scale: str) -> Rig:
 
 def read_rig_json(path: str | Path) -> Rig:
     """Read fixer4d's rig.json; InputError naming the file and the bad entry."""
-    from fixer4d.scene.base import read_json_object
+    from fixer4d.jsonfile import read_json_object
 
     path = Path(path)
     fix = "rewrite it with `fixer4d calibrate CAPTURE --out rig.json`"

@@ -19,6 +19,7 @@ import time
 from dataclasses import dataclass
 from itertools import combinations
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
@@ -26,7 +27,9 @@ from tqdm import tqdm
 from fixer4d.calib.colmap import pycolmap_module, quiet, rig_camera_from_colmap
 from fixer4d.calib.rig import Rig, RigCamera
 from fixer4d.errors import InputError
-from fixer4d.scene.capture import CaptureFiles
+
+if TYPE_CHECKING:  # calib reads a capture's frames through the object it is given; scene imports calib
+    from fixer4d.scene.capture import CaptureFiles
 
 # Timestamps pooled per camera pair: 12 spread frames give a 4-camera rig several thousand
 # matches per overlapping pair while SIFT over all 48 frames stays a few seconds at 640x360.

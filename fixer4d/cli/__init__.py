@@ -27,6 +27,7 @@ VERBS: dict[str, tuple[str, str]] = {
     "bench": ("fixer4d.cli.bench", "benchmarks that print and save their numbers (raycast, raster, train-step, ...)"),
     "export": ("fixer4d.cli.export", "convert a model (.ply/.npz) or a run's latest model"),
     "render": ("fixer4d.cli.render", "a video or PNG frames of a model along a camera path, rig camera or trajectory"),
+    "fetch-lpips": ("fixer4d.cli.fetch_lpips", "download the LPIPS-alex weights the metrics use (make setup runs it)"),
 }
 
 

@@ -8,7 +8,7 @@ def _check_llff_scale(scene, spec: str, scale: float) -> None:
     """The Neural3DV layout stores one focal and a centred principal point per camera; a scale that
     rounds the image to a size breaking that is refused with scales near it that work."""
     from fixer4d.errors import InputError
-    from fixer4d.scene.n3dv import llff_compatible
+    from fixer4d.geometry.llff import llff_compatible
     from fixer4d.scene.synthetic import SyntheticScene
 
     if all(llff_compatible(c) for c in scene.cameras):

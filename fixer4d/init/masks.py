@@ -36,7 +36,7 @@ import numpy as np
 
 from fixer4d.atomic import atomic_path
 from fixer4d.errors import InputError
-from fixer4d.init import constants as C
+import fixer4d.init.constants as C
 
 MASKS_NAME = "masks.npz"
 

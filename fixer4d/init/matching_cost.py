@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 
 from fixer4d.geometry.camera import Camera
-from fixer4d.init import constants as C
+import fixer4d.init.constants as C
 
 
 def _box(x: torch.Tensor, k: int) -> torch.Tensor:

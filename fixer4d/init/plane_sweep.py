@@ -34,7 +34,7 @@ import torch
 
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
-from fixer4d.init import constants as C
+import fixer4d.init.constants as C
 from fixer4d.init.consistency import geometric_consistency
 from fixer4d.init.depth_estimator import DepthResult, check_views
 from fixer4d.init.depth_range import default_depth_ranges

@@ -23,7 +23,7 @@ from fixer4d.calib.colmap import pycolmap_module as _pycolmap
 from fixer4d.calib.colmap import quiet as quiet_colmap
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera, rig_extent
-from fixer4d.init import constants as C
+import fixer4d.init.constants as C
 
 POSE_ADVICE = ("supply poses instead: load the scene from a layout that carries them (Panoptic train_meta.json, "
                "Neural3DV poses_bounds.npy, a synthetic spec) and use `--poses given` (the default)")

@@ -20,7 +20,7 @@ from typing import Sequence
 import numpy as np
 
 from fixer4d.geometry.camera import Camera
-from fixer4d.init import constants as C
+import fixer4d.init.constants as C
 
 
 def surface_samples(depths: Sequence[np.ndarray], cameras: Sequence[Camera], *,

@@ -16,7 +16,7 @@ from typing import Any, Literal
 import numpy as np
 
 from fixer4d.errors import InputError
-from fixer4d.init import quality as Q
+import fixer4d.init.quality as Q
 from fixer4d.init.cloud import FrameCloud, save_frame_clouds
 from fixer4d.init.decompose import run_decomposed
 from fixer4d.init.depth_range import scene_depth_ranges

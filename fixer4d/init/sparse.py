@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fixer4d.geometry.camera import Camera
-from fixer4d.init import constants as C
+import fixer4d.init.constants as C
 from fixer4d.init.cloud import FrameCloud
 from fixer4d.init.poses import ColmapWorkspace
 

@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from fixer4d.geometry.camera import Camera
-from fixer4d.init import constants as C
+import fixer4d.init.constants as C
 
 
 def roi_boxes(mask: np.ndarray, margin: int) -> list[tuple[int, int, int, int]]:

@@ -214,7 +214,7 @@ def _read_config_file(config_file: str | Path | dict[str, Any]) -> dict[str, Any
     if isinstance(config_file, dict):
         data = config_file
     else:
-        from fixer4d.scene.base import read_json_object
+        from fixer4d.jsonfile import read_json_object
 
         path = Path(config_file)
         if not path.is_file():

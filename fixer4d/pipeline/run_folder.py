@@ -19,11 +19,11 @@ from pathlib import Path
 from typing import Any
 
 from fixer4d import atomic
-from fixer4d.calib.run import RUN_RIG_NAME
 from fixer4d.errors import InputError
+from fixer4d.jsonfile import read_json_object
 from fixer4d.pipeline import config_tree
+from fixer4d.pipeline.capture_rig import RUN_RIG_NAME
 from fixer4d.pipeline.config import FORMAT_VERSION, RunConfig, migrate_v1
-from fixer4d.scene.base import read_json_object
 
 log = logging.getLogger("fixer4d.pipeline")
 

@@ -30,13 +30,13 @@ def resolve_backend(backend: str, device: torch.device) -> str:
     if backend != "auto":
         return backend
     if device.type == "cuda":
-        from fixer4d.render import gsplat_backend
+        import fixer4d.render.gsplat_backend as gsplat_backend
 
         if gsplat_backend.unavailable_reason() is None:
             return "gsplat"
         raise BackendUnavailable(f"no CUDA rasterizer for CUDA tensors ({gsplat_backend.unavailable_reason()}); "
                                  "move the snapshot to the CPU or install gsplat")
-    from fixer4d.render import cpu
+    import fixer4d.render.cpu as cpu
 
     return "cpu" if cpu.unavailable_reason() is None else "reference"
 
@@ -98,7 +98,7 @@ def render(snapshot: Snapshot, camera: Camera, background: torch.Tensor | tuple 
     bg = _background(background, torch.float64 if float64 else torch.float32, device)  # checked before any work
     snapshot = guard_extremes(snapshot, camera)
     if name == "gsplat":
-        from fixer4d.render import gsplat_backend
+        import fixer4d.render.gsplat_backend as gsplat_backend
 
         return gsplat_backend.render(snapshot, camera, bg)
     if device.type != "cpu":

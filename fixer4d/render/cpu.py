@@ -15,8 +15,8 @@ import numpy as np
 import torch
 
 from fixer4d.jit import NUMBA_ERROR, numba, torch_threads_kept
-from fixer4d.render import constants as C
-from fixer4d.render import cpu_kernels as kernels
+import fixer4d.render.constants as C
+import fixer4d.render.cpu_kernels as kernels
 from fixer4d.render.project import Projection
 
 # numba is a core dependency, but "auto" must still work (via the oracle) without it

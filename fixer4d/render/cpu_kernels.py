@@ -38,7 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from fixer4d.jit import njit, numba, prange
-from fixer4d.render import constants as C
+import fixer4d.render.constants as C
 
 # float32 copies of the thresholds: numba would promote a float32 compared with a Python float
 # to float64, while torch compares float32 tensors with scalars in float32. Using float32

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from fixer4d.errors import InputError
-from fixer4d.restore import constants as C
+import fixer4d.restore.constants as C
 from fixer4d.restore.cogvideo import CogVideoConfig
 from fixer4d.restore.reference_warp import ReferenceWarpConfig
 

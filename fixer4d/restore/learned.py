@@ -38,7 +38,7 @@ import torch.nn.functional as F
 
 from fixer4d.atomic import atomic_path, write_json
 from fixer4d.errors import InputError
-from fixer4d.restore import constants as C
+import fixer4d.restore.constants as C
 from fixer4d.restore.base import ProgressFn, RestoreRequest, RestoreResult
 from fixer4d.restore.config import META_FILE, WEIGHTS_FILE, LearnedRestorerConfig, RestoreConfig
 from fixer4d.restore.reference_warp import FrameWarp, ReferenceWarpRestorer, sanitize_depth, smooth_along_clip

@@ -36,7 +36,7 @@ import numpy as np
 
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
-from fixer4d.restore import constants as C
+import fixer4d.restore.constants as C
 from fixer4d.restore.base import ProgressFn, RestoreRequest, RestoreResult
 
 # Divisions by accumulated weights use this floor; weights are O(1) when anything is known.

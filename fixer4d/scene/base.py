@@ -7,7 +7,6 @@ every frame in memory.
 from __future__ import annotations
 
 import abc
-import json
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -19,18 +18,6 @@ import numpy as np
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
 from fixer4d.geometry.rig import common_view_bounds
-
-
-def read_json_object(path: Path, label: str, fix: str) -> dict:
-    """A JSON file whose top level is an object; InputError naming ``label`` and ``fix`` when it
-    is not valid JSON or not an object (the caller checks that the file exists)."""
-    try:
-        data = json.loads(Path(path).read_text())
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{label}: not valid JSON ({exc}); {fix}") from None
-    if not isinstance(data, dict):
-        raise InputError(f"{label}: the top level must be a JSON object; {fix}")
-    return data
 
 
 def frame_time(frame: int, num_frames: int) -> float:

@@ -14,8 +14,8 @@ from tqdm import tqdm
 
 from fixer4d.atomic import atomic_dir, atomic_path, write_json
 from fixer4d.errors import InputError
+from fixer4d.geometry.llff import cameras_to_llff
 from fixer4d.scene.base import MultiViewVideo
-from fixer4d.scene.n3dv import cameras_to_llff
 from fixer4d.scene.video import VIDEO_CRF, write_video
 
 SCENE_JSON_VERSION = 1

@@ -13,7 +13,8 @@ import numpy as np
 
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
-from fixer4d.scene.base import FRAME_CACHE_MB, MultiViewVideo, read_json_object
+from fixer4d.jsonfile import read_json_object
+from fixer4d.scene.base import FRAME_CACHE_MB, MultiViewVideo
 
 # Panoptic Studio HD cameras record at 30 fps (the metadata carries no rate).
 PANOPTIC_FPS = 30.0

@@ -147,7 +147,7 @@ def test_opening_a_capture_calibrates_from_its_board_once(board_capture, board_r
 def test_a_camera_never_seeing_the_board_with_the_others_is_refused(tmp_path, capsys):
     """cam03 sees the board only in frames 0-5, the others only in 6-11: its pose cannot be tied
     to theirs. `fixer4d calibrate` and a run both refuse before writing a rig."""
-    from fixer4d.calib.run import calibrate_into_run
+    from fixer4d.pipeline.capture_rig import calibrate_into_run
     from fixer4d.pipeline.config import RunConfig
 
     cameras = build_rig(RIG)

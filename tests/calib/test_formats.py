@@ -10,7 +10,7 @@ from fixer4d.calib.formats import camera_of, find_calibration, read_calibration
 from fixer4d.calib.rig import Rig, RigCamera
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import CV_TO_GL
-from fixer4d.scene.n3dv import cameras_to_llff
+from fixer4d.geometry.llff import cameras_to_llff
 
 DIST = {"k1": -0.12, "k2": 0.03, "p1": 0.001, "p2": -0.002}
 

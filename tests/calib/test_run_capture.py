@@ -7,8 +7,8 @@ import dataclasses
 import pytest
 
 from fixer4d.calib.rig import Rig, RigCamera
-from fixer4d.calib.run import calibrate_into_run
 from fixer4d.errors import InputError
+from fixer4d.pipeline.capture_rig import calibrate_into_run
 from fixer4d.pipeline.config import RunConfig
 
 

@@ -19,7 +19,7 @@ def _weights_or_skip():
         return L.find_weights()
     except BackendUnavailable as exc:
         pytest.skip(f"LPIPS-alex weights absent ({exc}); run `make setup` or "
-                    "`python -m fixer4d.eval.lpips_weights fetch --dest .venv/share/fixer4d/lpips/alexnet.ckpt`")
+                    "`fixer4d fetch-lpips --dest .venv/share/fixer4d/lpips/alexnet.ckpt`")
 
 
 def _test_vector():

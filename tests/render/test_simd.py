@@ -21,7 +21,7 @@ import numpy as np
 if not os.environ.get("_FIXER4D_PROBE_PLAIN"):
     import fixer4d.render.cpu  # sets the features at import
 import numba
-from fixer4d.render import simd
+from fixer4d import simd
 
 @numba.njit
 def scale(x, out):

@@ -9,7 +9,8 @@ import pytest
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
 from fixer4d.scene import load_scene
-from fixer4d.scene.n3dv import Neural3DVScene, cameras_to_llff, llff_to_cameras, read_poses_bounds
+from fixer4d.geometry.llff import cameras_to_llff, llff_to_cameras, read_poses_bounds
+from fixer4d.scene.n3dv import Neural3DVScene
 from fixer4d.scene.synthetic import SyntheticScene, look_at_c2w
 from fixer4d.scene.video import VideoReader, probe_video, write_video
 

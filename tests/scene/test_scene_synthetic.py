@@ -9,7 +9,8 @@ import pytest
 
 from fixer4d.errors import InputError
 from fixer4d.scene import MultiViewVideo, SyntheticScene, load_scene, motion, raycast
-from fixer4d.scene.synthetic import builtin_spec_path, centre_camera
+from fixer4d.geometry.rig import centre_camera
+from fixer4d.scene.synthetic import builtin_spec_path
 
 
 def test_demo_rig_and_split():
