@@ -14,7 +14,7 @@ and the choices round differently:
   features, so vector widths, and with them every ``reassoc`` reduction, follow the host.
 
 Left to themselves these made the same commit's demo rows differ by 0.25 dB between a 2-core
-Intel Xeon and a 2-core AMD EPYC host, and the stage-2 self-check's fold by 1.9 dB (issue 42).
+Intel Xeon and a 2-core AMD EPYC host, and the stage-2 self-check's fold by 1.9 dB.
 ``portable`` mode (the default) pins every one of them to the AVX2 + FMA code paths that every
 x86-64 server of the last decade runs alike; ``host`` mode (``FIXER4D_NUMERICS=host``) leaves
 them to pick the fastest path for the host, whose digits then depend on the CPU.

@@ -27,7 +27,6 @@ import argparse
 import dataclasses
 import datetime
 import json
-import math
 import os
 import subprocess
 import sys
@@ -35,13 +34,15 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from fixer4d.stats import interval, student_t_quantile
+
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DATA_ROOT = REPO_ROOT.parent / "shared" / "data"
 DEFAULT_OUT = REPO_ROOT / "benchmarks" / "results" / "quality"
 DEFAULT_RUNS = Path("runs") / "quality"
 # The README's Panoptic settings (half resolution, 30 frames; the learned restorer).
 PANOPTIC_ARGS = ("--restorer", "learned", "--scale", "0.5", "--frames", "0:30", "--iterations", "1500",
-                 "--refresh-every", "200", "--set", "stage1.init_max_points=30000", "--set", "stage1.max_gaussians=40000",
+                 "--refresh-every", "200", "--set", "training.init_max_points=30000", "--set", "training.max_gaussians=40000",
                  "--set", "trajectories.frames=8", "--set", "trajectories.time_stride=6", "--set", "init_frame_stride=6",
                  "--set", "eval.stride=3")
 METRICS = ("psnr", "psnr_dynamic", "psnr_unobserved", "psnr_aligned", "lpips")
@@ -83,49 +84,6 @@ def camera_sets(data_root: Path = DATA_ROOT) -> dict[str, CameraSet]:
                       str(data_root / "panoptic_basketball_c_val"))]
     sets += [CameraSet(name, name, validation_only=True) for name in ("fast_thin", "slow_rigid", "static_matte")]
     return {s.name: s for s in sets}
-
-
-# ---------------------------------------------------------------- statistics
-
-def _t_pdf(x: float, df: int) -> float:
-    c = math.lgamma((df + 1) / 2) - math.lgamma(df / 2) - 0.5 * math.log(df * math.pi)
-    return math.exp(c - (df + 1) / 2 * math.log1p(x * x / df))
-
-
-def student_t_quantile(p: float, df: int) -> float:
-    """The p-quantile (0.5 < p < 1) of Student's t with ``df`` degrees of freedom: bisection on
-    the CDF, integrated with Simpson's rule (1e-6 accurate; 12.706 for p 0.975, df 1)."""
-    if not 0.5 < p < 1.0 or df < 1:
-        raise ValueError(f"student_t_quantile: need 0.5 < p < 1 and df >= 1, got p={p}, df={df}")
-
-    def cdf(x: float) -> float:
-        n = 2000
-        h = x / n
-        s = _t_pdf(0.0, df) + _t_pdf(x, df) + sum((4 if i % 2 else 2) * _t_pdf(i * h, df) for i in range(1, n))
-        return 0.5 + s * h / 3
-
-    lo, hi = 0.0, 1.0
-    while cdf(hi) < p:
-        lo, hi = hi, hi * 2
-    for _ in range(60):
-        mid = (lo + hi) / 2
-        lo, hi = (mid, hi) if cdf(mid) < p else (lo, mid)
-    return (lo + hi) / 2
-
-
-def interval(values: Sequence[float]) -> dict[str, Any]:
-    """{"n", "mean", "sd", "ci95", "values"} of ``values`` (the None ones dropped): sd with n − 1,
-    ci95 the half-width of the 95 % confidence interval of the mean (None below 2 values)."""
-    vals = [float(v) for v in values if v is not None and math.isfinite(float(v))]
-    n = len(vals)
-    if n == 0:
-        return {"n": 0, "mean": None, "sd": None, "ci95": None, "values": []}
-    mean = sum(vals) / n
-    if n < 2:
-        return {"n": 1, "mean": mean, "sd": None, "ci95": None, "values": vals}
-    sd = math.sqrt(sum((v - mean) ** 2 for v in vals) / (n - 1))
-    return {"n": n, "mean": mean, "sd": sd, "ci95": student_t_quantile(0.975, n - 1) * sd / math.sqrt(n),
-            "values": vals}
 
 
 def _rows(record: dict[str, Any]) -> dict[str, dict[str, Any]]:

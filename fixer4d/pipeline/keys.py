@@ -81,13 +81,13 @@ def matched_key(config: RunConfig) -> str:
     (``matched_config``), so stage-2 settings it never reads (the pseudo-targets') leave it as it is."""
     from fixer4d.train.config import matched_config
 
-    continued = matched_config(config.stage1, config.stage2).to_dict()
+    continued = matched_config(config.training, config.stage2).to_dict()
     return stage_key("matched", stage1_key(config, config.init_method), training_settings(continued))
 
 
 # The self-check's settings that only decide from the fold's figures: changing them re-decides
 # from the finished fold instead of training it again.
-SELF_CHECK_DECISION_SETTINGS = ("tie_db", "allow_skip")
+SELF_CHECK_DECISION_SETTINGS = ("tie_db", "allow_skip", "margin")
 
 
 def self_check_key(config: RunConfig) -> str:

@@ -80,12 +80,25 @@ def self_check_line(check: dict[str, Any]) -> str:
     if not psnr:
         return f"Stage-2 self-check: {check.get('decision')} ({check.get('reason', '')})"
     secs = sum((check.get("seconds") or {}).values())
-    tie = (check.get("settings") or {}).get("tie_db")
-    margin = "" if tie is None else f" (a candidate must beat the simplest by more than {tie:g} dB)"
+    settings = check.get("settings") or {}
+    tie = settings.get("tie_db")
+    if tie is None:
+        margin = ""
+    elif settings.get("margin") == "measured":
+        margin = f" (a candidate must beat the simplest by more than {tie:g} dB and its gain's 95 % half-width)"
+    else:
+        margin = f" (a candidate must beat the simplest by more than {tie:g} dB)"
+    g = check.get("gains") or {}
+
+    def fig(name: str, label: str) -> str:
+        se = (g.get(name) or {}).get("se_db")
+        return f"{label} {psnr[name]:.2f} dB" + ("" if se is None else f" ({g[name]['gain_db']:+.2f} ± {se:.2f})")
+
     return (f"Stage-2 self-check on held-back train camera {check['held_back_camera']} (fold of cameras "
             f"{check['fold_cameras']} at scale {check['scale']:g}, {secs:.0f} s): before {psnr['skip']:.2f} dB, "
-            f"more training {psnr['continue']:.2f} dB, stage 2 {psnr['refine']:.2f} dB{margin} -> "
-            f"**{check['decision']}**: the final model is {_FINAL[check['decision']]}.")
+            f"{fig('continue', 'more training')}, {fig('refine', 'stage 2')}{margin} -> "
+            f"**{check['decision']}**: the final model is {_FINAL[check['decision']]}. Gains are over before, per "
+            f"scored frame: mean ± standard error.")
 
 
 _FINAL = {"skip": "the stage-1 model", "continue": "the matched-iterations control (no pseudo-views)",

@@ -12,8 +12,11 @@ overfits). So the run asks one of its own train cameras, held back:
 3. the held-back camera's PSNR before (*skip*: no more training), after *continue* and after
    *refine*, on ``eval_frames`` frames spread over the clip.
 
-The decision is the best of the candidates if it beats *skip* by more than ``tie_db`` (the
-fold's own noise), else *skip*; and the run's final model follows it: *refine* runs stage 2,
+The decision is the best of the candidates if it beats *skip* by more than its margin, else
+*skip*: ``tie_db`` (the fold's own noise) or, with ``margin = "measured"``, the larger of ``tie_db``
+and the 95 % half-width of the candidate's per-frame paired gain over *skip*. Every record
+holds the per-frame figures and each candidate's gain ± standard error, so a finished fold can
+be decided again under either rule without training; and the run's final model follows it: *refine* runs stage 2,
 *continue* keeps the matched-iterations control, *skip* keeps the stage-1 model, so the final
 model leaves the stage-1 model only for one that raised the held-back camera by more than the
 fold can resolve. Its figures and
@@ -27,10 +30,13 @@ This module holds the settings and the rule; ``self_check_run.run_self_check`` r
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 from fixer4d.errors import InputError
+from fixer4d.stats import paired_gain, student_t_quantile
 
 CHOICES = ("skip", "continue", "refine")
+MARGINS = ("fixed", "measured")
 DECISION_FILE = "decision.json"
 
 
@@ -45,14 +51,17 @@ class SelfCheckConfig:
     scale: resolution of the fold's trainings (0.5: a quarter of the pixels, ~4x cheaper).
     eval_frames: frames of the held-back camera scored, spread over the clip.
     tie_db: the best candidate is taken only if it beats the baseline (skip) by more than this.
-      0.1 dB is the fold's own noise, measured on Panoptic's fold (docs/stage2.md section 4b):
+      0.1 dB is the fold's own noise, measured on Panoptic's fold (docs/decisions/self-check.md):
       its held-back camera moves by about 0.1 dB from one quarter of stage 2's length to the next,
       as much as a real difference it would have to tell.
     allow_skip: "skip" (no training after stage 1) is a candidate (False: the check only asks
       whether pseudo-views pay against the same amount of plain training). On: a stage that may
       not lower the deliverable keeps the stage-1 model unless the fold shows a gain beyond its
-      noise; on the validation runs (docs/stage2.md section 4) it decides one of five differently,
+      noise; on the validation runs (docs/decisions/self-check.md) it decides one of five differently,
       the demo's, whose fold gained 0.07 dB.
+    margin: "fixed" (``tie_db``) or "measured" (the larger of ``tie_db`` and the 95 % half-width
+      of the best candidate's per-frame paired gain over the baseline). "fixed" until the quality
+      bench's seeds decide between them on validation cameras (docs/decisions/self-check.md).
     """
 
     enabled: bool = True
@@ -61,25 +70,52 @@ class SelfCheckConfig:
     eval_frames: int = 6
     tie_db: float = 0.1
     allow_skip: bool = True
+    margin: str = "fixed"
 
     def __post_init__(self) -> None:
         if not 0.0 < self.scale <= 1.0:
             raise InputError(f"self_check.scale must be in (0, 1], got {self.scale}")
+        if self.margin not in MARGINS:
+            raise InputError(f"self_check.margin must be one of {', '.join(MARGINS)}, got {self.margin!r}")
         if self.eval_frames < 1 or self.fold < 0 or self.tie_db < 0:
             raise InputError("self_check: eval_frames >= 1, fold >= 0 and tie_db >= 0 are needed")
 
 
-def decide(psnr: dict[str, float], tie_db: float, allow_skip: bool = True) -> str:
+def gains(frames: dict[str, Sequence[float]], baseline: str = "skip") -> dict[str, dict[str, float | None]]:
+    """{candidate: {"gain_db", "se_db"}}: each other candidate's per-frame paired gain over
+    ``baseline`` (``frames``: candidate -> PSNR per scored frame, dB), mean and standard error."""
+    out = {}
+    for c, values in frames.items():
+        if c != baseline and baseline in frames:
+            mean, se = paired_gain(values, frames[baseline])
+            out[c] = {"gain_db": mean, "se_db": se}
+    return out
+
+
+def margin_db(tie_db: float, margin: str, candidate: Sequence[float] | None, baseline: Sequence[float] | None) -> float:
+    """How much a candidate must beat the baseline by: ``tie_db``, or under "measured" the larger of
+    ``tie_db`` and the 95 % half-width (Student t) of its per-frame paired gain."""
+    if margin == "fixed" or not candidate or not baseline or len(candidate) < 2:
+        return tie_db
+    _, se = paired_gain(candidate, baseline)
+    return max(tie_db, student_t_quantile(0.975, len(candidate) - 1) * (se or 0.0))
+
+
+def decide(psnr: dict[str, float], tie_db: float, allow_skip: bool = True, margin: str = "fixed",
+           frames: dict[str, Sequence[float]] | None = None) -> str:
     """The choice of ``psnr`` ({"skip", "continue", "refine"} -> dB): the best candidate (exact
     ties to the simpler), taken only if it beats the simplest candidate, the baseline, by more than
-    ``tie_db``; otherwise the baseline. The baseline is skip, or continue without ``allow_skip``
-    (then the candidates are continue and refine)."""
+    its margin (``margin_db``; ``frames``: the per-frame PSNRs the means come from, needed by the
+    "measured" margin); otherwise the baseline. The baseline is skip, or continue without
+    ``allow_skip`` (then the candidates are continue and refine)."""
     candidates = [c for c in CHOICES if c in psnr and (allow_skip or c != "skip")]
     if not candidates:
         raise InputError(f"self-check: no PSNR of a candidate ({', '.join(CHOICES)}) to decide from, got {sorted(psnr)}")
     baseline = candidates[0]
     best = max(candidates, key=lambda c: (psnr[c], -candidates.index(c)))
-    return best if psnr[best] > psnr[baseline] + tie_db else baseline
+    frames = frames or {}
+    need = margin_db(tie_db, margin, frames.get(best), frames.get(baseline))
+    return best if psnr[best] > psnr[baseline] + need else baseline
 
 
-__all__ = ["SelfCheckConfig", "decide", "CHOICES", "DECISION_FILE"]
+__all__ = ["SelfCheckConfig", "decide", "gains", "margin_db", "CHOICES", "MARGINS", "DECISION_FILE"]

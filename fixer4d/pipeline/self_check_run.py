@@ -11,21 +11,21 @@ from typing import Any
 import numpy as np
 import torch
 
-from fixer4d.pipeline.self_check import DECISION_FILE, decide
+from fixer4d.pipeline.self_check import DECISION_FILE, decide, gains
 
 log = logging.getLogger("fixer4d.pipeline")
 
 
-def _held_back_psnr(model, views, cam: int, frames: list[int], backend: str, background) -> float:
-    """Mean PSNR of ``model`` at train camera ``cam`` of the fold over ``frames``."""
+def _held_back_psnr(model, views, cam: int, frames: list[int], backend: str, background) -> list[float]:
+    """PSNR (dB) of ``model`` at train camera ``cam`` of the fold, one per frame of ``frames``."""
     from fixer4d.eval.metrics import psnr
     from fixer4d.render.views import render_views
 
     scores = []
     for f in frames:
         rgb = render_views(model, [views.cameras[cam]], views.time(f), backend, background)[0][0]
-        scores.append(psnr(rgb, views.frame(f, cam)))
-    return float(np.mean(scores))
+        scores.append(float(psnr(rgb, views.frame(f, cam))))
+    return scores
 
 
 # The fold's progress (finished parts' PSNR and seconds), rewritten after each part: a killed check
@@ -37,7 +37,8 @@ FOLD_RESPONSE = "camera_response.json"
 
 
 class _Parts:
-    """``{"psnr": {candidate: dB}, "seconds": {part: s}}`` of the finished parts, kept in PARTS_FILE."""
+    """``{"psnr": {candidate: mean dB}, "frames": {candidate: [dB per scored frame]}, "seconds":
+    {part: s}}`` of the finished parts, kept in PARTS_FILE."""
 
     def __init__(self, out_dir: Path) -> None:
         import json
@@ -45,16 +46,18 @@ class _Parts:
         self.path = out_dir / PARTS_FILE
         data = json.loads(self.path.read_text()) if self.path.is_file() else {}
         self.psnr: dict[str, float] = dict(data.get("psnr", {}))
+        self.frames: dict[str, list[float]] = dict(data.get("frames", {}))
         self.seconds: dict[str, float] = dict(data.get("seconds", {}))
 
-    def finish(self, part: str, seconds: float | None = None, psnr: float | None = None) -> None:
+    def finish(self, part: str, seconds: float | None = None, frames: list[float] | None = None) -> None:
         from fixer4d import atomic
 
         if seconds is not None:
             self.seconds[part] = float(seconds)
-        if psnr is not None:
-            self.psnr[part] = float(psnr)
-        atomic.write_json(self.path, {"psnr": self.psnr, "seconds": self.seconds})
+        if frames is not None:
+            self.frames[part] = [float(x) for x in frames]
+            self.psnr[part] = float(np.mean(self.frames[part]))
+        atomic.write_json(self.path, {"psnr": self.psnr, "frames": self.frames, "seconds": self.seconds})
 
 
 def _train(trainer, progress: bool):
@@ -130,7 +133,7 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
         run_init(views, config.init.method, init_dir, frames=frames, config=config.init, progress=False)
         parts.finish("init", time.perf_counter() - t0)
 
-    cfg1 = dataclasses.replace(config.stage1, progress=progress)
+    cfg1 = dataclasses.replace(config.training, progress=progress)
     if "stage1" not in parts.seconds:
         init = DecomposedInit.load(init_dir) if has_decomposed(init_dir) else load_frame_clouds(init_dir)
         model, effects_decision = model_from_init(init, views, cfg1, config.effects)
@@ -152,7 +155,7 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
     background = torch.tensor(cfg1.background, dtype=torch.float32)
     backend = cfg1.backend
     if "skip" not in parts.psnr:
-        parts.finish("skip", psnr=_held_back_psnr(base, scored, held, eval_frames, backend, background))
+        parts.finish("skip", frames=_held_back_psnr(base, scored, held, eval_frames, backend, background))
     if config.restorer.kind == "learned":  # the run's restorer learned from the held-back camera's frames
         restorer = _fold_restorer(views, init_dir, cfg1, base, out_dir, config, parts, progress)
 
@@ -161,7 +164,7 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
         model, seconds = _train(trainer, progress)
         t0 = time.perf_counter()
         score = _held_back_psnr(model, scored, held, eval_frames, backend, background)
-        parts.finish(name, seconds + time.perf_counter() - t0, score)
+        parts.finish(name, seconds + time.perf_counter() - t0, frames=score)
 
     if "continue" not in parts.psnr:
         candidate("continue", Trainer(copy.deepcopy(base), views, matched_config(cfg1, config.stage2),
@@ -173,7 +176,8 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
                                     refresh_cache=refresh, camera_response=copy.deepcopy(response)))
 
     psnr = {c: parts.psnr[c] for c in ("skip", "continue", "refine")}
-    decision = decide(psnr, sc.tie_db, sc.allow_skip)
+    frames = {c: parts.frames[c] for c in psnr if c in parts.frames}  # absent in a fold from before they were kept
+    decision = decide(psnr, sc.tie_db, sc.allow_skip, sc.margin, frames)
     record = {
         "decision": decision,
         "held_back_camera": int(held),
@@ -181,24 +185,27 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
         "scale": sc.scale,
         "frames": eval_frames,
         "psnr": psnr,
+        "psnr_frames": frames,
         "gain_refine_db": psnr["refine"] - psnr["skip"],
         "gain_continue_db": psnr["continue"] - psnr["skip"],
+        "gains": gains(frames) if len(frames) == len(psnr) else {},
         "settings": {"lambda_gen": config.stage2.lambda_gen, "pseudo_mask": config.stage2.pseudo_mask,
                      "stage2_iterations": config.stage2.total_iterations, "restorer": config.restorer.kind,
-                     "tie_db": sc.tie_db, "allow_skip": sc.allow_skip},
+                     "tie_db": sc.tie_db, "allow_skip": sc.allow_skip, "margin": sc.margin},
         "seconds": {k: parts.seconds[k] for k in ("init", "stage1", "restorer", "continue", "refine")
                     if k in parts.seconds},
-        "reason": _reason(decision, psnr, sc.tie_db),
+        "reason": _reason(decision, psnr, sc.tie_db if sc.margin == "fixed" else None),
     }
     atomic.write_json(out_dir / DECISION_FILE, record)
     log.info("stage-2 self-check on train camera %s: %s", held, record["reason"])
     return record
 
 
-def _reason(decision: str, psnr: dict[str, float], tie_db: float) -> str:
+def _reason(decision: str, psnr: dict[str, float], tie_db: float | None) -> str:
     figures = ", ".join(f"{k} {v:.2f} dB" for k, v in psnr.items())
+    margin = f"{tie_db:g} dB" if tie_db is not None else "its measured margin"
     what = {"skip": f"no more training: neither stage 2 nor the longer control raised the held-back camera by more "
-                    f"than {tie_db:g} dB",
+                    f"than {margin}",
             "continue": "more training on the observed views, without pseudo-views: the pseudo-loss did not pay",
             "refine": "stage 2 with pseudo-views: it beat the same amount of plain training on the held-back "
                       "camera"}[decision]

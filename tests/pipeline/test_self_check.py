@@ -46,7 +46,7 @@ def test_decide_leaves_the_baseline_only_beyond_the_tie():
 
 def test_noise_pseudo_targets_are_caught_without_held_out_cameras(tmp_path):
     # the paper's stage 2 (restored targets on every pixel) with a heavy pseudo-loss on noise
-    common = {"stage1.iterations": 300, "stage2.lambda_gen": 4.0, "stage2.refresh_every": 100,
+    common = {"training.iterations": 300, "stage2.lambda_gen": 4.0, "stage2.refresh_every": 100,
               "self_check.scale": 1.0, "self_check.eval_frames": 2}
     config = tiny_config(**common, **PAPER_TARGETS)
     scene = HeldOutSpy(load_scene_for(config))
@@ -78,7 +78,7 @@ def test_a_killed_check_resumes_to_the_same_decision(tmp_path, monkeypatch):
 
     from fixer4d.train.trainer import Trainer
 
-    config = tiny_config(**{"stage1.checkpoint_every": 10, "self_check.scale": 1.0, "self_check.eval_frames": 2})
+    config = tiny_config(**{"training.checkpoint_every": 10, "self_check.scale": 1.0, "self_check.eval_frames": 2})
     scene = load_scene_for(config)
     whole = run_self_check(scene, config, tmp_path / "whole", NoiseRestorer())
 
@@ -211,3 +211,21 @@ def test_a_fold_view_refuses_the_held_back_camera(tiny_scene):
     TrainOnlyView(tiny_scene, fold).frame(0, held)  # a plain fold view may score it
     with pytest.raises(HeldOutAccess):
         TrainOnlyView(tiny_scene, fold, readable=fold).frame(0, held)
+
+
+def test_the_measured_margin_asks_for_more_than_the_frames_spread():
+    from fixer4d.pipeline.self_check import gains, margin_db
+
+    # +0.3 dB on average, but one frame carries it all: within the frames' own spread
+    frames = {"skip": [20.0, 20.0, 20.0, 20.0], "continue": [20.0, 20.0, 20.0, 20.0], "refine": [20.0, 20.0, 20.0, 21.2]}
+    psnr = {k: sum(v) / len(v) for k, v in frames.items()}
+    assert decide(psnr, 0.1) == "refine"  # the fixed margin takes it
+    assert decide(psnr, 0.1, margin="measured", frames=frames) == "skip"
+    assert margin_db(0.1, "measured", frames["refine"], frames["skip"]) > 0.9
+    # the same +0.3 dB on every frame is evidence under either rule
+    steady = {"skip": [20.0] * 4, "continue": [20.0] * 4, "refine": [20.3] * 4}
+    assert decide({k: v[0] for k, v in steady.items()}, 0.1, margin="measured", frames=steady) == "refine"
+    g = gains(frames)
+    assert g["refine"]["gain_db"] == 0.3 and abs(g["refine"]["se_db"] - 0.3) < 1e-9 and g["continue"]["se_db"] == 0.0
+    # without per-frame figures (a fold from before they were kept) the measured rule is the fixed one
+    assert decide(psnr, 0.1, margin="measured") == "refine"
