@@ -244,7 +244,7 @@ class Viewer(Viewport, View3D, Document):
         self.state.status = f"error in {source}: {text}"
 
     def _notifications_window(self) -> None:
-        from app.panels._layout import error_text
+        from app.panels._layout import error_text, tip
 
         notes = self.notifications
         if notes.serial != self._notifications_seen:
@@ -255,15 +255,17 @@ class Viewer(Viewport, View3D, Document):
         if not self.show_notifications:
             return
         # over the bottom of the Compare panel's image: its controls (top) stay usable
-        with panel(self, "notifications", "Notifications", 300, 765, 800, 130) as expanded:
+        with panel(self, "notifications", "Notifications", 300, 765, 800, 130, front=True) as expanded:
             if not expanded:
                 return
             if imgui.small_button("clear"):
                 notes.clear()
                 self.panel_errors.clear()
+            tip("empty this list (the log file keeps every message)", self)
             imgui.same_line()
             if imgui.small_button("hide"):
                 self.show_notifications = False
+            tip("hide this window (a new error opens it again)", self)
             for msg in reversed(notes.items()):
                 stamp = time.strftime("%H:%M:%S", time.localtime(msg.when))
                 line = f"{stamp}  [{msg.source}]  {msg.text}"

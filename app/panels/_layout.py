@@ -86,10 +86,12 @@ def guard(viewer, name: str) -> Iterator[None]:
 
 
 @contextmanager
-def panel(viewer, name: str, title: str, x: float, y: float, w: float, h: float) -> Iterator[bool]:
+def panel(viewer, name: str, title: str, x: float, y: float, w: float, h: float,
+          front: bool = False) -> Iterator[bool]:
     """``with panel(...) as expanded: if expanded: <body>``: the panel window (first-use
     placement in DESIGN_SIZE pixels) with its body guarded; ``imgui.end`` is always called
-    exactly once, by the guard's recovery or here.
+    exactly once, by the guard's recovery or here. ``front``: a window shown on demand (Help,
+    the report, notifications) comes to the front when it appears, over the panels it covers.
 
     A window that overlapped no other last frame draws no background: the frame is cleared to
     the window colour, and on a software GL every full-area fill costs (llvmpipe, 1440x900: one
@@ -98,6 +100,8 @@ def panel(viewer, name: str, title: str, x: float, y: float, w: float, h: float)
     saved = imgui.internal.ErrorRecoveryState()
     imgui.internal.error_recovery_store_state(saved)
     place(viewer, name, x, y, w, h)
+    if front and name not in viewer.last_window_rects:
+        imgui.set_next_window_focus()
     if alone(viewer, name):
         imgui.set_next_window_bg_alpha(0.0)
     try:
@@ -140,6 +144,36 @@ def error_text_line(text: str, viewer=None) -> None:
         imgui.pop_style_color()
 
 
+def leave_room_for_label(label: str, at_most: float | None = None) -> None:
+    """Make the next widget as wide as the line allows (at most ``at_most`` pixels) less the
+    width of its label ``label``, which imgui draws to its right: the label is never cut."""
+    style = imgui.get_style()
+    room = imgui.calc_text_size(label.split("##")[0]).x + style.item_inner_spacing.x
+    width = imgui.get_content_region_avail().x - room
+    imgui.set_next_item_width(max(40.0, width if at_most is None else min(width, at_most)))
+
+
+def combo_fit(label: str, current: int, names: list[str], hint: str, viewer=None,
+              none_text: str = "") -> tuple[bool, int]:
+    """A combo of ``names`` whose shown choice is elided to its frame, with the tooltip ``hint``
+    (plus the whole choice when it is elided; ``none_text`` shows when nothing, -1, is chosen).
+    Call after setting the next item width. Returns (changed, index)."""
+    style = imgui.get_style()
+    room = imgui.calc_item_width() - imgui.get_frame_height() - 2.0 * style.frame_padding.x
+    full = names[current] if 0 <= current < len(names) else none_text
+    shown = elide(full, room)
+    changed, idx = False, current
+    opened = imgui.begin_combo(label, shown)
+    if not opened:  # (an open combo's popup is the current window)
+        tip(hint + (f"\nnow: {full}" if shown != full else ""), viewer)
+    else:
+        for i, name in enumerate(names):
+            if imgui.selectable(name, i == current)[0]:
+                changed, idx = True, i
+        imgui.end_combo()
+    return changed, idx
+
+
 def button_width(label: str) -> float:
     """Width of a button labelled ``label``."""
     style = imgui.get_style()
@@ -160,9 +194,11 @@ def same_line_if_fits(width: float) -> None:
         imgui.new_line()
 
 
-def radio_row(items: tuple[str, ...] | list[str], current: str, id_suffix: str = "") -> str:
+def radio_row(items: tuple[str, ...] | list[str], current: str, id_suffix: str, tips: dict[str, str],
+              viewer=None) -> str:
     """Radio buttons for ``items`` laid out left to right, wrapping to a new line instead of
-    running past the panel's edge; returns the chosen item."""
+    running past the panel's edge, each with its tooltip ``tips[item]``; returns the chosen
+    item."""
     style = imgui.get_style()
     right = imgui.get_cursor_screen_pos().x + imgui.get_content_region_avail().x
     chosen = current
@@ -174,6 +210,7 @@ def radio_row(items: tuple[str, ...] | list[str], current: str, id_suffix: str =
                 imgui.new_line()
         if imgui.radio_button(f"{item}##{id_suffix}", item == current):
             chosen = item
+        tip(tips[item], viewer)
     return chosen
 
 

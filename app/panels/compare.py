@@ -10,7 +10,7 @@ import time
 import numpy as np
 from imgui_bundle import imgui
 
-from app.panels._layout import panel
+from app.panels._layout import combo_fit, elide, leave_room_for_label, panel, same_line_if_fits, tip
 
 # Re-list the cache at most this often (seconds): listing reads meta.json files from disk.
 CACHE_POLL_S = 1.0
@@ -100,29 +100,34 @@ def body(viewer, ui: dict) -> None:
         imgui.text("the cache has no finished clips yet")
         return
     ui.setdefault("filter", "")
-    imgui.set_next_item_width(120)
+    imgui.set_next_item_width(min(120.0, imgui.get_content_region_avail().x))
     _, ui["filter"] = imgui.input_text_with_hint("##filter", "filter clips", ui["filter"])
     viewer.record_item("clip_filter")
+    tip("show only the clips whose name (and round) contain every word typed here", viewer)
     words = ui["filter"].lower().split()
     shown = [e for e in entries if all(w in f"round {e.round} {e.key}".lower() for w in words)]
-    imgui.same_line()
     if not shown:
+        same_line_if_fits(imgui.calc_text_size("no clip matches (999 in the cache)").x)
         imgui.text(f"no clip matches ({len(entries)} in the cache)")
         return
     names = [f"round {e.round}  {e.key}" for e in shown]
     current = next((i for i, e in enumerate(shown) if (e.round, e.key) == ui.get("picked")), 0)
-    imgui.set_next_item_width(220)
-    changed, current = imgui.combo(f"clip ({len(shown)}/{len(entries)})", current, names)
+    clip_label = f"clip ({len(shown)}/{len(entries)})"
+    same_line_if_fits(160.0)
+    leave_room_for_label(clip_label)
+    _, current = combo_fit(clip_label, current, names, "the cached restored clip to compare (round and cache key: "
+                           "pair, frame, the viewer's trajectory settings)", viewer)
     entry = shown[current]
     ui["picked"] = (entry.round, entry.key)
     n = len(entry.cameras)
     ui["k"] = min(ui["k"], n - 1)
-    imgui.same_line()
-    imgui.set_next_item_width(150)
+    leave_room_for_label("frame", at_most=150)
     _, ui["k"] = imgui.slider_int("frame", ui["k"], 0, n - 1)
-    imgui.same_line()
-    imgui.set_next_item_width(120)
-    _, ui["mode"] = imgui.combo("mode", ui["mode"], list(MODES))
+    tip("the frame of the clip shown (its camera along the trajectory)", viewer)
+    same_line_if_fits(120.0)
+    leave_room_for_label("mode", at_most=120)
+    _, ui["mode"] = combo_fit("mode", ui["mode"], list(MODES), "side by side: the images in a grid; split: render "
+                              "left of the line, pseudo-target right; A/B: one at a time (B key switches)", viewer)
     imgs = frame_images(viewer, ui, entry, ui["k"])
     labels = [("render", "render (current model)"), ("target", "pseudo-target (cache)"), ("truth", "ground truth"),
               ("supervised", "where the target is restored (magenta)")]
@@ -132,12 +137,12 @@ def body(viewer, ui: dict) -> None:
         scores.append(f"target vs truth {psnr(imgs['target'], imgs['truth']):.2f} dB")
     if "supervised_fraction" in imgs:
         scores.append(f"restored on {100 * imgs['supervised_fraction']:.1f} % of the frame")
-    imgui.text("   ".join(scores))
-    if "supervised" in imgs and imgui.is_item_hovered():
-        imgui.set_tooltip("Magenta: where the pseudo-target pulls the model towards the restorer: holes of the "
-                          "render, and surfaces no train camera sees from near this view where the restorer is "
-                          "confident. Elsewhere the target is the render itself (stage2.pseudo_target=gated) and "
-                          "the real frames constrain the model; --paper-stage2 restores every pixel")
+    imgui.text_wrapped(";  ".join(scores))
+    if "supervised" in imgs:
+        tip("Magenta: where the pseudo-target pulls the model towards the restorer: holes of the render, and "
+            "surfaces no train camera sees from near this view where the restorer is confident. Elsewhere the "
+            "target is the render itself (stage2.pseudo_target=gated) and the real frames constrain the model; "
+            "--paper-stage2 restores every pixel", viewer)
     avail = imgui.get_content_region_avail()
     h, w = imgs["render"].shape[:2]
     mode = MODES[ui["mode"]]
@@ -148,14 +153,18 @@ def body(viewer, ui: dict) -> None:
             if i % cols:
                 imgui.same_line()
             imgui.begin_group()
-            imgui.text(lab)
+            shown_label = elide(lab, w * scale)
+            imgui.text(shown_label)
+            if shown_label != lab:
+                tip(lab, viewer)
             tex = viewer.image_texture(f"compare_{k}", imgs[k])
             imgui.image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(w * scale, h * scale))
             imgui.end_group()
     else:
         if mode == "split":
-            imgui.set_next_item_width(200)
+            leave_room_for_label("split", at_most=200)
             _, ui["split"] = imgui.slider_float("split", ui["split"], 0.0, 1.0)
+            tip("where the line between render (left) and pseudo-target (right) is, as a share of the width", viewer)
             cut = int(round(ui["split"] * w))
             img = np.concatenate([imgs["render"][:, :cut], imgs["target"][:, cut:]], 1)
             if 0 < cut < w:
@@ -163,11 +172,13 @@ def body(viewer, ui: dict) -> None:
             caption = "left: render | right: pseudo-target"
         else:
             b_key = not imgui.get_io().want_text_input and imgui.is_key_pressed(imgui.Key.b, False)  # not while typing
-            if imgui.button("A/B (B key)") or b_key:
+            switch = imgui.button("A/B (B key)")
+            tip("switch between the render (A) and the pseudo-target (B)", viewer)
+            if switch or b_key:
                 ui["show_b"] = not ui["show_b"]
             img = imgs["target"] if ui["show_b"] else imgs["render"]
             caption = "B: pseudo-target (cache)" if ui["show_b"] else "A: render (current model)"
-        imgui.same_line()
+        same_line_if_fits(imgui.calc_text_size(caption).x)
         imgui.text(caption)
         scale = min(avail.x / w, max(avail.y - 24, 32) / h)
         tex = viewer.image_texture("compare_main", img)

@@ -6,12 +6,20 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
-from app.panels._layout import panel, radio_row, tip
+from app.panels._layout import leave_room_for_label, panel, radio_row, same_line_if_fits, tip
 
 RESOLVE = ("color", "holes", "depth", "alpha", "blur")
 # Image modes whose pixels do not show the splat colours (the Gaussian colour modes are greyed out).
 SPLAT_COLOUR_REPLACED = ("depth", "holes", "alpha")
 SPLAT = ("color", "speed", "temporal_opacity")
+IMAGE_TIPS = {"color": "the rendered colours", "holes": "red where the accumulated opacity is below 0.5 (holes)",
+              "depth": "depth of each pixel, near red .. far blue (colour bar in scene units)",
+              "alpha": "accumulated opacity of each pixel, 0 .. 1",
+              "blur": "missing detail against the nearest train camera's real frame (recomputed when the view rests)",
+              "moving": "the init's moving-content mask, magenta, when snapped to a masked camera and frame"}
+SPLAT_TIPS = {"color": "each Gaussian in its own colour",
+              "speed": "each Gaussian coloured by its speed |dmu/dt| (scene units per second, colour bar)",
+              "temporal_opacity": "each Gaussian coloured by its temporal opacity at the current time, 0 .. 1"}
 
 
 def draw(viewer) -> None:
@@ -24,32 +32,38 @@ def draw(viewer) -> None:
         tip("what each pixel shows: colour, holes (low opacity), depth, accumulated opacity, blur (missing "
             "detail vs the nearest real view), moving content (init masks)", viewer)
         modes = RESOLVE + (("moving",) if viewer.masks() is not None else ())
-        mode = radio_row(modes, st.debug_mode, "image")
+        mode = radio_row(modes, st.debug_mode, "image", IMAGE_TIPS, viewer)
         if mode != st.debug_mode:
             st.debug_mode = mode
             if mode == "blur":
                 compute_blur(viewer)
         if st.debug_mode == "blur":
-            if imgui.button("recompute blur map"):
+            recompute = imgui.button("recompute blur map")
+            tip("compute the blur map again for this view against the nearest train camera's real frame", viewer)
+            if recompute:
                 compute_blur(viewer)
             if ui["ref"] is not None:
-                imgui.same_line()
+                same_line_if_fits(imgui.calc_text_size(f"vs {ui['ref']}").x)
                 imgui.text(f"vs {ui['ref']}")
         imgui.text("Gaussians")
         tip("colour each Gaussian by its colour, speed or temporal opacity", viewer)
         # depth and holes replace the splats' colours: a Gaussian colour mode would change nothing
         replaced = st.debug_mode in SPLAT_COLOUR_REPLACED
+        tips = {m: f"the image mode '{st.debug_mode}' does not show the Gaussians' colours" for m in SPLAT} \
+            if replaced else SPLAT_TIPS
         imgui.begin_disabled(replaced)
-        st.splat_mode = radio_row(SPLAT, st.splat_mode, "splat")
+        st.splat_mode = radio_row(SPLAT, st.splat_mode, "splat", tips, viewer)
         imgui.end_disabled()
         viewer.record_item("splat_modes")
-        if replaced:
-            tip(f"the image mode '{st.debug_mode}' does not show the Gaussians' colours", viewer)
         s = viewer.splats.stats
-        imgui.text(f"frame {viewer.frame_ms:.1f} ms   draw {s.draw_ms:.1f} ms   sort {s.sort_ms:.1f} ms")
-        imgui.text(f"upload {s.upload_ms:.1f} ms   instances {s.instances}")
+        imgui.text_wrapped(f"frame {viewer.frame_ms:.1f} ms   draw {s.draw_ms:.1f} ms   sort {s.sort_ms:.1f} ms   "
+                           f"upload {s.upload_ms:.1f} ms   instances {s.instances}")
+        leave_room_for_label("file")
         _, ui["shot"] = imgui.input_text("file", ui["shot"])
-        if imgui.button("save screenshot (3D view)"):
+        tip("where the screenshot goes: a path relative to the run (or session) folder, or a full path", viewer)
+        save = imgui.button("save screenshot (3D view)")
+        tip("write the 3D view's current image (without the panels) to the file above", viewer)
+        if save:
             save_view_png(viewer, ui["shot"])
 
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from app.panels._layout import panel
+from app.panels._layout import panel, tip
 
 MOUSE = (("left-drag in the 3D view", "orbit (fly mode: look around)"),
          ("right-drag", "pan"), ("wheel", "zoom"),
@@ -41,16 +41,19 @@ def draw_menu(viewer) -> None:
 def draw(viewer) -> None:
     if not viewer.show_help:
         return
-    with panel(viewer, "help", "Mouse and keys", 420, 120, 600, 330) as expanded:
+    with panel(viewer, "help", "Mouse and keys", 420, 120, 600, 330, front=True) as expanded:
         if not expanded:
             return
+        # both columns wrap: a narrow window makes rows taller, never cuts a binding
         if imgui.begin_table("bindings", 2, imgui.TableFlags_.row_bg.value | imgui.TableFlags_.borders_inner_v.value):
             for what, does in bindings():
                 imgui.table_next_row()
                 imgui.table_next_column()
-                imgui.text(what)
+                imgui.text_wrapped(what)
                 imgui.table_next_column()
                 imgui.text_wrapped(does)
             imgui.end_table()
-        if imgui.button("close"):
+        close = imgui.button("close")
+        tip("hide this window (Help > Mouse and keys shows it again)", viewer)
+        if close:
             viewer.show_help = False

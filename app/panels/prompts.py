@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
+from app.panels._layout import tip
+
 CLOSE_POPUP = "Unsaved edits##close"
 AUTOSAVE_POPUP = "Restore edits?##autosave"
 
@@ -29,14 +31,17 @@ def _close_prompt(viewer) -> None:
     if imgui.button("save"):
         choice = "save"
     viewer.record_item("close_save")
+    tip("write them as RUN/model_edit_<k>.ply, then close", viewer)
     imgui.same_line()
     if imgui.button("discard"):
         choice = "discard"
     viewer.record_item("close_discard")
+    tip("close without saving: the edits and their autosave are gone (this cannot be undone)", viewer)
     imgui.same_line()
     if imgui.button("cancel") or imgui.is_key_pressed(imgui.Key.escape, False):
         choice = "cancel"
     viewer.record_item("close_cancel")
+    tip("keep working (Esc)", viewer)
     if choice is not None:
         viewer.answer_close(choice)
         imgui.close_current_popup()
@@ -59,11 +64,13 @@ def _autosave_prompt(viewer) -> None:
         viewer.restore_autosave()
         done = True
     viewer.record_item("autosave_restore")
+    tip("apply the kept edits to the model shown, as one edit (Ctrl+Z undoes it)", viewer)
     imgui.same_line()
     if imgui.button("discard them"):
         viewer.discard_autosave()
         done = True
     viewer.record_item("autosave_discard")
+    tip("delete the kept edits (the autosave file); the model stays as saved (this cannot be undone)", viewer)
     if done:
         imgui.close_current_popup()
     imgui.end_popup()

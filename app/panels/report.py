@@ -79,7 +79,7 @@ def draw_menu_item(viewer) -> None:
 def draw(viewer) -> None:
     if not viewer.show_report:
         return
-    with panel(viewer, "report", "Run report", 300, 120, 820, 360) as expanded:
+    with panel(viewer, "report", "Run report", 300, 120, 820, 360, front=True) as expanded:
         if not expanded:
             return
         try:
@@ -116,5 +116,7 @@ def draw(viewer) -> None:
                 imgui.end_table()
             if shown["self_check"]:
                 imgui.text_wrapped(shown["self_check"])
-        if imgui.button("close"):
+        close = imgui.button("close")
+        tip("hide this window (File > Run report shows it again)", viewer)
+        if close:
             viewer.show_report = False

@@ -7,7 +7,7 @@ import re
 
 from imgui_bundle import imgui
 
-from app.panels._layout import panel, tip
+from app.panels._layout import combo_fit, error_text, leave_room_for_label, one_line, panel, tip
 
 
 def draw(viewer) -> None:
@@ -23,11 +23,11 @@ def draw(viewer) -> None:
             restorer_choice(viewer, src)
             k = st.selected_trajectory
             name = st.trajectories[k].name if 0 <= k < len(st.trajectories) else "(select a trajectory)"
-            imgui.text(f"trajectory: {name}")
-            tip("the trajectory selected in the Trajectories panel; pair names are the scene's camera ids, as "
-                "in the clip names below", viewer)
-            imgui.text("frames: every n-th (0 = the current one)")
-            imgui.set_next_item_width(120)
+            one_line(f"trajectory: {name}", viewer, disabled=False,
+                     hint="the trajectory selected in the Trajectories panel; pair names are the scene's camera ids, "
+                          "as in the clip names below")
+            imgui.text_wrapped("frames: every n-th (0 = the current one)")
+            leave_room_for_label("n", at_most=120)
             _, ui["every"] = imgui.input_int("n", ui["every"])
             tip("0: restore the current frame only; n > 0: frames 0, n, 2n, ... of the clip", viewer)
             ui["every"] = max(0, ui["every"])
@@ -47,12 +47,13 @@ def draw(viewer) -> None:
                     if imgui.small_button("cancel"):
                         item.cancel()
                     viewer.record_item(f"restore_cancel_{n}")
+                    tip(f"stop restoring {item.key} (a clip being restored is not written to the cache)", viewer)
                     imgui.same_line()
                 imgui.text_wrapped(f"{item.key}  {item.status}")
                 imgui.progress_bar(item.progress, imgui.ImVec2(-1, 0))
                 err = item.error or (getattr(item.job, "error", None) if item.job is not None else None)
                 if err:
-                    imgui.text_colored(imgui.ImVec4(1.0, 0.35, 0.3, 1.0), str(err))
+                    error_text(str(err))
                 imgui.pop_id()
 
 
@@ -101,11 +102,11 @@ def restorer_choice(viewer, src) -> None:
     from fixer4d.restore.config import KINDS
 
     current = src.restore.kind
-    imgui.set_next_item_width(140)
-    changed, idx = imgui.combo("restorer", KINDS.index(current) if current in KINDS else 0, list(KINDS))
+    leave_room_for_label("restorer", at_most=140)
+    changed, idx = combo_fit("restorer", KINDS.index(current) if current in KINDS else 0, list(KINDS),
+                             "learned: the trained restorer (RUN/restorer); warp: geometric warp of the reference "
+                             "views (CPU, no weights); cogvideo: the video diffusion restorer (GPU)", viewer)
     viewer.record_item("restorer_kind")
-    tip("learned: the trained restorer (RUN/restorer); warp: geometric warp of the reference views (CPU, no "
-        "weights); cogvideo: the video diffusion restorer (GPU)", viewer)
     if changed and KINDS[idx] != current:
         src.restore.set_jobs(viewer.services.make_jobs(KINDS[idx], src.cache, src.run_dir), KINDS[idx])
         viewer.state.status = f"restorer: {KINDS[idx]} for new jobs"

@@ -22,9 +22,11 @@ def draw(viewer) -> None:
         imgui.same_line()
         if imgui.arrow_button("##prev", imgui.Dir.left):
             st.set_frame(st.frame - 1)
+        tip("one frame back", viewer)
         imgui.same_line()
         if imgui.arrow_button("##next", imgui.Dir.right):
             st.set_frame(st.frame + 1)
+        tip("one frame on", viewer)
         imgui.same_line()
         _, st.loop = imgui.checkbox("loop", st.loop)
         tip("start again at the end", viewer)
@@ -32,10 +34,14 @@ def draw(viewer) -> None:
         imgui.set_next_item_width(120)
         _, st.fps = imgui.slider_float("fps", st.fps, *FPS_RANGE, "%.0f")
         tip("playback speed in frames per second (the scene's own rate at start)", viewer)
+        clock = f"t = {st.time:.4f}   ({st.num_frames} frames)"
         imgui.same_line(0.0, 3.0 * imgui.get_style().item_spacing.x)
-        imgui.text(f"t = {st.time:.4f}   ({st.num_frames} frames)")
+        if imgui.calc_text_size(clock).x > imgui.get_content_region_avail().x:
+            imgui.new_line()
+        imgui.text(clock)
         imgui.set_next_item_width(-1)
         changed, f = imgui.slider_int("##frame", st.frame, 0, max(st.num_frames - 1, 0), "frame %d")
         viewer.record_item("frame_slider")
+        tip("drag to scrub through the clip (the time t = frame / frames drives every panel)", viewer)
         if changed:
             st.set_frame(f)

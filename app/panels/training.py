@@ -7,7 +7,7 @@ import time
 import numpy as np
 from imgui_bundle import imgui, implot
 
-from app.panels._layout import error_text, panel
+from app.panels._layout import error_text, leave_room_for_label, panel, tip
 
 # Loss curves drawn from at most this many points (the history is decimated to it).
 PLOT_POINTS = 2000
@@ -22,7 +22,7 @@ def draw(viewer) -> None:
             imgui.text_wrapped("Showing a saved model. Open a scene (fixer4d-view SCENE) to train live.")
         else:
             total = tr.total_steps
-            imgui.text(f"state: {tr.state}   step {tr.step}" + (f" of {total}" if total else ""))
+            imgui.text_wrapped(f"state: {tr.state}   step {tr.step}" + (f" of {total}" if total else ""))
             if tr.state == "setup":
                 elapsed = 0.0 if tr.setup_started is None else time.monotonic() - tr.setup_started
                 imgui.text_wrapped(f"setting up ({elapsed:.0f} s): {tr.setup_status or 'starting'}")
@@ -30,30 +30,39 @@ def draw(viewer) -> None:
                 imgui.progress_bar(min(tr.step / total, 1.0), imgui.ImVec2(-1, 0))
             if tr.error:
                 error_text(tr.error)
-            if tr.state in ("idle",) and imgui.button("start"):
-                tr.start()
-            if tr.state in ("running", "setup") and imgui.button("pause"):
-                tr.pause()
-            if tr.state == "paused" and imgui.button("resume"):
-                tr.resume()
+            control = {"idle": ("start", tr.start, "start training in the background"),
+                       "running": ("pause", tr.pause, "pause training after the current step (the model shown stays)"),
+                       "setup": ("pause", tr.pause, "pause training once it is set up"),
+                       "paused": ("resume", tr.resume, "go on training from this step")}.get(tr.state)
+            if control is not None:
+                clicked = imgui.button(control[0])
+                viewer.record_item("training_control")
+                tip(control[2], viewer)
+                if clicked:
+                    control[1]()
             g = viewer.state.gaussians
             rate, eta = tr.steps_per_s, tr.eta_s
-            imgui.text(f"Gaussians: {0 if g is None else g.n}   {rate:.2f} steps/s" if rate else
-                       f"Gaussians: {0 if g is None else g.n}")
+            imgui.text_wrapped(f"Gaussians: {0 if g is None else g.n}   {rate:.2f} steps/s" if rate else
+                               f"Gaussians: {0 if g is None else g.n}")
             if eta is not None and tr.state == "running":
-                imgui.text(f"step time {1e3 * tr.step_seconds:.0f} ms   ETA {format_duration(eta)}")
+                imgui.text_wrapped(f"step time {1e3 * tr.step_seconds:.0f} ms   ETA {format_duration(eta)}")
             st2 = getattr(tr.trainer, "stage2", None)
             if st2 is not None:
+                leave_room_for_label("lambda_gen")
                 changed, lam = imgui.slider_float("lambda_gen", float(st2.lambda_gen), 0.0, 2.0)
+                tip("weight of the pseudo-target loss against the real frames' loss (stage 2)", viewer)
                 if changed:
                     tr.set_stage2(lambda_gen=lam)
-                changed, k = imgui.input_int("K (refresh every)", int(st2.refresh_every))
+                leave_room_for_label("K (refresh)")
+                changed, k = imgui.input_int("K (refresh)", int(st2.refresh_every))
+                tip("refresh the pseudo-targets every K steps (stage 2)", viewer)
                 if changed and k > 0:
                     tr.set_stage2(refresh_every=k)
             hist = tr.losses()
             if hist:
                 last = hist[-1]
-                imgui.text(f"loss {last.get('loss', float('nan')):.4f}   psnr {last.get('psnr', float('nan')):.2f} dB")
+                imgui.text_wrapped(f"loss {last.get('loss', float('nan')):.4f}   "
+                                   f"psnr {last.get('psnr', float('nan')):.2f} dB")
                 stride = max(1, len(hist) // PLOT_POINTS)
                 rows = hist[::stride]
                 steps = np.array([r.get("step", i * stride) for i, r in enumerate(rows)], np.float64)

@@ -7,7 +7,8 @@ from __future__ import annotations
 from imgui_bundle import imgui
 
 from app import trajectories as traj
-from app.panels._layout import button_width, error_text_line, one_line, panel, same_line_if_fits, tip
+from app.panels._layout import (button_width, elide, error_text_line, leave_room_for_label, one_line, panel,
+                                same_line_if_fits, tip)
 from app.state import TrajectorySpec
 
 # Slider ranges: A in units of the rig radius, frame counts per clip.
@@ -50,9 +51,12 @@ def draw(viewer) -> None:
         imgui.begin_child("list", imgui.ImVec2(0, 110), imgui.ChildFlags_.borders.value)
         for k, spec in enumerate(st.trajectories):
             shape = f"A={spec.amplitude:.2f}" if spec.pair is not None else f"custom, {len(spec.keyframes)} keys"
-            label = f"{spec.name}  {shape}  {spec.n_frames} frames{'  reversed' if spec.reverse else ''}##{k}"
-            if imgui.selectable(label, k == st.selected_trajectory)[0]:
+            text = f"{spec.name}  {shape}  {spec.n_frames} frames{'  reversed' if spec.reverse else ''}"
+            shown = elide(text, imgui.get_content_region_avail().x)
+            if imgui.selectable(f"{shown}##{k}", k == st.selected_trajectory)[0]:
                 st.selected_trajectory = k
+            tip(("" if shown == text else text + "\n") + "select it: tune it below, preview it, render a video, "
+                "queue restorations (Restore panel)", viewer)
         imgui.end_child()
         k = st.selected_trajectory
         if 0 <= k < len(st.trajectories):
@@ -67,7 +71,7 @@ def file_row(viewer, ui: dict, field: str) -> None:
     with export and import buttons; errors go to the panel's guard."""
     import app.panels.files as files
 
-    imgui.text("preset file (fixer4d JSON)" if field == "preset" else "camera_path file (nerfstudio JSON)")
+    imgui.text("preset (fixer4d JSON)" if field == "preset" else "camera_path (nerfstudio)")
     imgui.set_next_item_width(-1)
     _, ui[field] = imgui.input_text(f"##{field}", ui[field])
     tip("a path relative to the run folder (or the session folder), or a full path" if field == "preset" else
@@ -101,6 +105,7 @@ def _selected(viewer, k: int, pending: dict) -> None:
                    (f", arc {spec.arc_index}" if spec.arc_index is not None else ""))
         tip("the scene's camera ids of the pair (as in the restore panel's clip names)", viewer)
         value = pending.get(("A", k), spec.amplitude)
+        leave_room_for_label("A")
         changed, value = imgui.slider_float("A", value, *AMPLITUDE_RANGE)
         tip("arc amplitude A, in units of the rig radius: 0 is the straight path between the pair", viewer)
         if changed:
@@ -109,10 +114,11 @@ def _selected(viewer, k: int, pending: dict) -> None:
             st.update_trajectory(k, f"A of {spec.name} = {value:.3f}", amplitude=float(pending.pop(("A", k), value)))
     else:
         imgui.text(f"custom: {len(spec.keyframes)} keyframes")
-        if imgui.button("add keyframe (current view)"):
+        if imgui.button("add keyframe"):
             st.add_keyframe(k, viewer.render_camera or st.view.camera(640, 480))
-        tip("append the 3D view's camera as the last keyframe (Ctrl+Z undoes)", viewer)
+        tip("append the 3D view's current camera as the last keyframe (Ctrl+Z undoes)", viewer)
     frames = pending.get(("F", k), spec.n_frames)
+    leave_room_for_label("frames")
     changed, frames = imgui.slider_int("frames", frames, *FRAMES_RANGE)
     tip("frames along the trajectory (the clip length of its restorations and videos)", viewer)
     if changed:

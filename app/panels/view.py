@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
-from app.panels._layout import button_width, panel, same_line_if_fits, tip, toggle_width
+from app.panels._layout import (button_width, combo_fit, leave_room_for_label, one_line, panel, same_line_if_fits,
+                                tip, toggle_width)
 
 TOOLS = ("navigate", "box", "brush")
 
@@ -58,9 +59,9 @@ def _snap_combo(viewer, scene) -> None:
     snapped = st.view.snapped
     current = next((i for i, c in enumerate(scene.cameras) if snapped is not None and c.name == snapped.name
                     and np.allclose(c.c2w, snapped.c2w)), -1)
-    imgui.set_next_item_width(-60)
-    changed, idx = combo_with_preview("snap to", current, names, "(free camera)")
-    tip("show exactly what a scene camera saw: its pose and intrinsics (letterboxed)", viewer)
+    leave_room_for_label("snap to")
+    changed, idx = combo_fit("snap to", current, names, "show exactly what a scene camera saw: its pose and "
+                             "intrinsics (letterboxed)", viewer, none_text="(free)")
     if changed and idx >= 0:
         st.view.snap_to(scene.cameras[idx])
         st.previewing = False
@@ -102,9 +103,11 @@ def _edit_section(viewer) -> None:
     if delete:
         st.delete_selected()
     same_line_if_fits(button_width("isolate"))
-    if imgui.button("isolate"):
-        st.isolate_selected()
+    isolate = imgui.button("isolate")
+    viewer.record_item("isolate")
     tip("keep only the selected Gaussians (Ctrl+Z undoes)", viewer)
+    if isolate:
+        st.isolate_selected()
     if imgui.button("save as new version"):
         viewer.save_edited_model()
     tip("write RUN/model_edit_<k>.ply (Ctrl+S); the run reopens with it", viewer)
@@ -112,25 +115,16 @@ def _edit_section(viewer) -> None:
     imgui.begin_disabled(not st.undo_stack)
     undo = imgui.button("undo")
     viewer.record_item("undo")
+    tip(f"undo: {st.undo_stack[-1].label} (Ctrl+Z)" if st.undo_stack else "nothing to undo", viewer)
     if undo:
         st.undo()
     imgui.end_disabled()
     same_line_if_fits(button_width("redo"))
     imgui.begin_disabled(not st.redo_stack)
-    if imgui.button("redo"):
+    redo = imgui.button("redo")
+    tip(f"redo: {st.redo_stack[-1].label} (Ctrl+Y)" if st.redo_stack else "nothing to redo", viewer)
+    if redo:
         st.redo()
     imgui.end_disabled()
-    if st.undo_stack:
-        imgui.same_line()
-        imgui.text_disabled(st.undo_stack[-1].label)
-
-
-def combo_with_preview(label: str, current: int, names: list[str], none_text: str) -> tuple[bool, int]:
-    """A combo showing ``none_text`` when nothing (-1) is chosen; returns (changed, index)."""
-    changed, idx = False, current
-    if imgui.begin_combo(label, names[current] if 0 <= current < len(names) else none_text):
-        for i, name in enumerate(names):
-            if imgui.selectable(name, i == current)[0]:
-                changed, idx = True, i
-        imgui.end_combo()
-    return changed, idx
+    if st.undo_stack:  # the last edit, on a line of its own: a long label never pushes the buttons
+        one_line(st.undo_stack[-1].label, viewer)

@@ -77,7 +77,7 @@ def test_bad_imports_are_reported_and_the_app_keeps_running(make_viewer, tiny, t
     assert len(st.trajectories) == len(before) + 1
 
 
-def test_panel_failing_with_open_stacks_is_recovered(make_viewer, tiny):
+def test_panel_failing_with_open_stacks_is_recovered(make_viewer, tiny, capfd):
     src = ViewerSource(scene=tiny, label="tiny")
     st = initial_state(src, None)  # no model: fast frames; the panels are what is tested
     d = make_viewer(st, src)
@@ -104,8 +104,11 @@ def test_panel_failing_with_open_stacks_is_recovered(make_viewer, tiny):
                 imgui.end_child()
 
     v.panels = [*v.panels[:2], ("broken", broken), *v.panels[2:]]
+    capfd.readouterr()
     d.frame(3)
     assert calls["n"] >= 3
+    out, err = capfd.readouterr()  # the caught error is reported once, not as imgui's stack lines every frame
+    assert "[imgui-error]" not in out + err and "Missing End" not in out + err, (out + err)[-500:]
     # reported once although it fails every frame, and the panels after it still draw
     assert [m.text for m in v.notifications.items() if m.source == "broken"] == ["ValueError: broken on purpose"]
     assert v.panel_errors["broken"] == "ValueError: broken on purpose"
