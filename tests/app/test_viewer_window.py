@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from viewer_helpers import gl_ctx  # noqa: F401 (fixture)
+
 pytestmark = pytest.mark.gl
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -136,3 +138,89 @@ def test_1ms_key_presses_reach_the_viewer_in_a_real_window(xvfb_display, tmp_pat
         if proc.poll() is None:
             proc.kill()
             proc.wait(10)
+
+
+def test_render_a_video_then_click_where_render_video_was_in_a_real_window(xvfb_display, tmp_path, gl_ctx,
+                                                                           monkeypatch):
+    """xdotool on Xvfb, as the walk that found it: render a video of the selected trajectory,
+    then click where "render video" was. Before, the finished job's lines moved the panel's
+    contents and that click hit "delete trajectory"; now it renders again and every trajectory
+    is kept (the session written at quit lists them)."""
+    import json
+    import time
+
+    import av
+
+    if shutil.which("xdotool") is None:
+        pytest.skip("xdotool is not installed (apt-get install xdotool)")
+    from app.sources import app_services, open_source
+    from app.viewer import Viewer
+    from fixer4d.model.io import save_ply
+    from fixer4d.scene import load_scene
+    from viewer_helpers import Driver, scene_gaussians
+
+    size = (1024, 640)
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"scene": {"source": "tiny"}}))
+    save_ply(scene_gaussians(load_scene("tiny"), stride=8).to_model(), run / "model_final.ply")
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "cfg"))
+    # where the window will draw "render video": the same viewer, headless, at the same size
+    from app.sources import initial_state
+
+    src, g, _ = open_source(str(run))
+    viewer = Viewer(gl_ctx, initial_state(src, g), src, services=app_services())
+    try:
+        d = Driver(viewer, gl_ctx, size)
+        d.frame(3)
+        x0, y0, x1, y1 = viewer.item_rects["render_video"]
+        names = [t.name for t in viewer.state.trajectories]
+        n_frames = viewer.state.trajectories[0].n_frames
+    finally:
+        viewer.close()
+    assert names
+    env = dict(os.environ, DISPLAY=xvfb_display, XDG_CONFIG_HOME=str(tmp_path / "cfg"),
+               PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    proc = subprocess.Popen([sys.executable, "-m", "app.main", "--size", f"{size[0]}x{size[1]}", str(run)], env=env,
+                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 180
+        window = ""
+        while not window and time.monotonic() < deadline and proc.poll() is None:
+            window = _xdotool(xvfb_display, "search", "--name", "fixer4d-view").split("\n")[0]
+            time.sleep(0.5)
+        assert window, "the viewer window did not appear"
+        time.sleep(3.0)  # the first frames
+        cx, cy = str(int((x0 + x1) / 2)), str(int((y0 + y1) / 2))
+
+        def click() -> None:
+            _xdotool(xvfb_display, "mousemove", "--window", window, cx, cy)
+            time.sleep(0.5)  # imgui sees the pointer over the button before the press
+            _xdotool(xvfb_display, "click", "1")
+
+        videos = run / "viewer" / "videos"
+
+        def written() -> list[Path]:  # (not the writer's hidden temporary file)
+            return [p for p in videos.glob("*.mp4") if not p.name.startswith(".")]
+
+        click()
+        while not written() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        (video,) = written()
+        first = video.stat().st_mtime_ns
+        time.sleep(2.0)  # the finished job's result line shows
+        click()  # where "render video" was: it renders again
+        while video.stat().st_mtime_ns == first and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert video.stat().st_mtime_ns != first, "the second click did not hit render video"
+        _xdotool(xvfb_display, "windowfocus", "--sync", window)
+        _xdotool(xvfb_display, "key", "ctrl+q")
+        assert proc.wait(60) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    session = json.loads((run / "viewer" / "session.json").read_text())
+    assert [t["name"] for t in session["trajectories"]] == names  # no trajectory deleted
+    with av.open(str(video)) as container:
+        assert sum(1 for _ in container.decode(video=0)) == n_frames
