@@ -223,14 +223,14 @@ def live_stage1_trainer(scene: Any, iterations: int | None, method: str, init_fr
     stride = max(1, scene.num_frames // max(int(init_frames), 1))
     overrides: dict[str, Any] = {"init.method": method, "init_frame_stride": stride}
     if iterations is not None:
-        overrides["stage1.iterations"] = int(iterations)
+        overrides["training.iterations"] = int(iterations)
     config = resolve(overrides=overrides)
     tmp = Path(tempfile.mkdtemp(prefix="fixer4d-view-init-"))
     try:
         ctx = stages.StageContext(run=RunFolder(tmp, config), scene=scene, progress=False)
         report(f"init: {method} point clouds of every {stride}th frame (of {scene.num_frames})")
         init = stages.init_stage(ctx, method)
-        report(f"model: init -> Gaussians (cap {config.stage1.max_gaussians}), effects {config.effects.mode}")
+        report(f"model: init -> Gaussians (cap {config.training.max_gaussians}), effects {config.effects.mode}")
         trainer, _ = stages.stage1_trainer(ctx, init, run_dir=None)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

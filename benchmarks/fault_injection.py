@@ -56,7 +56,7 @@ REPO = Path(__file__).resolve().parents[1]
 # Checkpoints every 10 steps (default: every few hundred) so that a kill mid-training resumes
 # from a checkpoint rather than restarting the stage: the path under test.
 TINY_SETTINGS = {
-    "stage1.iterations": 40, "stage1.checkpoint_every": 10, "stage2.rounds": 1, "stage2.refresh_every": 20,
+    "training.iterations": 40, "training.checkpoint_every": 10, "stage2.rounds": 1, "stage2.refresh_every": 20,
     "trajectories.frames": 3, "trajectories.time_stride": 4, "init_frame_stride": 2, "eval.stride": 2,
     "init.mvs.planes": 24,
 }
@@ -64,7 +64,7 @@ TINY_SETTINGS = {
 # same code paths as the main ones), half resolution, fewer steps.
 FAST_SETTINGS = {
     "scene.scale": 0.5, "baseline_sparse": False, "eval.restoration_rows": False,
-    "stage1.iterations": 16, "stage1.checkpoint_every": 4, "stage2.rounds": 1, "stage2.refresh_every": 8,
+    "training.iterations": 16, "training.checkpoint_every": 4, "stage2.rounds": 1, "stage2.refresh_every": 8,
     "trajectories.frames": 3, "trajectories.time_stride": 4, "init_frame_stride": 4, "eval.stride": 4,
     "init.mvs.planes": 8,
 }

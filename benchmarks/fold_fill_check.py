@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     restorer = run_restorer(config, args.run)
     visibility = config.stage2.visibility
     scene = TrainOnlyView(load_scene_for(config))
-    stage1 = dataclasses.replace(config.stage1, progress=False)
+    stage1 = dataclasses.replace(config.training, progress=False)
     trainer, full = fold_trainer(scene, clouds, stage1, held, config.restorer)
     trainer.train(progress=False)
     model, backend, background = trainer.model, trainer.config.backend, trainer.background

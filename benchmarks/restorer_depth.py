@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         order = np.argsort([np.linalg.norm(scene.cameras[i].center - cam.center) for i in scene.train_ids])
         refs = (scene.train_ids[order[0]], scene.train_ids[order[1]])
         for f in frames:
-            req = make_request(model, scene, [cam], f, refs, backend=config.stage1.backend)
+            req = make_request(model, scene, [cam], f, refs, backend=config.training.backend)
             truth, true_depth = scene.render_gt(cam, req.time)
             model_depth = req.depth[0]
             rel = np.abs(model_depth - true_depth) / np.maximum(true_depth, 1e-9)

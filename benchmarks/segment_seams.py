@@ -46,7 +46,7 @@ def seams(run: Path, which: str = "final") -> dict:
     for k, r in enumerate(ranges):
         d = segment_dir(run, k, r)
         path = d / names[which] if (d / names[which]).is_file() else d / names["stage1"]
-        fns.append(model_render_fn(load_ply(path), config.stage1.backend, config.stage1.background))
+        fns.append(model_render_fn(load_ply(path), config.training.backend, config.training.background))
     out = []
     for k in range(len(ranges) - 1):
         shared = list(range(ranges[k + 1][0], ranges[k][1]))

@@ -36,7 +36,7 @@ def train_view_psnr(render_fn, scene, stride: int) -> float:
 
 def variant_config(run: Path, sets: list[str]):
     """RUN's RunConfig with the ``--set`` overrides applied as `fixer4d run --config` applies them
-    (a new ``stage1.iterations`` rescales the schedule the run derived from its own count)."""
+    (a new ``training.iterations`` rescales the schedule the run derived from its own count)."""
     from fixer4d.pipeline import config_tree
     from fixer4d.pipeline.config import resolve
     from fixer4d.pipeline.run_folder import read_run_config
@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run", type=Path, help="a finished fixer4d run folder (its init_mvs/ is used)")
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
-                        help="config override, e.g. stage1.seed=1 (repeatable)")
+                        help="config override, e.g. training.seed=1 (repeatable)")
     parser.add_argument("--out", type=Path, default=None, help="also write the result as JSON")
     args = parser.parse_args(argv)
 
@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         cpu0, wall0 = time.process_time(), time.perf_counter()
         trainer.train()
         cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
-        render = model_render_fn(trainer.model, backend=config.stage1.backend)
+        render = model_render_fn(trainer.model, backend=config.training.backend)
         mean = evaluate_stage(ctx, "STGS w/ MVS", render, "variant", {})["mean"]
     result = {"run": str(args.run), "sets": args.sets, "psnr": mean["psnr"],
               "psnr_dynamic": mean.get("psnr_dynamic"), "psnr_static": mean.get("psnr_static"),

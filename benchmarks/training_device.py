@@ -4,7 +4,7 @@ whether the model it trains is as good.
     python benchmarks/training_device.py [SCENE] [--devices cpu,cuda] [--set KEY=VALUE ...] --out FILE.json
 
 For every device the scene is reconstructed as `fixer4d reconstruct SCENE --set
-stage1.device=DEVICE` does (the dense init, stage 1 from it, the held-out evaluation), in its own
+training.device=DEVICE` does (the dense init, stage 1 from it, the held-out evaluation), in its own
 run folder, one device after the other in this process, on the same machine: each device's
 stage-1 seconds, seconds per iteration, held-out PSNR (all / moving / static pixels) and final
 Gaussian count. The init is computed once per device (no stage cache: the cache's keys leave
@@ -55,15 +55,15 @@ def reconstruct_on(scene: str, device: str, sets: dict, out: Path) -> dict:
     from fixer4d.pipeline.config import resolve
     from fixer4d.pipeline.run import run_pipeline
 
-    config = resolve(scene, overrides={**sets, **RECONSTRUCT_ONLY, "stage1.device": device, "stage1.progress": False})
+    config = resolve(scene, overrides={**sets, **RECONSTRUCT_ONLY, "training.device": device, "training.progress": False})
     t0 = time.perf_counter()
     report = run_pipeline(config, out, progress=False)
     wall = time.perf_counter() - t0
     row = next(r for r in report["rows"] if r["method"] == R.ROW_MVS)
     seconds = report["stage_seconds"]
-    return {"device": device, "iterations": config.stage1.iterations,
+    return {"device": device, "iterations": config.training.iterations,
             "stage1_seconds": round(seconds["stage1"], 2),
-            "s_per_iter": round(seconds["stage1"] / max(config.stage1.iterations, 1), 5),
+            "s_per_iter": round(seconds["stage1"] / max(config.training.iterations, 1), 5),
             "init_seconds": round(seconds.get("init_mvs", float("nan")), 2), "run_seconds": round(wall, 2),
             "psnr": row["psnr"], "psnr_dynamic": row["psnr_dynamic"], "psnr_static": row["psnr_static"],
             "dssim1": row["dssim1"], "lpips": row["lpips"],

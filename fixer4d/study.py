@@ -1,7 +1,7 @@
 """Accuracy vs time: sweep the pipeline's knobs, time every stage, draw the Pareto front.
 
 A study is a list of variants, each a set of overrides of the pipeline configuration
-(dotted keys such as ``"stage1.iterations"``). Every variant runs the real pipeline in its own
+(dotted keys such as ``"training.iterations"``). Every variant runs the real pipeline in its own
 run folder (so an interrupted study resumes: finished variants are read back, half-finished
 ones resume stage by stage), is evaluated on the held-out cameras, and lands in
 ``study.json``, a markdown table sorted by time, and five plots:
@@ -48,16 +48,16 @@ DEFAULT_SWEEP: list[dict[str, Any]] = [
     {"name": "effects-all", "effects.mode": "all"},
     {"name": "effects-static", "effects.mode": "static"},
     {"name": "res-0.5", "scene.scale": 0.5},
-    {"name": "iters-0.5x", "stage1.iterations": 0.5},
-    {"name": "iters-2x", "stage1.iterations": 2.0},
-    {"name": "cap-0.25x", "stage1.max_gaussians": 0.25},
+    {"name": "iters-0.5x", "training.iterations": 0.5},
+    {"name": "iters-2x", "training.iterations": 2.0},
+    {"name": "cap-0.25x", "training.max_gaussians": 0.25},
     {"name": "planes-0.5x", "init.mvs.planes": 0.5},
     {"name": "mvs-res-0.5x", "init.mvs.scale": 0.5},
 ]
 
 # Knobs whose override is a multiplier of the base value rather than an absolute value, so one
 # sweep file serves every scene size.
-RELATIVE_KNOBS = {"scene.scale", "stage1.iterations", "stage1.max_gaussians", "init.mvs.planes", "init.mvs.scale",
+RELATIVE_KNOBS = {"scene.scale", "training.iterations", "training.max_gaussians", "init.mvs.planes", "init.mvs.scale",
                   "stage2.refresh_every", "stage2.iterations", "restorer.learned.steps",
                   "restorer.learned.loo_iterations"}
 
@@ -329,7 +329,7 @@ def check_variants(variants: Any) -> None:
 
     if not isinstance(variants, list) or not variants:
         raise InputError('study variants: expected a non-empty JSON list of objects like [{"name": "base"}, '
-                         f'{{"name": "iters-2x", "stage1.iterations": 2.0}}], got {type(variants).__name__}')
+                         f'{{"name": "iters-2x", "training.iterations": 2.0}}], got {type(variants).__name__}')
     seen: dict[str, str] = {}
     for k, v in enumerate(variants):
         if not isinstance(v, dict):

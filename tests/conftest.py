@@ -20,7 +20,7 @@ PANOPTIC_DIR = Path(__file__).resolve().parents[1].parent / "shared/data/panopti
 
 @pytest.fixture(scope="session", autouse=True)
 def _auto_device_trains_on_the_cpu():
-    """Trainers whose config leaves ``stage1.device`` at "auto" train on the CPU here, on a machine
+    """Trainers whose config leaves ``training.device`` at "auto" train on the CPU here, on a machine
     with a GPU too: the figures the tests hold were measured on the CPU, and CUDA runs are not
     bit-reproducible. A test of the GPU path asks for "cuda" by name."""
     import fixer4d.train.trainer as trainer_module

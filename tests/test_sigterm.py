@@ -38,7 +38,7 @@ def test_a_terminated_run_says_so_and_resumes(tmp_path):
     pytest.importorskip("pycolmap")
     run = tmp_path / "run"
     cmd = [sys.executable, "-m", "fixer4d.cli", "run", "tiny", "--out", str(run), "--quiet", "--no-baseline",
-           "--set", "stage1.iterations=200", "--set", "stage2.rounds=0", "--set", "eval.restoration_rows=false",
+           "--set", "training.iterations=200", "--set", "stage2.rounds=0", "--set", "eval.restoration_rows=false",
            "--set", "init_frame_stride=2"]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

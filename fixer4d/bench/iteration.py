@@ -62,7 +62,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--iterations", type=positive_int, default=30, help="timed iterations")
     parser.add_argument("--warmup", type=int, default=3, help="untimed iterations first (JIT compilation)")
     parser.add_argument("--backend", default="auto")
-    parser.add_argument("--max-points", type=int, default=None, help="init point cap (default: Stage1Config's)")
+    parser.add_argument("--max-points", type=int, default=None, help="init point cap (default: TrainingConfig's)")
     parser.add_argument("--out", default="benchmarks/results/iteration.json")
     parser.add_argument("--effects", action="store_true",
                         help="instead: seconds per iteration with effects auto vs all vs the per-frame init "
@@ -85,7 +85,7 @@ def _iteration_main(args) -> int:
     from fixer4d.atomic import write_json
     from fixer4d.model.densify import densify_and_prune
     from fixer4d.scene import load_scene
-    from fixer4d.train.config import Stage1Config
+    from fixer4d.train.config import TrainingConfig
     from fixer4d.train.model_init import model_from_clouds
     from fixer4d.train.trainer import Trainer
 
@@ -93,7 +93,7 @@ def _iteration_main(args) -> int:
     cam = scene.cameras[scene.train_ids[0]]
     extra = {} if args.max_points is None else {"init_max_points": args.max_points}
     # statistics gathered every step, but no densify call inside the timed loop (it would change N)
-    cfg = Stage1Config(iterations=args.warmup + args.iterations, backend=args.backend, progress=False,
+    cfg = TrainingConfig(iterations=args.warmup + args.iterations, backend=args.backend, progress=False,
                        densify_from=10 ** 9, densify_until=10 ** 9 + 1, **extra)
     model = model_from_clouds(depth_clouds(scene), scene, cfg)
     trainer = Trainer(model, scene, cfg)
@@ -211,7 +211,7 @@ def _effects_main(args) -> int:
     from fixer4d.init import run_init
     from fixer4d.init.decompose import DecomposedInit
     from fixer4d.scene import load_scene
-    from fixer4d.train.config import Stage1Config
+    from fixer4d.train.config import TrainingConfig
 
     clip = _clip(args.frames)
     scene = load_scene(args.scene, scale=args.scale, frame_range=clip)
@@ -223,7 +223,7 @@ def _effects_main(args) -> int:
     else:
         init = DecomposedInit.load(args.init)
     extra = {} if args.max_points is None else {"init_max_points": args.max_points}
-    cfg = Stage1Config(iterations=10 ** 9, backend=args.backend, progress=False,
+    cfg = TrainingConfig(iterations=10 ** 9, backend=args.backend, progress=False,
                        densify_from=10 ** 9, densify_until=10 ** 9 + 1, **extra)
     result = {"benchmark": "iteration-effects", "scene": scene.name, "frame_range": clip, "init_frames": frames,
               "iterations": args.iterations, "warmup": args.warmup, "init_max_points": cfg.init_max_points,

@@ -11,7 +11,7 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", default=None, metavar="FILE",
                         help="a JSON config (a run's config.json or a partial tree) applied over the defaults")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="any config value by dotted key, e.g. --set stage1.iterations=800 (JSON values); "
+                        help="any config value by dotted key, e.g. --set training.iterations=800 (JSON values); "
                              "see --print-config for every key")
     parser.add_argument("--print-config", action="store_true",
                         help="print the resolved config (every key, validated) and exit without running")

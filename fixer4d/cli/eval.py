@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     folder = RunFolder.open(args.run)
     model_path = find_model(folder.path, args.model)
     model = load_ply(model_path).eval()
-    render_fn = model_render_fn(model, args.backend, folder.config.stage1.background)
+    render_fn = model_render_fn(model, args.backend, folder.config.training.background)
     method = args.method or method_name_for(model_path, folder.config.init_method)
     stride = folder.config.eval.stride if args.stride is None else args.stride
     if stride < 1:

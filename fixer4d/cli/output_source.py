@@ -49,7 +49,7 @@ class OutputSource:
 
     @property
     def background(self) -> tuple[float, float, float] | None:
-        return None if self.config is None else tuple(self.config.stage1.background)
+        return None if self.config is None else tuple(self.config.training.background)
 
 
 def open_source(source: str | Path, model_path: Path) -> OutputSource:

@@ -35,9 +35,9 @@ def run(args: argparse.Namespace) -> int:
     from fixer4d.errors import InputError
     from fixer4d.pipeline.run import run_pipeline
 
-    flags = {"init.method": args.init, "stage1.iterations": args.iterations, "scene.scale": args.scale,
+    flags = {"init.method": args.init, "training.iterations": args.iterations, "scene.scale": args.scale,
              "scene.frame_range": frame_range_override(args.frames), "seed": args.seed,
-             "stage1.seed": args.seed, "stage1.backend": args.backend, "eval.stride": args.eval_stride}
+             "training.seed": args.seed, "training.backend": args.backend, "eval.stride": args.eval_stride}
     config = resolve_from_args(args, flags, source=args.scene, forced=RECONSTRUCT_ONLY)
     if maybe_print_config(args, config):
         return 0

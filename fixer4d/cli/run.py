@@ -54,14 +54,14 @@ def run(args: argparse.Namespace) -> int:
     from fixer4d.scene.capture import parse_offsets
 
     flags = {"scene.scale": args.scale, "scene.frame_range": frame_range_override(args.frames),
-             "stage1.iterations": args.iterations, "stage2.rounds": args.rounds,
+             "training.iterations": args.iterations, "stage2.rounds": args.rounds,
              "stage2.refresh_every": args.refresh_every, "stage2.lambda_gen": args.lambda_gen,
              "init.method": args.init, "eval.stride": args.eval_stride, "restorer.kind": args.restorer,
              "effects.mode": args.effects,
              "baseline_sparse": False if args.no_baseline else None,
              "segments.frames": args.segment_frames, "executor.kind": args.executor,
              "executor.ray_address": args.ray_address,
-             "seed": args.seed, "stage1.seed": args.seed, "stage2.seed": args.seed,
+             "seed": args.seed, "training.seed": args.seed, "stage2.seed": args.seed,
              "scene.offsets": parse_offsets(args.offset) if args.offset else None, "scene.holdout": args.holdout,
              "scene.calibration": str(Path(args.calibration).resolve()) if args.calibration else None}
     flags.update(paper_stage2_overrides(args))

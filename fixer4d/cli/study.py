@@ -13,7 +13,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="JSON file with a list of variants ({'name': ..., 'dotted.key': value}); default: the built-in sweep")
     parser.add_argument("--only", default=None, help="comma-separated variant names to run from the sweep")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="override applied to every variant, e.g. --set stage1.iterations=800 (JSON values)")
+                        help="override applied to every variant, e.g. --set training.iterations=800 (JSON values)")
     parser.add_argument("--rank", default="psnr", choices=["psnr", "psnr_dynamic", "psnr_static"],
                         help="what 'the fastest variant within 0.5 dB of the best' ranks by: all pixels (default), "
                              "the held-out moving-content mask's, or the static pixels' PSNR")

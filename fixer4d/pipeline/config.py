@@ -4,8 +4,8 @@
       scene         SceneConfig        which scene, scale, frame range
       init          InitConfig         (init/run.py) method mvs|sparse, plane sweep, fusion, ...
       effects       EffectsConfig      (model/effects.py) auto|all|static + forced switches
-      stage1        Stage1Config       (train/config.py) STGS on the four observed views
-      stage2        Stage2Config       (train/config.py) restoration-guided refinement
+      training      TrainingConfig     (train/config.py) what every training of the run shares
+      stage2        Stage2Config       (train/config.py) what stage 2 (restoration-guided refinement) adds
       trajectories  TrajectoryConfig   the novel trajectories restored in stage 2
       restorer      RestoreConfig      (restore/config.py) kind learned|warp|cogvideo + each kind's settings
       eval          EvalConfig         held-out evaluation
@@ -17,11 +17,13 @@
 A config is built from the defaults, then an optional config file (a ``config.json`` of another
 run or a hand-written partial one), then ``--set`` overrides (dotted keys). ``resolve`` does all
 three and the validation; the resolved tree is what ``config.json`` stores, with
-``FORMAT_VERSION``.
+``FORMAT_VERSION``. A section under its former name (``RENAMED_SECTIONS``: a config.json of an
+older run, an old config file, ``--set stage1.iterations=...``) still loads, with a one-line note.
 """
 from __future__ import annotations
 
 import copy
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,12 +36,19 @@ from fixer4d.pipeline.executors import ExecutorConfig
 from fixer4d.pipeline.segments import SegmentConfig
 from fixer4d.pipeline.self_check import SelfCheckConfig
 from fixer4d.restore.config import RestoreConfig
-from fixer4d.train.config import Stage1Config, Stage2Config
+from fixer4d.train.config import TrainingConfig, Stage2Config
+
+log = logging.getLogger("fixer4d.pipeline")
 
 # Version of the run-folder layout and config.json schema. 1: the first landing (config.json
 # {"scene", "pipeline"} or reconstruct's {"scene", "init", "stage1"}); 2: {"format_version",
-# "config": RunConfig} plus per-stage keys in stages.json.
-FORMAT_VERSION = 2
+# "config": RunConfig} plus per-stage keys in stages.json; 3: section "stage1" renamed "training".
+FORMAT_VERSION = 3
+
+# Config sections renamed since they were written into run folders and config files: former name
+# -> name. The stage keys hash the sections' contents, not their names, so a renamed section
+# leaves every finished stage of an older run reusable.
+RENAMED_SECTIONS = {"stage1": "training"}
 
 # The paper's stage 2 (`--paper-stage2`): every pseudo-view pixel supervised by the restored
 # frame with the restorer's confidence as weight, densified from every render, stage 2 run
@@ -130,7 +139,7 @@ class RunConfig:
     scene: SceneConfig = field(default_factory=SceneConfig)
     init: InitConfig = field(default_factory=InitConfig)
     effects: EffectsConfig = field(default_factory=EffectsConfig)
-    stage1: Stage1Config = field(default_factory=Stage1Config)
+    training: TrainingConfig = field(default_factory=TrainingConfig)
     stage2: Stage2Config = field(default_factory=Stage2Config)
     trajectories: TrajectoryConfig = field(default_factory=TrajectoryConfig)
     restorer: RestoreConfig = field(default_factory=RestoreConfig)
@@ -151,8 +160,9 @@ class RunConfig:
         return config_tree.to_dict(self)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "RunConfig":
-        return config_tree.build(cls, d)
+    def from_dict(cls, d: dict[str, Any], source: str = "config") -> "RunConfig":
+        """The config of tree ``d`` (sections under a former name renamed, with a note naming ``source``)."""
+        return config_tree.build(cls, current_names(d, source))
 
     @property
     def init_method(self) -> str:
@@ -171,32 +181,58 @@ def resolve(source: str | None = None, *, config_file: str | Path | dict[str, An
     JSON config (a run's ``config.json`` or a partial tree) or the dict itself. relative: dotted
     keys whose override multiplies the value it replaces (a study's "half the iterations").
     """
-    tree = copy.deepcopy(defaults or {})
+    tree = current_names(copy.deepcopy(defaults or {}), "defaults")
     if config_file is not None:
-        tree = config_tree.merge(tree, copy.deepcopy(_read_config_file(config_file)))
+        where = "--config" if isinstance(config_file, dict) else f"--config {config_file}"
+        tree = config_tree.merge(tree, current_names(copy.deepcopy(_read_config_file(config_file)), where))
     if source is not None:
         # a scene folder or spec file is stored as an absolute path, so that the run folder's
         # config names the same scene from any working directory (refine, eval, the viewer)
         path = Path(str(source))
         config_tree.set_dotted(tree, "scene.source", str(path.resolve()) if path.exists() else str(source))
-    relative = relative or set()
-    overrides = dict(overrides or {})
-    if "stage1.iterations" in overrides:
+    relative = {_current_key(k) for k in relative or set()}
+    overrides = {_current_key(k, note=True): v for k, v in (overrides or {}).items()}
+    if "training.iterations" in overrides:
         # first, so that a schedule key given beside it wins over the derived one
-        value = overrides.pop("stage1.iterations")
-        if "stage1.iterations" in relative:
-            value = _scaled(tree, "stage1.iterations", value)
-        stage1 = tree.get("stage1")
-        if isinstance(stage1, dict) and isinstance(value, int) and not isinstance(value, bool):
+        value = overrides.pop("training.iterations")
+        if "training.iterations" in relative:
+            value = _scaled(tree, "training.iterations", value)
+        training = tree.get("training")
+        if isinstance(training, dict) and isinstance(value, int) and not isinstance(value, bool):
             # a full config (a run's config.json, a study's base) writes its schedule out
-            tree["stage1"] = Stage1Config.rescheduled(stage1, value)
+            tree["training"] = TrainingConfig.rescheduled(training, value)
         else:
-            config_tree.set_dotted(tree, "stage1.iterations", value)
+            config_tree.set_dotted(tree, "training.iterations", value)
     for key, value in overrides.items():
         if key in relative:
             value = _scaled(tree, key, value)
         config_tree.set_dotted(tree, key, value)
     return RunConfig.from_dict(tree)
+
+
+def current_names(tree: dict[str, Any], source: str) -> dict[str, Any]:
+    """``tree`` with every section under a former name (``RENAMED_SECTIONS``) under its name,
+    one note per renamed section; InputError when a tree holds a section under both names."""
+    for old, new in RENAMED_SECTIONS.items():
+        if old not in tree:
+            continue
+        if new in tree:
+            raise InputError(f"{source}: sections {old!r} and {new!r} are the same section (its former and "
+                             f"current name); keep {new!r}")
+        log.warning("%s: config section %r is now called %r (read as %r)", source, old, new, new)
+        tree = {new if k == old else k: v for k, v in tree.items()}
+    return tree
+
+
+def _current_key(key: str, note: bool = False) -> str:
+    """A dotted override key with a former section name replaced (``RENAMED_SECTIONS``)."""
+    head, dot, rest = key.partition(".")
+    if head not in RENAMED_SECTIONS:
+        return key
+    new = f"{RENAMED_SECTIONS[head]}{dot}{rest}"
+    if note:
+        log.warning("--set %s: config section %r is now called %r; read as %s", key, head, RENAMED_SECTIONS[head], new)
+    return new
 
 
 def _scaled(tree: dict[str, Any], key: str, factor: Any) -> Any:
@@ -246,9 +282,9 @@ def migrate_v1(data: dict[str, Any]) -> dict[str, Any]:
         tree.update(p)
         tree["restorer"] = RestoreConfig.from_dict(tree.get("restorer")).to_dict()  # flat warp keys -> warp
         return tree
-    tree = {k: data[k] for k in ("scene", "init", "stage1", "stage2") if k in data}
-    stage1 = dict(tree.get("stage1", {}))
-    stage1.pop("progress", None)
-    tree["stage1"] = stage1
+    tree = {k: data[k] for k in ("scene", "init", "stage2") if k in data}
+    training = dict(data.get("stage1", {}))
+    training.pop("progress", None)
+    tree["training"] = training
     tree.update({"baseline_sparse": False, "stage2": {**tree.get("stage2", {})}})
     return tree

@@ -1,12 +1,12 @@
 """Typed configuration trees: nested dataclasses built from plain dicts, validated in full.
 
-Every stage defines its own dataclass beside the stage (``Stage1Config`` in train/config.py,
+Every stage defines its own dataclass beside the stage (``TrainingConfig`` in train/config.py,
 ``InitConfig`` in init/run.py, ...); ``RunConfig`` nests them. This module turns a partial nested
 dict (defaults, a config file, ``--set`` overrides) into that tree and checks everything before
 anything is written: unknown keys (with "did you mean ..."), wrong types and each dataclass's own
 range checks (its ``__post_init__``), always naming the dotted key. A dataclass may define a
 classmethod ``from_partial(**given)`` that builds it from the keys actually given (used by
-``Stage1Config`` to scale its schedule to the iterations unless the schedule is given).
+``TrainingConfig`` to scale its schedule to the iterations unless the schedule is given).
 """
 from __future__ import annotations
 
@@ -175,7 +175,7 @@ def parse_set_overrides(items: list[str]) -> dict[str, Any]:
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            raise InputError(f"--set {item!r}: expected KEY=VALUE, e.g. stage1.iterations=800")
+            raise InputError(f"--set {item!r}: expected KEY=VALUE, e.g. training.iterations=800")
         try:
             out[key.strip()] = json.loads(value)
         except json.JSONDecodeError:

@@ -9,7 +9,8 @@ from typing import Any
 
 from fixer4d.pipeline.config import RunConfig
 from fixer4d.pipeline.run_folder import stage_key
-from fixer4d.train.checkpoints import RESULT_NEUTRAL
+from fixer4d.train.checkpoints import result_settings
+from fixer4d.train.device import device_kind
 
 __all__ = ["init_key", "stage1_key", "restorer_key", "stage2_key", "matched_key", "self_check_key",
            "SELF_CHECK_DECISION_SETTINGS", "training_settings",
@@ -17,10 +18,16 @@ __all__ = ["init_key", "stage1_key", "restorer_key", "stage2_key", "matched_key"
 
 
 # ---------------------------------------------------------------------------------------------
-def training_settings(stage1_dict: dict[str, Any]) -> dict[str, Any]:
-    """Stage-1 settings that change the trained model (not progress display, checkpoint cadence or
-    the device trained on)."""
-    return {k: v for k, v in stage1_dict.items() if k not in RESULT_NEUTRAL}
+def training_settings(training: dict[str, Any]) -> dict[str, Any]:
+    """The training settings that change the trained model (``checkpoints.result_settings``) and,
+    for a training on CUDA, the device: CUDA and the CPU give other digits, so a stage trained on
+    one is not reused for a run on the other. The CPU adds nothing, so the keys of CPU trainings
+    (every run folder from before the device was keyed) stay as they were."""
+    out = result_settings(training)
+    kind = device_kind(training["device"], training["backend"])
+    if kind != "cpu":
+        out["trained_on"] = kind
+    return out
 
 
 def scene_settings(scene: dict[str, Any]) -> dict[str, Any]:
@@ -42,7 +49,7 @@ def init_key(config: RunConfig, method: str) -> str:
 
 def stage1_key(config: RunConfig, method: str) -> str:
     d = config.to_dict()
-    return stage_key("stage1", init_key(config, method), training_settings(d["stage1"]), config.seed, d["effects"],
+    return stage_key("stage1", init_key(config, method), training_settings(d["training"]), config.seed, d["effects"],
                      *shared_static_key(config))
 
 
@@ -73,7 +80,7 @@ def restorer_key(config: RunConfig) -> str:
     if rc.kind != "learned":
         return stage_key("restorer", rc.settings_key())
     return stage_key("restorer", rc.settings_key(), init_key(config, config.init_method),
-                     training_settings(config.to_dict()["stage1"]), config.seed, *shared_static_key(config))
+                     training_settings(config.to_dict()["training"]), config.seed, *shared_static_key(config))
 
 
 def matched_key(config: RunConfig) -> str:

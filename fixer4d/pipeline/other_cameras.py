@@ -60,7 +60,7 @@ def evaluate_on_other_cameras(run_dir: str | Path, other: str | Path, *, progres
     check_same_train_cameras(folder.scene, scene)
     out = folder.path / "heldout" / Path(source).name
     ev = config.eval
-    bg = config.stage1.background
+    bg = config.training.background
     stage1_path = folder.path / "model_stage1.ply"
     if not stage1_path.is_file():
         raise InputError(f"{folder.path}: no model_stage1.ply; run `fixer4d run` to the end first")

@@ -27,7 +27,7 @@ from fixer4d.pipeline.run_folder import RunFolder, load_scene_for, stage_key
 from fixer4d.pipeline.shared_static import SHARED_DIR, export_shared_static
 from fixer4d.pipeline.stage_cache import StageCache
 from fixer4d.render.views import model_render_fn
-from fixer4d.train.device import training_device
+from fixer4d.train.device import device_kind, training_device
 
 log = logging.getLogger("fixer4d.pipeline")
 
@@ -42,7 +42,7 @@ def open_context(config: RunConfig, out: str | Path, *, progress: bool = True,
     validate_scene(scene)  # a video that opens but does not decode fails here, naming file and frame
     if config.restorer.kind == "cogvideo":  # an unavailable restorer stops before any work
         run_restorer(config)
-    training_device(config.stage1.device, config.stage1.backend)  # a device that is not there, likewise
+    training_device(config.training.device, config.training.backend)  # a device that is not there, likewise
     run = RunFolder.create(out, config)
     return S.StageContext(run=run, scene=scene, progress=progress,
                           cache=StageCache(stage_cache) if stage_cache is not None else None)
@@ -80,7 +80,7 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
     s1_key = S.stage1_key(config, method)
     # the held-out pixels no train camera explains, from the stage-1 model: one region for every row
     unobserved = UnobservedMasks(model, ctx.scene, config.stage2.visibility, ctx.backend)
-    m = S.evaluate_stage(ctx, main_row, model_render_fn(model, ctx.backend, config.stage1.background), s1_key,
+    m = S.evaluate_stage(ctx, main_row, model_render_fn(model, ctx.backend, config.training.background), s1_key,
                          report.seconds("stage1"), unobserved)
     report.add(R.metrics_row(main_row, m, rec.seconds(f"init_{method}", "stage1")))
     final_metrics = m
@@ -130,7 +130,9 @@ class _Report:
 
     def extra(self) -> dict[str, Any]:
         out = {"restorer": S.restorer_summary(self.ctx), "peak_rss_mb": peak_rss_mb(),
-               "numerics": numerics.status(), **self.checks}
+               "numerics": numerics.status(), **self.checks,
+               # where this run's trainings ran: a stage trained on another device has another key
+               "training_device": device_kind(self.ctx.config.training.device, self.ctx.config.training.backend)}
         effects = self.ctx.path / S.EFFECTS_NAME
         if effects.is_file():  # the main model's effects and why
             out["model"] = json.loads(effects.read_text())
@@ -149,7 +151,7 @@ def _baseline_sparse_row(ctx: S.StageContext, report: _Report) -> None:
     try:
         clouds = S.init_stage(ctx, "sparse")
         base = S.stage1(ctx, "sparse", clouds, ctx.path / "baseline_sparse" / "model_stage1.ply", "stage1_sparse")
-        m = S.evaluate_stage(ctx, R.ROW_COLMAP, model_render_fn(base, ctx.backend, config.stage1.background),
+        m = S.evaluate_stage(ctx, R.ROW_COLMAP, model_render_fn(base, ctx.backend, config.training.background),
                              S.stage1_key(config, "sparse"),
                              {"prep": rec.seconds("init_sparse"), "train": rec.seconds("stage1_sparse")})
         report.add(R.metrics_row(R.ROW_COLMAP, m, rec.seconds("init_sparse", "stage1_sparse")))
@@ -168,7 +170,7 @@ def _stage1_restoration_rows(ctx: S.StageContext, report: _Report, model, restor
     config, rec = ctx.config, ctx.run.records
     method = config.init_method
     report.add(R.copied_row(R.ROW_IDENTITY, stage1_metrics))
-    blur = blur_render_fn(model, config.eval.blur_sigma_px, ctx.backend, config.stage1.background)
+    blur = blur_render_fn(model, config.eval.blur_sigma_px, ctx.backend, config.training.background)
     mb = S.evaluate_stage(ctx, R.ROW_BLUR, blur, stage_key(s1_key, "blur", config.eval.blur_sigma_px),
                           report.seconds("stage1"), unobserved)
     report.add(R.metrics_row(R.ROW_BLUR, mb, rec.seconds(f"init_{method}", "stage1")))
@@ -185,7 +187,7 @@ def _matched_row(ctx: S.StageContext, report: _Report, model, unobserved) -> Non
     """Stage 1 continued as long as stage 2 trains, without pseudo-views (the control row)."""
     config, rec = ctx.config, ctx.run.records
     matched = S.matched_stage1(ctx, model)
-    m = S.evaluate_stage(ctx, R.ROW_MATCHED, model_render_fn(matched, ctx.backend, config.stage1.background),
+    m = S.evaluate_stage(ctx, R.ROW_MATCHED, model_render_fn(matched, ctx.backend, config.training.background),
                          S.matched_key(config), report.seconds("stage1", "matched"), unobserved)
     report.add(R.metrics_row(R.ROW_MATCHED, m, rec.seconds(f"init_{config.init_method}", "stage1", "matched")))
     del matched
@@ -199,7 +201,7 @@ def _final_rows(ctx: S.StageContext, report: _Report, model, decision: str, rest
     trained = ("matched",) if decision == "continue" else ()
     full_secs = rec.seconds(f"init_{config.init_method}", "stage1", "restorer", "self_check", *trained, "stage2")
     s2_key = stage_key(S.stage2_key(config), decision)
-    final = S.evaluate_stage(ctx, R.ROW_FULL, model_render_fn(model, ctx.backend, config.stage1.background), s2_key,
+    final = S.evaluate_stage(ctx, R.ROW_FULL, model_render_fn(model, ctx.backend, config.training.background), s2_key,
                              report.seconds("stage1", "restorer", "self_check", "stage2"), unobserved)
     report.add(R.metrics_row(R.ROW_FULL, final, full_secs))
     if restorer is not None and config.eval.restoration_rows:
@@ -328,7 +330,7 @@ def run_segmented(config: RunConfig, out: str | Path, *, progress: bool = True,
             rows.append(row)
             continue
         stitched = SegmentedModel([load_ply(Path(j[1]) / model_file) for j in jobs], ranges, scene.num_frames)
-        m = S.evaluate_stage(ctx, name, model_render_fn(stitched, ctx.backend, config.stage1.background),
+        m = S.evaluate_stage(ctx, name, model_render_fn(stitched, ctx.backend, config.training.background),
                              stage_key(key, name), {"train": seconds})
         rows.append(R.metrics_row(name, m, seconds))
         del stitched

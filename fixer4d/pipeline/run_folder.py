@@ -7,7 +7,8 @@
 Every entry point opens a run through ``RunFolder``: ``create`` for a new or resumed run (refuses a
 folder that holds another configuration, naming the keys that differ), ``open`` for an existing one
 (refine, eval, the viewer). A format-1 folder (the first landing) is migrated in place, its old
-config kept as ``config.v1.json``; anything else that is not a fixer4d run is refused in one sentence.
+config kept as ``config.v1.json``; a format-2 one is rewritten with its renamed sections
+(``pipeline.config.RENAMED_SECTIONS``); anything else that is not a fixer4d run is refused in one sentence.
 """
 from __future__ import annotations
 
@@ -144,7 +145,7 @@ class RunFolder:
                 from fixer4d.train.config import SCHEDULE_KEYS
 
                 # the keys a user sets first, the densification schedule an iteration count implies last
-                derived = tuple(f"stage1.{k}" for k in SCHEDULE_KEYS)
+                derived = tuple(f"training.{k}" for k in SCHEDULE_KEYS)
                 changes = sorted(changes, key=lambda c: c.startswith(derived))
                 shown = "; ".join(changes[:4]) + (f"; and {len(changes) - 4} more" if len(changes) > 4 else "")
                 raise InputError(f"{path} holds a run with a different configuration ({shown}); use another --out, "
@@ -162,12 +163,13 @@ class RunFolder:
 
     @classmethod
     def open(cls, path: str | Path) -> "RunFolder":
-        """An existing run (migrating a format-1 folder in place)."""
+        """An existing run (migrating an older format's config.json in place)."""
         path = Path(path)
         config, version = _read_config(path)
         folder = cls(path, config)
         if version is None:
             shutil.copy2(path / CONFIG_NAME, path / "config.v1.json")
+        if version != FORMAT_VERSION:
             folder.save_config()
         return folder
 
@@ -212,7 +214,7 @@ def _read_config(path: Path) -> tuple[RunConfig, int | None]:
     if not isinstance(version, int) or version > FORMAT_VERSION:
         raise InputError(f"{path}: run folder format {version!r} is newer than this fixer4d understands "
                          f"({FORMAT_VERSION}); update fixer4d")
-    return RunConfig.from_dict(data.get("config") or {}), version
+    return RunConfig.from_dict(data.get("config") or {}, str(cfg_path)), version
 
 
 def load_scene_for(config: RunConfig):

@@ -82,10 +82,10 @@ class StageContext:
 
     @property
     def backend(self) -> str:
-        return self.config.stage1.backend
+        return self.config.training.backend
 
-    def stage1_config(self, **changes: Any):
-        return dataclasses.replace(self.config.stage1, progress=self.progress, **changes)
+    def training_config(self, **changes: Any):
+        return dataclasses.replace(self.config.training, progress=self.progress, **changes)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -161,13 +161,13 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
 def stage1_trainer(ctx: StageContext, init, run_dir: Path | None):
     """(Trainer, effects decision) exactly as ``stage1`` builds them: the model from ``init`` (a
     decomposed init -> effects decided by evidence under ``config.effects``; per-frame clouds ->
-    every effect on), the run's Stage1Config with its scaled schedule, effect revisions during
+    every effect on), the run's TrainingConfig with its scaled schedule, effect revisions during
     training. For callers that step the trainer themselves too (the viewer's live training).
     run_dir: where checkpoints go (None: none)."""
     from fixer4d.train.model_init import model_from_init
     from fixer4d.train.trainer import Trainer
 
-    cfg = ctx.stage1_config()
+    cfg = ctx.training_config()
     model, decision = model_from_init(init, ctx.train_scene, cfg, ctx.config.effects)
     if ctx.config.segments.static_from is not None:
         from fixer4d.pipeline.shared_static import add_shared_static, load_shared
@@ -219,7 +219,7 @@ def restorer_stage(ctx: StageContext, clouds, model):
     if ctx.run.records.begin("restorer", key):
         _clear(ctx.path / RESTORER_DIR)
     t0 = time.perf_counter()
-    restorer = train_scene_restorer(ctx.train_scene, clouds, ctx.stage1_config(), ctx.path / RESTORER_DIR, rc,
+    restorer = train_scene_restorer(ctx.train_scene, clouds, ctx.training_config(), ctx.path / RESTORER_DIR, rc,
                                     progress=ctx.progress, model=model)
     ctx.run.records.finish("restorer", key, time.perf_counter() - t0)
     return restorer
@@ -270,7 +270,7 @@ def stage2(ctx: StageContext, model, refresh: Callable[[Any, int], None] | None 
 
         refresh = make_refresh_callback(ctx.path, ctx.train_scene, ctx.config, progress=ctx.progress, backend=ctx.backend,
                                         executor=executor_for(ctx.config.executor))
-    trainer = Trainer(model, ctx.train_scene, ctx.stage1_config(), run_dir=ctx.path, stage2=ctx.config.stage2,
+    trainer = Trainer(model, ctx.train_scene, ctx.training_config(), run_dir=ctx.path, stage2=ctx.config.stage2,
                       cache=RestoreCache(ctx.path / "cache", fingerprint=key), refresh_cache=refresh,
                       camera_response=stage1_response(ctx))
     prior = trainer.train_seconds if trainer.resume() else 0.0
@@ -297,7 +297,7 @@ def matched_stage1(ctx: StageContext, model):
         _drop_checkpoints(out, 1)
     from fixer4d.train.config import matched_config
 
-    cfg = matched_config(ctx.stage1_config(), ctx.config.stage2)
+    cfg = matched_config(ctx.training_config(), ctx.config.stage2)
     t0 = time.perf_counter()
     # a copy: the Trainer updates its model in place, and stage 2 must start from the stage-1 model
     trainer = Trainer(copy.deepcopy(model), ctx.train_scene, cfg, run_dir=out, camera_response=stage1_response(ctx))

@@ -14,7 +14,8 @@ import torch
 
 from fixer4d.atomic import atomic_path
 from fixer4d.errors import InputError
-from fixer4d.train.config import Stage1Config, Stage2Config
+from fixer4d.train.config import Stage2Config, TrainingConfig
+from fixer4d.train.device import device_kind
 
 # Version of the checkpoint layout (the keys of Trainer.state_dict()), bumped when they change meaning.
 # Checkpoints hold tensors, numbers, strings and containers only, so that they load with
@@ -24,16 +25,24 @@ CHECKPOINT_DIR = "checkpoints"
 _CKPT_NAME = re.compile(r"^stage(\d)_(\d{7})\.pt$")
 # The temporary that fixer4d.atomic.atomic_path writes a checkpoint to before the rename.
 _CKPT_TEMP = re.compile(r"^\.stage(\d)_\d{7}\.pt\..+$")
-# Stage-1 settings that do not change a result (progress display, checkpoint cadence, the device
-# trained on): a run may resume with other values.
-RESULT_NEUTRAL = ("progress", "checkpoint_every", "keep_checkpoints", "device")
+# Training settings that do not change a result (progress display, checkpoint cadence): a run
+# may resume with other values.
+RESULT_NEUTRAL = ("progress", "checkpoint_every", "keep_checkpoints")
 
 
-def training_settings(config: Stage1Config, stage2: Stage2Config | None) -> dict[str, Any]:
-    """The settings a checkpoint records and a resume must match: "config" (the Stage1Config
-    without the result-neutral fields) and "stage2" (the Stage2Config, None in stage 1)."""
-    return {"config": {k: v for k, v in config.to_dict().items() if k not in RESULT_NEUTRAL},
-            "stage2": None if stage2 is None else stage2.to_dict()}
+def result_settings(config: dict[str, Any]) -> dict[str, Any]:
+    """A TrainingConfig's settings that decide its result: all but the result-neutral ones and the
+    requested ``device``, which decides nothing until resolved: the device a training runs on
+    (``device_kind``) is recorded beside them instead."""
+    return {k: v for k, v in config.items() if k not in RESULT_NEUTRAL and k != "device"}
+
+
+def training_settings(config: TrainingConfig, stage2: Stage2Config | None) -> dict[str, Any]:
+    """The settings a checkpoint records and a resume must match: "config" (``result_settings``),
+    "stage2" (the Stage2Config, None in stage 1) and "device", where the training runs ("cpu" |
+    "cuda")."""
+    return {"config": result_settings(config.to_dict()), "stage2": None if stage2 is None else stage2.to_dict(),
+            "device": device_kind(config.device, config.backend)}
 
 
 def check_resumable(state: dict[str, Any], stage: int, settings: dict[str, Any], source: str) -> None:
@@ -50,6 +59,12 @@ def check_resumable(state: dict[str, Any], stage: int, settings: dict[str, Any],
     if (state["config"], state["stage2"]) != (settings["config"], settings["stage2"]):
         raise InputError(f"{source}: written with another training config; resume with the same options, "
                          "or delete RUN/checkpoints to start over")
+    # a checkpoint from before the device was recorded resumes anywhere, as it always did
+    trained_on = state.get("device", settings["device"])
+    if trained_on != settings["device"]:
+        raise InputError(f"{source}: trained on {trained_on}, but this training runs on {settings['device']}: one "
+                         f"training's result comes from one device; resume it where it ran (training.device="
+                         f"{trained_on}), or delete RUN/checkpoints to train it again here")
 
 
 def write_checkpoint(state: dict[str, Any], run_dir: str | Path, stage: int, step: int, keep: int) -> Path:

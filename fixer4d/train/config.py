@@ -1,7 +1,10 @@
-"""Configuration of stage 1 (STGS on the observed views) and stage 2 (restoration-guided refinement).
+"""Configuration of the trainings of a run.
 
-One dataclass per stage, JSON-serializable with ``dataclasses.asdict`` and echoed into the run
-folder's config.json. Learning rates follow STGS/3DGS (values per Adam step; "x extent" means the
+``TrainingConfig`` (config section ``training``) holds what every training of a run shares:
+stage 1 (STGS on the observed views), stage 2, the matched-iterations control, the self-check's
+fold and the learned restorer's leave-one-out folds all train with it. ``Stage2Config`` (section
+``stage2``) is what stage 2 (restoration-guided refinement) adds. Both are JSON-serializable with
+``dataclasses.asdict`` and echoed into the run folder's config.json. Learning rates follow STGS/3DGS (values per Adam step; "x extent" means the
 value is multiplied by the scene extent, so a scene in metres and the same scene in millimetres
 train identically).
 """
@@ -23,7 +26,7 @@ PSEUDO_TARGETS = ("restored", "gated")
 DENSIFY_STATS = ("all", "observed", "evidence")
 
 # 3DGS trains 30k iterations and densifies from 500 to 15k every 100, resetting opacities every
-# 3000; ``Stage1Config.for_iterations`` scales that schedule to shorter runs.
+# 3000; ``TrainingConfig.for_iterations`` scales that schedule to shorter runs.
 _REFERENCE_ITERATIONS = 30_000
 _REFERENCE_DENSIFY_FROM = 500
 # Densify no more often than every 10 steps (the gradient statistics need a few views per
@@ -36,7 +39,7 @@ _DENSIFY_ROUNDS = 30
 # lr_opacity 0.05 (logit -4.6 -> +2.2), and a reset must leave time for densification after it,
 # so resets are never closer than this (3DGS: every 3000 of 30k). Short runs get none.
 _MIN_RESET_INTERVAL = 500
-# the keys Stage1Config.for_iterations derives from the iteration count
+# the keys TrainingConfig.for_iterations derives from the iteration count
 SCHEDULE_KEYS = ("densify_every", "densify_from", "densify_until", "opacity_reset_every", "checkpoint_every")
 
 
@@ -44,24 +47,25 @@ FRAME_ORDERS = ("iid", "shuffled")
 
 
 @dataclass
-class Stage1Config:
-    """Stage 1: spacetime Gaussians optimized on the observed (train) views.
+class TrainingConfig:
+    """Spacetime Gaussians optimized on the observed (train) views: every training of a run.
 
     Each iteration draws one frame and ``views_per_step`` distinct train views and sums their
-    L_STG = 0.8 L1 + 0.2 D-SSIM losses.
+    L_STG = 0.8 L1 + 0.2 D-SSIM losses (stage 2 adds its pseudo-views, ``Stage2Config``).
     """
 
     # Sized so that the demo (three stage-1 trainings, two restoration rounds, six evaluations)
     # ends within 10 minutes on 2 idle CPU cores; raise it for quality. The schedule keys below
-    # are Stage1Config.for_iterations(1500)'s (a test keeps them in step). docs/protocol.md lists
+    # are TrainingConfig.for_iterations(1500)'s (a test keeps them in step). docs/protocol.md lists
     # the figures behind this default and the Gaussian budget.
     iterations: int = 1500
     seed: int = 0
     backend: str = "auto"
     # Where the trainer optimizes (fixer4d.train.device): "auto" takes CUDA when it and gsplat are
-    # there, else the CPU; "cpu" or "cuda" insist. It does not enter the stage keys or the
-    # checkpoints' settings: like the thread count it changes last digits, not the method, and
-    # a run begun on one device resumes on the other.
+    # there, else the CPU; "cpu" or "cuda" insist. The device trained on is part of a result's
+    # provenance (CUDA and the CPU give other last digits): the report and every checkpoint record
+    # it, a checkpoint resumes on its own device only, and a stage trained on CUDA has its own
+    # stage key (pipeline.keys.training_settings).
     device: str = "auto"
     views_per_step: int = 2
     # Which frame each step trains on: "iid" draws it uniformly at random; "shuffled" visits
@@ -149,26 +153,26 @@ class Stage1Config:
     def __post_init__(self) -> None:
         self.background = tuple(float(x) for x in self.background)  # type: ignore[assignment]
         if self.iterations < 0:
-            raise InputError(f"Stage1Config.iterations must be >= 0, got {self.iterations}")
+            raise InputError(f"TrainingConfig.iterations must be >= 0, got {self.iterations}")
         if self.device not in DEVICES:
-            raise InputError(f"Stage1Config.device {self.device!r}: choose one of {list(DEVICES)}")
+            raise InputError(f"TrainingConfig.device {self.device!r}: choose one of {list(DEVICES)}")
         if self.frame_order not in FRAME_ORDERS:
-            raise InputError(f"Stage1Config.frame_order {self.frame_order!r}: choose one of {list(FRAME_ORDERS)}")
+            raise InputError(f"TrainingConfig.frame_order {self.frame_order!r}: choose one of {list(FRAME_ORDERS)}")
         if self.views_per_step < 1:
-            raise InputError(f"Stage1Config.views_per_step must be >= 1, got {self.views_per_step}")
+            raise InputError(f"TrainingConfig.views_per_step must be >= 1, got {self.views_per_step}")
         if self.densify_every < 1 or self.checkpoint_every < 1 or self.opacity_reset_every < 1:
-            raise InputError("Stage1Config: densify_every, checkpoint_every and opacity_reset_every must be >= 1")
+            raise InputError("TrainingConfig: densify_every, checkpoint_every and opacity_reset_every must be >= 1")
         if self.moving_loss_weight < 0:
-            raise InputError(f"Stage1Config.moving_loss_weight must be >= 0, got {self.moving_loss_weight}")
+            raise InputError(f"TrainingConfig.moving_loss_weight must be >= 0, got {self.moving_loss_weight}")
         if self.max_gaussians < 1 or self.init_max_points < 1:
-            raise InputError("Stage1Config: max_gaussians and init_max_points must be >= 1")
+            raise InputError("TrainingConfig: max_gaussians and init_max_points must be >= 1")
         for name in ("prune_world_scale", "prune_screen_fraction"):
             value = getattr(self, name)
             if value is not None and not value > 0:
-                raise InputError(f"Stage1Config.{name} must be > 0 or null (off), got {value}")
+                raise InputError(f"TrainingConfig.{name} must be > 0 or null (off), got {value}")
 
     @classmethod
-    def for_iterations(cls, iterations: int, **overrides: Any) -> "Stage1Config":
+    def for_iterations(cls, iterations: int, **overrides: Any) -> "TrainingConfig":
         """A config whose densification/reset schedule is the 3DGS 30k schedule scaled to
         ``iterations`` (densify from ~1/60 to 1/2 of the run, ~30 rounds, one opacity reset at a
         quarter when the run is long enough to recover from it); explicit ``overrides`` win."""
@@ -186,12 +190,12 @@ class Stage1Config:
         return cls(**sched)
 
     @classmethod
-    def rescheduled(cls, stage1: dict[str, Any], iterations: int) -> dict[str, Any]:
-        """``stage1`` (a config tree section whose schedule may be written out, as in a run's
+    def rescheduled(cls, training: dict[str, Any], iterations: int) -> dict[str, Any]:
+        """``training`` (a config tree section whose schedule may be written out, as in a run's
         config.json) with its iteration count set to ``iterations``: every schedule key that
         still holds the value derived from the old count is derived again from the new one; a
         key the user set to something else is kept."""
-        out = dict(stage1)
+        out = dict(training)
         old = out.get("iterations", cls.iterations)
         out["iterations"] = int(iterations)
         derived_old = cls.for_iterations(old).to_dict()
@@ -202,9 +206,9 @@ class Stage1Config:
         return out
 
     @classmethod
-    def from_partial(cls, **given: Any) -> "Stage1Config":
+    def from_partial(cls, **given: Any) -> "TrainingConfig":
         """The config a run asks for: the schedule scaled to the given iterations (default
-        ``Stage1Config.iterations``) unless the schedule keys themselves are given."""
+        ``TrainingConfig.iterations``) unless the schedule keys themselves are given."""
         iterations = given.pop("iterations", cls.iterations)
         return cls.for_iterations(iterations, **given)
 
@@ -214,7 +218,7 @@ class Stage1Config:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Stage1Config":
+    def from_dict(cls, d: dict[str, Any]) -> "TrainingConfig":
         return cls(**_known(cls, d))
 
 
@@ -318,14 +322,14 @@ class Stage2Config:
         return cls(**_known(cls, d))
 
 
-def matched_config(stage1: Stage1Config, stage2: Stage2Config) -> Stage1Config:
-    """The Stage1Config of the matched-iterations control: ``stage1`` continued for stage 2's
+def matched_config(training: TrainingConfig, stage2: Stage2Config) -> TrainingConfig:
+    """The TrainingConfig of the matched-iterations control: ``training`` continued for stage 2's
     length with stage 2's learning rates, densification window and seed, and no opacity reset
     (stage 2 without pseudo-views)."""
     n = stage2.total_iterations
     until = int(stage2.densify_until_fraction * n)
-    return dataclasses.replace(stage1, iterations=n, lr_means_init=stage2.lr_means_init,
-                               lr_means_final=stage2.lr_means_final, densify_from=min(stage1.densify_every, until),
+    return dataclasses.replace(training, iterations=n, lr_means_init=stage2.lr_means_init,
+                               lr_means_final=stage2.lr_means_final, densify_from=min(training.densify_every, until),
                                densify_until=until, opacity_reset_every=n + 1, seed=stage2.seed)
 
 
@@ -340,4 +344,13 @@ def _known(cls: type, d: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-__all__ = ["Stage1Config", "Stage2Config", "matched_config"]
+__all__ = ["TrainingConfig", "Stage2Config", "matched_config"]
+
+
+def __getattr__(name: str) -> Any:
+    if name == "Stage1Config":  # the deprecation alias: the name before TrainingConfig
+        import warnings
+
+        warnings.warn("fixer4d.train.config.Stage1Config is now TrainingConfig", DeprecationWarning, stacklevel=2)
+        return TrainingConfig
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,4 +1,4 @@
-"""Where a Trainer optimizes: ``Stage1Config.device`` resolved against the machine.
+"""Where a Trainer optimizes: ``TrainingConfig.device`` resolved against the machine.
 
     device = training_device("auto", "auto")   # torch.device("cuda") with gsplat, else "cpu"
 
@@ -21,11 +21,11 @@ DEVICES = ("auto", "cpu", "cuda")
 # Render backends that rasterize CUDA tensors ("auto" means gsplat there).
 CUDA_BACKENDS = ("auto", "gsplat")
 
-__all__ = ["DEVICES", "CUDA_BACKENDS", "training_device"]
+__all__ = ["DEVICES", "CUDA_BACKENDS", "training_device", "device_kind"]
 
 
 def training_device(device: str, backend: str) -> torch.device:
-    """The torch.device a Trainer with ``Stage1Config(device=device, backend=backend)`` uses.
+    """The torch.device a Trainer with ``TrainingConfig(device=device, backend=backend)`` uses.
 
     "cpu": the CPU. "cuda": the current CUDA device; BackendUnavailable when CUDA or gsplat is
     missing, InputError for a backend that renders host tensors only ("cpu", "reference").
@@ -33,7 +33,7 @@ def training_device(device: str, backend: str) -> torch.device:
     the CPU.
     """
     if device not in DEVICES:
-        raise InputError(f"Stage1Config.device {device!r}: choose one of {', '.join(DEVICES)}")
+        raise InputError(f"TrainingConfig.device {device!r}: choose one of {', '.join(DEVICES)}")
     if device == "cpu":
         return torch.device("cpu")
     from fixer4d.render import gsplat_backend
@@ -43,12 +43,23 @@ def training_device(device: str, backend: str) -> torch.device:
             return torch.device("cuda")
         return torch.device("cpu")
     if backend not in CUDA_BACKENDS:
-        raise InputError(f"Stage1Config.device 'cuda' with backend {backend!r}: that backend renders host tensors "
+        raise InputError(f"TrainingConfig.device 'cuda' with backend {backend!r}: that backend renders host tensors "
                          f"only; use backend {' or '.join(CUDA_BACKENDS)}, or device cpu")
     if not torch.cuda.is_available():
-        raise BackendUnavailable("Stage1Config.device 'cuda': CUDA is not available (torch.cuda.is_available() is "
-                                 "False); set stage1.device=cpu or auto")
+        raise BackendUnavailable("TrainingConfig.device 'cuda': CUDA is not available (torch.cuda.is_available() is "
+                                 "False); set training.device=cpu or auto")
     reason = gsplat_backend.unavailable_reason()
     if reason is not None:
-        raise BackendUnavailable(f"Stage1Config.device 'cuda' rasterizes with gsplat: {reason}")
+        raise BackendUnavailable(f"TrainingConfig.device 'cuda' rasterizes with gsplat: {reason}")
     return torch.device("cuda")
+
+
+def device_kind(device: str, backend: str) -> str:
+    """"cpu" or "cuda": where a training with ``TrainingConfig(device=device, backend=backend)``
+    runs on this machine, the device part of its result's provenance (CUDA and the CPU give other
+    last digits). A requested "cuda" is taken as asked; ``training_device`` checks it is there."""
+    if device == "auto":
+        return training_device(device, backend).type
+    if device not in DEVICES:
+        raise InputError(f"TrainingConfig.device {device!r}: choose one of {', '.join(DEVICES)}")
+    return device

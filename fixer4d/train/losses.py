@@ -187,7 +187,7 @@ def stg_loss(render: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | 
 
     weight: None, or a non-negative per-pixel weight (H, W) applied to both terms' per-pixel
     maps (normalized by the pixel count; all ones = the plain L_STG), e.g. more weight on the
-    moving pixels (Stage1Config.moving_loss_weight).
+    moving pixels (TrainingConfig.moving_loss_weight).
 
     A float32 CPU render goes through the fused numba kernel (fixer4d.train.loss_cpu: loss and
     gradient in one row-parallel pass); everything else, and FIXER4D_FUSED_LOSS=0, through

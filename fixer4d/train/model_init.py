@@ -1,7 +1,7 @@
 """The model a training starts from: spacetime Gaussians from an init, and the scene extent.
 
-    model = model_from_clouds(clouds, scene, Stage1Config())          # per-frame point clouds
-    model, decision = model_from_init(init, scene, Stage1Config())    # clouds or a DecomposedInit
+    model = model_from_clouds(clouds, scene, TrainingConfig())          # per-frame point clouds
+    model, decision = model_from_init(init, scene, TrainingConfig())    # clouds or a DecomposedInit
     extent = scene_extent(scene.train_cameras, model.means)           # the length sizes scale with
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ from fixer4d.model.effects import EffectsConfig, EffectsDecision
 from fixer4d.model.initial_scales import knn_scales
 from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians
 from fixer4d.scene.base import MultiViewVideo
-from fixer4d.train.config import Stage1Config
+from fixer4d.train.config import TrainingConfig
 
 log = logging.getLogger("fixer4d.train")
 
@@ -38,7 +38,7 @@ FALLBACK_POINTS = 2000
 FALLBACK_COLOR = 0.5
 
 
-def model_from_clouds(clouds: Sequence[Any], scene: MultiViewVideo, config: Stage1Config,
+def model_from_clouds(clouds: Sequence[Any], scene: MultiViewVideo, config: TrainingConfig,
                       model_config: ModelConfig | None = None) -> SpacetimeGaussians:
     """Spacetime Gaussians from per-frame clouds (fixer4d.init.cloud.FrameCloud: frame, time,
     points (N,3), colors (N,3)).
@@ -106,7 +106,7 @@ def _fallback_points(scene: MultiViewVideo, rng: np.random.Generator) -> tuple[n
     return pts, frames / float(scene.num_frames)
 
 
-def model_from_init(init: Any, scene: MultiViewVideo, config: Stage1Config,
+def model_from_init(init: Any, scene: MultiViewVideo, config: TrainingConfig,
                     effects: EffectsConfig | None = None) -> tuple[SpacetimeGaussians, EffectsDecision | None]:
     """The model of an init and the effect decision behind it.
 

@@ -1,6 +1,6 @@
 """Training pairs for the learned restorer, from the scene's own train cameras, and its training.
 
-    restorer = train_scene_restorer(scene, clouds, stage1_config, run_dir / "restorer", RestoreConfig(kind="learned"))
+    restorer = train_scene_restorer(scene, clouds, training_config, run_dir / "restorer", RestoreConfig(kind="learned"))
 
 Pairs (in the spirit of Difix3D+ / 3DGS-Enhancer and of FVS / Deep Blending): for each
 train camera c, a short stage 1 (``loo_iterations`` at ``loo_scale`` of the resolution) on the
@@ -49,14 +49,14 @@ from fixer4d.restore.learned import LearnedRestorer, request_features, restore_f
 from fixer4d.restore.reference_warp import ReferenceWarpRestorer
 from fixer4d.scene.base import MultiViewVideo
 from fixer4d.scene.train_view import TrainOnlyView
-from fixer4d.train.config import SCHEDULE_KEYS, Stage1Config
+from fixer4d.train.config import SCHEDULE_KEYS, TrainingConfig
 from fixer4d.train.model_init import model_from_clouds, model_from_init
 from fixer4d.train.trainer import Trainer
 
 log = logging.getLogger("fixer4d.train")
 
 PAIRS_FORMAT = 2
-# Stage-1 fields that ``Stage1Config.for_iterations`` derives from the iteration count (the
+# Stage-1 fields that ``TrainingConfig.for_iterations`` derives from the iteration count (the
 # leave-one-out trainings get their own short schedule) or that do not change a result.
 _SCHEDULE_FIELDS = ("iterations", *SCHEDULE_KEYS, "progress")
 # Cap of the validation PSNRs (MSE 1e-12): validation.json cannot hold the inf of a perfect restoration.
@@ -94,7 +94,7 @@ def pair_request(model, views: TrainOnlyView, target: int, frame: int, backend: 
         trajectory={"name": f"pair-target-{target}", "target": int(target)})
 
 
-def _init_model(init: Any, views: TrainOnlyView, cfg: Stage1Config):
+def _init_model(init: Any, views: TrainOnlyView, cfg: TrainingConfig):
     """The leave-one-out model from the run's init: per-frame clouds, or a decomposed init
     (static + moving parts, fixer4d.init.decompose) built with the default effects."""
     if isinstance(init, (list, tuple)):
@@ -102,10 +102,10 @@ def _init_model(init: Any, views: TrainOnlyView, cfg: Stage1Config):
     return model_from_init(init, views, cfg)[0]
 
 
-def _loo_config(stage1: Stage1Config, iterations: int) -> Stage1Config:
-    keep = {k: v for k, v in stage1.to_dict().items() if k not in _SCHEDULE_FIELDS}
+def _loo_config(training: TrainingConfig, iterations: int) -> TrainingConfig:
+    keep = {k: v for k, v in training.to_dict().items() if k not in _SCHEDULE_FIELDS}
     keep["background"] = tuple(keep["background"])
-    return Stage1Config.for_iterations(iterations, **keep, progress=False)
+    return TrainingConfig.for_iterations(iterations, **keep, progress=False)
 
 
 def pair_frames(num_frames: int, count: int) -> list[int]:
@@ -113,7 +113,7 @@ def pair_frames(num_frames: int, count: int) -> list[int]:
     return sorted({int(round(x)) for x in np.linspace(0, num_frames - 1, max(1, count))})
 
 
-def fold_trainer(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Config, left_out: int,
+def fold_trainer(scene: MultiViewVideo, clouds: Sequence[Any], training: TrainingConfig, left_out: int,
                  config: RestoreConfig) -> tuple[Trainer, TrainOnlyView]:
     """The leave-one-out training of the fold leaving out train camera ``left_out``, not yet
     stepped (``loo_iterations`` at ``loo_scale``), and the other train cameras at full resolution:
@@ -124,18 +124,18 @@ def fold_trainer(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Con
     lc = config.learned
     trained = [i for i in scene.train_ids if i != left_out]
     views = TrainOnlyView(scene, trained, lc.loo_scale)
-    cfg = _loo_config(stage1, lc.loo_iterations)
+    cfg = _loo_config(training, lc.loo_iterations)
     trainer = Trainer(_init_model(clouds, views, cfg), views, cfg, run_dir=None)
     return trainer, (TrainOnlyView(scene, trained, 1.0) if lc.loo_scale != 1.0 else views)
 
 
-def build_fold(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Config, left_out: int,
+def build_fold(scene: MultiViewVideo, clouds: Sequence[Any], training: TrainingConfig, left_out: int,
                config: RestoreConfig, progress: bool = False) -> dict[str, np.ndarray]:
     """The pairs of the fold leaving out train camera ``left_out``: arrays feats (N, C, H, W)
     float16, targets (N, H, W, 3) float16, cams (N,), frames (N,), loo (N,) bool (True = the
     left-out camera's render, False = an early-checkpoint render of a trained camera)."""
     lc = config.learned
-    trainer, full = fold_trainer(scene, clouds, stage1, left_out, config)
+    trainer, full = fold_trainer(scene, clouds, training, left_out, config)
     trained = [i for i in scene.train_ids if i != left_out]
     warp = ReferenceWarpRestorer(config.warp)
     frames = pair_frames(scene.num_frames, lc.pair_frames)
@@ -180,10 +180,10 @@ def _init_digest(init: Any) -> str:
     return h.hexdigest()[:16]
 
 
-def _key(scene: MultiViewVideo, init: Any, stage1: Stage1Config, config: RestoreConfig) -> str:
+def _key(scene: MultiViewVideo, init: Any, training: TrainingConfig, config: RestoreConfig) -> str:
     parts = {"format": PAIRS_FORMAT, "scene": scene.describe(), "train_ids": list(scene.train_ids),
              "init": _init_digest(init),
-             "stage1": {k: v for k, v in stage1.to_dict().items() if k not in _SCHEDULE_FIELDS},
+             "stage1": {k: v for k, v in training.to_dict().items() if k not in _SCHEDULE_FIELDS},
              "warp": dataclasses.asdict(config.warp), "learned": config.learned.training_key()}
     return hashlib.sha1(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
@@ -205,7 +205,7 @@ def seen_samples(model, scene: MultiViewVideo, config: RestoreConfig, background
             "loo": np.zeros(len(rows), bool)}
 
 
-def _fold_pairs(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Config, config: RestoreConfig,
+def _fold_pairs(scene: MultiViewVideo, clouds: Sequence[Any], training: TrainingConfig, config: RestoreConfig,
                 out_dir: Path, key: str, progress: bool) -> tuple[dict[int, dict[str, np.ndarray]], float]:
     """{train camera: its fold's pairs (``build_fold``)} and the CPU seconds they cost: a fold saved
     in ``out_dir``/pairs under the same ``key`` is read back, any other is built and saved."""
@@ -222,7 +222,7 @@ def _fold_pairs(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Conf
         if progress:
             print(f"[fixer4d] learned restorer: leave-one-out fold without camera {cam}", flush=True)
         c0 = time.process_time()
-        folds[cam] = build_fold(scene, clouds, stage1, cam, config, progress=progress)
+        folds[cam] = build_fold(scene, clouds, training, cam, config, progress=progress)
         with atomic_path(path, suffix=".npz") as tmp:
             np.savez_compressed(tmp, **folds[cam])
         pair_cpu += time.process_time() - c0
@@ -256,7 +256,7 @@ def _validation_psnrs(net, val: Sequence[tuple[np.ndarray, np.ndarray]]) -> dict
     return scores
 
 
-def train_scene_restorer(scene: MultiViewVideo, clouds: Sequence[Any], stage1: Stage1Config, out_dir: str | Path,
+def train_scene_restorer(scene: MultiViewVideo, clouds: Sequence[Any], training: TrainingConfig, out_dir: str | Path,
                          config: RestoreConfig, progress: bool = True, model=None) -> LearnedRestorer:
     """Build the leave-one-camera-out pairs, train the learned restorer, validate it on the held-back
     fold; returns it. Writes into ``out_dir``: pairs/fold_<cam>.npz (+ key), WEIGHTS_FILE,
@@ -266,7 +266,7 @@ def train_scene_restorer(scene: MultiViewVideo, clouds: Sequence[Any], stage1: S
     stage-1 model (trained on every train camera), whose renders of the train cameras are added as
     the mildest pairs (``seen_samples``; the held-back camera's are left out), or None."""
     out_dir = Path(out_dir)
-    key = _key(scene, clouds, stage1, config)
+    key = _key(scene, clouds, training, config)
     weights_key = key if model is None else hashlib.sha1(
         (key + _init_digest([v.detach().cpu().numpy() for v in model.state_dict().values()])).encode()).hexdigest()[:16]
     if (out_dir / WEIGHTS_FILE).is_file() and (out_dir / VALIDATION_FILE).is_file():
@@ -280,12 +280,12 @@ def train_scene_restorer(scene: MultiViewVideo, clouds: Sequence[Any], stage1: S
                          "use --restorer warp")
     held = train_ids[lc.validation_fold % len(train_ids)]
     cpu0, wall0 = time.process_time(), time.perf_counter()
-    folds, pair_cpu = _fold_pairs(scene, clouds, stage1, config, out_dir, key, progress)
+    folds, pair_cpu = _fold_pairs(scene, clouds, training, config, out_dir, key, progress)
     seen = None
     if model is not None:
         c0 = time.process_time()
         with torch.no_grad():
-            seen = seen_samples(model, scene, config, torch.tensor(stage1.background, dtype=torch.float32))
+            seen = seen_samples(model, scene, config, torch.tensor(training.background, dtype=torch.float32))
         pair_cpu += time.process_time() - c0
 
     train_set = _fold_samples(folds, [c for c in train_ids if c != held])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from fixer4d.train.config import Stage1Config, Stage2Config
+from fixer4d.train.config import TrainingConfig, Stage2Config
 
 
 def exponential_lr(step: int, lr_init: float, lr_final: float, max_steps: int) -> float:
@@ -26,7 +26,7 @@ def exponential_lr(step: int, lr_init: float, lr_final: float, max_steps: int) -
 @dataclass(frozen=True)
 class StageSchedule:
     """The per-stage part of a training: ``StageSchedule.stage1(config)`` or
-    ``StageSchedule.stage2(config, stage2)``; everything else comes from the Stage1Config.
+    ``StageSchedule.stage2(config, stage2)``; everything else comes from the TrainingConfig.
 
     stage: 1 or 2 (checkpoint names, messages). iterations: steps of the stage. seed: seed of
     the trainer's generators.
@@ -61,15 +61,15 @@ class StageSchedule:
     densify_stats: str = "all"
 
     @classmethod
-    def stage1(cls, config: Stage1Config) -> "StageSchedule":
-        """STGS on the observed views: the Stage1Config's schedule, opacity resets, no pseudo-views."""
+    def stage1(cls, config: TrainingConfig) -> "StageSchedule":
+        """STGS on the observed views: the TrainingConfig's schedule, opacity resets, no pseudo-views."""
         return cls(stage=1, iterations=config.iterations, seed=config.seed, lr_means_init=config.lr_means_init,
                    lr_means_final=config.lr_means_final, densify_from=config.densify_from,
                    densify_until=config.densify_until, opacity_reset_every=config.opacity_reset_every,
                    revises_effects=True)
 
     @classmethod
-    def stage2(cls, config: Stage1Config, stage2: Stage2Config) -> "StageSchedule":
+    def stage2(cls, config: TrainingConfig, stage2: Stage2Config) -> "StageSchedule":
         """Restoration-guided refinement: stage 2's length, position rates and seed, densification
         from the first densify round until ``densify_until_fraction`` of the stage, no opacity
         reset (the model is already shaped) and pseudo-views from the refreshed cache."""

@@ -1,7 +1,7 @@
 """The training loop of stage 1 (STGS on the observed views) and stage 2 (restoration-guided refinement).
 
-    model = model_from_clouds(clouds, scene, Stage1Config())   # fixer4d.train.model_init
-    trainer = Trainer(model, scene, Stage1Config(), run_dir="runs/demo")
+    model = model_from_clouds(clouds, scene, TrainingConfig())   # fixer4d.train.model_init
+    trainer = Trainer(model, scene, TrainingConfig(), run_dir="runs/demo")
     trainer.train()                      # or trainer.step() in a loop, e.g. from a viewer thread
     trainer.snapshot(t)                  # a detached Snapshot, safe to read between steps
 
@@ -42,7 +42,7 @@ from fixer4d.render.views import model_render_fn
 from fixer4d.scene.base import MultiViewVideo
 from fixer4d.train.checkpoints import (CHECKPOINT_FORMAT, check_resumable, list_checkpoints, read_checkpoint,
                                        remove_partial_checkpoints, training_settings, write_checkpoint)
-from fixer4d.train.config import Stage1Config, Stage2Config
+from fixer4d.train.config import TrainingConfig, Stage2Config
 from fixer4d.train.device import training_device
 from fixer4d.train.losses import psnr_torch, stg_loss
 from fixer4d.train.model_init import scene_extent
@@ -73,7 +73,7 @@ class Trainer:
 
     model: the model to train (replaced on ``load_checkpoint``; read ``trainer.model``).
     scene: the multi-view video; its ``train_ids`` are the observed views.
-    config: Stage1Config (learning rates, densification, backend, seed; also used in stage 2).
+    config: TrainingConfig (learning rates, densification, backend, seed; also used in stage 2).
     run_dir: where checkpoints go (RUN/checkpoints/stage{1,2}_STEP.pt); None = no checkpoints.
     stage2: a Stage2Config to run stage 2 (then ``cache`` is required).
     cache: the restoration cache (``entries(round)``, ``latest_round()``).
@@ -89,7 +89,7 @@ class Trainer:
     the stage's StageSchedule; ``pseudo`` stage 2's PseudoTargets (None in stage 1).
     """
 
-    def __init__(self, model: SpacetimeGaussians, scene: MultiViewVideo, config: Stage1Config, *,
+    def __init__(self, model: SpacetimeGaussians, scene: MultiViewVideo, config: TrainingConfig, *,
                  run_dir: str | Path | None = None, stage2: Stage2Config | None = None,
                  cache: PseudoCache | None = None, refresh_cache: RefreshFn | None = None,
                  effects: EffectsConfig | None = None, camera_response: CameraResponse | None = None) -> None:
@@ -307,7 +307,7 @@ class Trainer:
         timing["t_densify"] += time.perf_counter() - tic
 
     def _next_frame(self) -> int:
-        """The frame of this step (``Stage1Config.frame_order``)."""
+        """The frame of this step (``TrainingConfig.frame_order``)."""
         T = self.scene.num_frames
         if self.config.frame_order == "shuffled":
             rounds, k = divmod(self.step_count, T)

@@ -8,7 +8,7 @@ import json
 def test_one_row_per_device_from_its_own_run(benchmark_script, tmp_path):
     bench = benchmark_script("training_device")
     out = tmp_path / "devices.json"
-    assert bench.main(["tiny", "--devices", "cpu", "--set", "stage1.iterations=6", "--runs", str(tmp_path / "runs"),
+    assert bench.main(["tiny", "--devices", "cpu", "--set", "training.iterations=6", "--runs", str(tmp_path / "runs"),
                        "--out", str(out)]) == 0
     result = json.loads(out.read_text())
     (row,) = result["rows"]
@@ -16,4 +16,4 @@ def test_one_row_per_device_from_its_own_run(benchmark_script, tmp_path):
     mvs = next(r for r in report["rows"] if r["method"] == "STGS w/ MVS")
     assert row["device"] == "cpu" and row["iterations"] == 6 and row["psnr"] == mvs["psnr"]
     assert row["stage1_seconds"] == round(report["stage_seconds"]["stage1"], 2) and row["gaussians"] > 0
-    assert result["sets"] == {"stage1.iterations": 6} and "machine" in result and "commit" in result
+    assert result["sets"] == {"training.iterations": 6} and "machine" in result and "commit" in result

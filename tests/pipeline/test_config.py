@@ -14,11 +14,11 @@ from fixer4d.pipeline.config import FORMAT_VERSION, RunConfig, migrate_v1, resol
 
 def test_defaults_and_schedule_scaling():
     c = resolve("demo")
-    assert c.scene.source == "demo" and c.stage1.iterations == 1500 and c.stage1.max_gaussians == 20_000
+    assert c.scene.source == "demo" and c.training.iterations == 1500 and c.training.max_gaussians == 20_000
     # the densification schedule follows the iterations unless given explicitly
-    short = resolve("demo", overrides={"stage1.iterations": 100})
-    assert short.stage1.densify_until == 50
-    assert resolve("demo", overrides={"stage1.iterations": 100, "stage1.densify_until": 70}).stage1.densify_until == 70
+    short = resolve("demo", overrides={"training.iterations": 100})
+    assert short.training.densify_until == 50
+    assert resolve("demo", overrides={"training.iterations": 100, "training.densify_until": 70}).training.densify_until == 70
 
 
 def test_a_new_iteration_count_rescales_a_written_out_schedule():
@@ -26,42 +26,42 @@ def test_a_new_iteration_count_rescales_a_written_out_schedule():
     overriding the iterations derives it again, except keys the user set to other values or
     gives beside the new count."""
     from fixer4d.study import variant_config
-    from fixer4d.train.config import SCHEDULE_KEYS, Stage1Config
+    from fixer4d.train.config import SCHEDULE_KEYS, TrainingConfig
 
     full = resolve("demo").to_dict()
-    longer = resolve(config_file=full, overrides={"stage1.iterations": 3000}, defaults={})
-    derived = Stage1Config.for_iterations(3000)
-    assert all(getattr(longer.stage1, k) == getattr(derived, k) for k in SCHEDULE_KEYS)
-    assert longer.stage1.densify_until == 1500 and longer.stage1.opacity_reset_every == 750
+    longer = resolve(config_file=full, overrides={"training.iterations": 3000}, defaults={})
+    derived = TrainingConfig.for_iterations(3000)
+    assert all(getattr(longer.training, k) == getattr(derived, k) for k in SCHEDULE_KEYS)
+    assert longer.training.densify_until == 1500 and longer.training.opacity_reset_every == 750
 
-    full["stage1"]["densify_until"] = 400  # set by the user: kept
-    kept = resolve(config_file=full, overrides={"stage1.iterations": 3000}, defaults={})
-    assert kept.stage1.densify_until == 400 and kept.stage1.opacity_reset_every == 750
-    given = resolve(config_file=full, overrides={"stage1.densify_every": 37, "stage1.iterations": 3000}, defaults={})
-    assert given.stage1.densify_every == 37
+    full["training"]["densify_until"] = 400  # set by the user: kept
+    kept = resolve(config_file=full, overrides={"training.iterations": 3000}, defaults={})
+    assert kept.training.densify_until == 400 and kept.training.opacity_reset_every == 750
+    given = resolve(config_file=full, overrides={"training.densify_every": 37, "training.iterations": 3000}, defaults={})
+    assert given.training.densify_every == 37
 
     # the study's relative iteration axis: the schedule follows the variant's own count
-    half = variant_config("demo", {"stage1.iterations": 0.5}, base={"stage1.iterations": 300})
-    double = variant_config("demo", {"stage1.iterations": 2.0}, base={"stage1.iterations": 300})
-    assert (half.stage1.iterations, half.stage1.densify_until) == (150, 75)
-    assert (double.stage1.iterations, double.stage1.densify_until) == (600, 300)
+    half = variant_config("demo", {"training.iterations": 0.5}, base={"training.iterations": 300})
+    double = variant_config("demo", {"training.iterations": 2.0}, base={"training.iterations": 300})
+    assert (half.training.iterations, half.training.densify_until) == (150, 75)
+    assert (double.training.iterations, double.training.densify_until) == (600, 300)
 
 
 def test_round_trip_is_exact():
-    c = resolve("tiny", overrides={"scene.frame_range": [0, 3], "stage1.background": [0.5, 0.5, 0.5]})
+    c = resolve("tiny", overrides={"scene.frame_range": [0, 3], "training.background": [0.5, 0.5, 0.5]})
     again = RunConfig.from_dict(json.loads(json.dumps(c.to_dict())))
     assert again == c and again.to_dict() == c.to_dict()
 
 
 @pytest.mark.parametrize("overrides, message", [
-    ({"stage1.iteratoins": 800}, "did you mean 'iterations'"),
-    ({"stage1.iterations": "many"}, "stage1.iterations: expected an integer"),
+    ({"training.iteratoins": 800}, "did you mean 'iterations'"),
+    ({"training.iterations": "many"}, "training.iterations: expected an integer"),
     ({"init.method": "mvz"}, "did you mean 'mvs'"),
     ({"stage2.lambda_gen": -1}, "lambda_gen must be >= 0"),
     ({"scene.frame_range": [5, 2]}, "frame_range"),
     ({"trajectories": 3}, "expected a section"),
     ({"eval.stride": 0}, "stride must be >= 1"),
-    ({"stage1.iterations.x": 3}, "stage1.iterations: expected an integer"),
+    ({"training.iterations.x": 3}, "training.iterations: expected an integer"),
     ({"seeed": 1}, "did you mean 'seed'"),
 ])
 def test_bad_values_name_the_key(overrides, message):
@@ -70,17 +70,17 @@ def test_bad_values_name_the_key(overrides, message):
 
 
 def test_relative_knobs_multiply():
-    c = resolve("tiny", overrides={"stage1.iterations": 0.5, "init.mvs.planes": 0.5},
-                relative={"stage1.iterations", "init.mvs.planes"})
-    assert c.stage1.iterations == 750 and isinstance(c.init.mvs.planes, int)
+    c = resolve("tiny", overrides={"training.iterations": 0.5, "init.mvs.planes": 0.5},
+                relative={"training.iterations", "init.mvs.planes"})
+    assert c.training.iterations == 750 and isinstance(c.init.mvs.planes, int)
 
 
 def test_set_overrides_parse_json_values():
-    assert config_tree.parse_set_overrides(["stage1.iterations=800", "scene.frame_range=[0, 30]",
+    assert config_tree.parse_set_overrides(["training.iterations=800", "scene.frame_range=[0, 30]",
                                             "init.method=sparse"]) == {
-        "stage1.iterations": 800, "scene.frame_range": [0, 30], "init.method": "sparse"}
+        "training.iterations": 800, "scene.frame_range": [0, 30], "init.method": "sparse"}
     with pytest.raises(InputError, match="KEY=VALUE"):
-        config_tree.parse_set_overrides(["stage1.iterations"])
+        config_tree.parse_set_overrides(["training.iterations"])
 
 
 def test_format_1_configs_migrate():
@@ -91,16 +91,16 @@ def test_format_1_configs_migrate():
                             "trajectories": {"frames": 6}, "restorer": {}, "init_frame_stride": 4,
                             "eval_stride": 5, "restoration_rows": True, "seed": 0}}
     c = RunConfig.from_dict(migrate_v1(old_run))
-    assert c.eval.stride == 5 and c.stage1.max_gaussians == 30000 and c.stage2.rounds == 2
+    assert c.eval.stride == 5 and c.training.max_gaussians == 30000 and c.stage2.rounds == 2
     old_reconstruct = {"scene": {"source": "tiny", "scale": 1.0, "frame_range": None}, "init": {"method": "sparse"},
                        "stage1": {"iterations": 12, "progress": False}}
     c = RunConfig.from_dict(migrate_v1(old_reconstruct))
-    assert c.init.method == "sparse" and c.stage1.iterations == 12 and not c.baseline_sparse
+    assert c.init.method == "sparse" and c.training.iterations == 12 and not c.baseline_sparse
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["run", "tiny", "--out", "{out}", "--set", "stage1.iteratoins=800"], "did you mean 'iterations'"),
-    (["run", "tiny", "--out", "{out}", "--set", "stage1.iterations=lots"], "expected an integer"),
+    (["run", "tiny", "--out", "{out}", "--set", "training.iteratoins=800"], "did you mean 'iterations'"),
+    (["run", "tiny", "--out", "{out}", "--set", "training.iterations=lots"], "expected an integer"),
     (["run", "tiny", "--out", "{out}", "--frames", "5:2"], "empty range"),
     (["run", "tiny", "--out", "{out}", "--frames", "2"], "expected a:b"),
     (["run", "tiny", "--out", "{out}", "--frames", "0:99"], "frame"),
@@ -121,7 +121,7 @@ def test_print_config_shows_the_resolved_tree(capsys, tmp_path):
     assert main(["run", "tiny", "--print-config", "--iterations", "77", "--set", "stage2.rounds=3"]) == 0
     printed = json.loads(capsys.readouterr().out)
     assert printed["format_version"] == FORMAT_VERSION
-    assert printed["config"]["stage1"]["iterations"] == 77 and printed["config"]["stage2"]["rounds"] == 3
+    assert printed["config"]["training"]["iterations"] == 77 and printed["config"]["stage2"]["rounds"] == 3
     # the printed config is a valid --config file
     (tmp_path / "c.json").write_text(json.dumps(printed))
     assert main(["run", "tiny", "--print-config", "--config", str(tmp_path / "c.json")]) == 0
@@ -133,10 +133,10 @@ def test_run_seed_flag_seeds_every_stage(capsys):
     `--set seed=S` alone would only reseed torch and leave the rows as they were."""
     assert main(["run", "tiny", "--print-config", "--seed", "3"]) == 0
     cfg = json.loads(capsys.readouterr().out)["config"]
-    assert cfg["seed"] == cfg["stage1"]["seed"] == cfg["stage2"]["seed"] == 3
+    assert cfg["seed"] == cfg["training"]["seed"] == cfg["stage2"]["seed"] == 3
     assert main(["run", "tiny", "--print-config"]) == 0
     cfg = json.loads(capsys.readouterr().out)["config"]
-    assert cfg["seed"] == cfg["stage1"]["seed"] == cfg["stage2"]["seed"] == 0
+    assert cfg["seed"] == cfg["training"]["seed"] == cfg["stage2"]["seed"] == 0
 
 
 def test_a_scene_path_is_stored_absolute(tmp_path, monkeypatch):
@@ -150,7 +150,7 @@ def test_a_scene_path_is_stored_absolute(tmp_path, monkeypatch):
 def test_the_dataclasses_are_the_one_source_of_defaults():
     """A run's defaults are the stage dataclasses' own, and their schedule is the one their
     iteration count derives (so a default config and a rescheduled one agree)."""
-    from fixer4d.train.config import Stage1Config
+    from fixer4d.train.config import TrainingConfig
 
     assert resolve().to_dict() == RunConfig().to_dict()
-    assert Stage1Config() == Stage1Config.for_iterations(Stage1Config.iterations)
+    assert TrainingConfig() == TrainingConfig.for_iterations(TrainingConfig.iterations)

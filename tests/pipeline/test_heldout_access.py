@@ -24,7 +24,7 @@ def test_a_stage_reading_a_held_out_frame_is_caught(tmp_path, monkeypatch):
         return real_stage1(ctx, method, clouds, model_path, name)
 
     monkeypatch.setattr(S, "stage1", leaky_stage1)
-    config = tiny_config(**{"baseline_sparse": False, "stage1.iterations": 5, "stage2.rounds": 0,
+    config = tiny_config(**{"baseline_sparse": False, "training.iterations": 5, "stage2.rounds": 0,
                             "eval.restoration_rows": False})
     with pytest.raises(HeldOutAccess, match="held-out cameras are for evaluation only"):
         run_spied(config, tmp_path / "a")

@@ -57,11 +57,11 @@ def test_resume_reuses_finished_stages(tiny_run, stage_cache):
 
 def test_other_config_in_same_folder_is_refused_naming_the_change(tiny_run):
     run_dir, _ = tiny_run
-    with pytest.raises(InputError, match=r"different configuration \(stage1.iterations: 40 -> 41"):
-        run_pipeline(tiny_config(**{"stage1.iterations": 41}), run_dir, progress=False)
+    with pytest.raises(InputError, match=r"different configuration \(training.iterations: 40 -> 41"):
+        run_pipeline(tiny_config(**{"training.iterations": 41}), run_dir, progress=False)
     # a new count moves the schedule it implies too: the key the user changed is named first
-    with pytest.raises(InputError, match=r"different configuration \(stage1.iterations: 40 -> 3000.*and \d+ more\)"):
-        run_pipeline(tiny_config(**{"stage1.iterations": 3000, "stage1.seed": 5, "stage2.seed": 5,
+    with pytest.raises(InputError, match=r"different configuration \(training.iterations: 40 -> 3000.*and \d+ more\)"):
+        run_pipeline(tiny_config(**{"training.iterations": 3000, "training.seed": 5, "stage2.seed": 5,
                                     "trajectories.seed": 5}), run_dir, progress=False)
 
 
@@ -87,7 +87,7 @@ def test_read_run_config_never_writes(tmp_path):
     run.mkdir()
     old = {"scene": {"source": "tiny", "scale": 1.0, "frame_range": None}, "stage1": {"iterations": 12}}
     (run / "config.json").write_text(json.dumps(old))
-    assert read_run_config(run).stage1.iterations == 12
+    assert read_run_config(run).training.iterations == 12
     assert json.loads((run / "config.json").read_text()) == old and not (run / "config.v1.json").exists()
     with pytest.raises(InputError, match="no such run folder"):
         read_run_config(tmp_path / "missing")
@@ -101,7 +101,7 @@ def test_format_1_folder_is_migrated_in_place(tmp_path):
     (run / "config.json").write_text(json.dumps(old))
     (run / "stages.json").write_text(json.dumps({"init_mvs": 1.5, "stage1": 3.0}))
     folder = RunFolder.open(run)
-    assert folder.config.stage1.iterations == 12
+    assert folder.config.training.iterations == 12
     assert json.loads((run / "config.v1.json").read_text()) == old
     assert json.loads((run / "config.json").read_text())["format_version"] == FORMAT_VERSION
     assert folder.records.seconds("init_mvs", "stage1") == 4.5
@@ -140,10 +140,10 @@ def test_study_variants_share_stages(tmp_path, stage_cache):
     # b copied a's init and stage-1 model and reports the seconds they originally cost
     assert b["seconds"]["init"] == a["seconds"]["init"] and b["seconds"]["stage1"] == a["seconds"]["stage1"]
     assert (tmp_path / "b" / "model_stage1.ply").read_bytes() == (tmp_path / "a" / "model_stage1.ply").read_bytes()
-    # stage1.iterations is a relative knob in a variant: 0.75 x the base's 40 iterations
-    c = run_pipeline_variant("tiny", {"stage2.rounds": 0, "stage1.iterations": 0.75}, tmp_path / "c",
+    # training.iterations is a relative knob in a variant: 0.75 x the base's 40 iterations
+    c = run_pipeline_variant("tiny", {"stage2.rounds": 0, "training.iterations": 0.75}, tmp_path / "c",
                              progress=False, base=TINY, stage_cache=cache)
-    assert json.loads((tmp_path / "c" / "config.json").read_text())["config"]["stage1"]["iterations"] == 30
+    assert json.loads((tmp_path / "c" / "config.json").read_text())["config"]["training"]["iterations"] == 30
     assert c["seconds"]["init"] == a["seconds"]["init"]  # same init, new stage 1
     assert (tmp_path / "c" / "model_stage1.ply").read_bytes() != (tmp_path / "a" / "model_stage1.ply").read_bytes()
 

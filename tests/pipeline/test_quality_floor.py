@@ -13,7 +13,7 @@ from pipeline_tiny import tiny_config
 
 @pytest.mark.slow
 def test_dense_init_and_stage2_keep_their_margins(tmp_path):
-    config = tiny_config(**{"stage1.iterations": 300, "stage2.refresh_every": 60, "eval.restoration_rows": False,
+    config = tiny_config(**{"training.iterations": 300, "stage2.refresh_every": 60, "eval.restoration_rows": False,
                             "self_check.enabled": False})
     rows = {r["method"]: r for r in run_pipeline(config, tmp_path / "run", progress=False)["rows"]}
     colmap, mvs, full = (rows[n]["psnr"] for n in (R.ROW_COLMAP, R.ROW_MVS, R.ROW_FULL))

@@ -1,4 +1,4 @@
-"""The whole pipeline with its trainings on a GPU (``stage1.device=cuda``, gsplat rasterizing).
+"""The whole pipeline with its trainings on a GPU (``training.device=cuda``, gsplat rasterizing).
 
 Every training of a run (the main stage 1, the learned restorer's leave-one-camera-out models, the
 self-check's fold, the matched control and stage 2) steps on the GPU; everything they hand on is
@@ -40,7 +40,7 @@ def test_a_run_trained_on_the_gpu_matches_the_cpu_run(tmp_path):
 
     reports = {}
     for device in ("cpu", "cuda"):
-        config = tiny_config(**{"stage1.device": device, "baseline_sparse": False, **LEARNED})
+        config = tiny_config(**{"training.device": device, "baseline_sparse": False, **LEARNED})
         reports[device] = run_pipeline(config, tmp_path / device, progress=False)
     report = reports["cuda"]
     saved = json.loads((tmp_path / "cuda" / "report.json").read_text())

@@ -92,7 +92,7 @@ def test_later_segments_train_on_the_first_segments_static_gaussians(tmp_path, b
 
     base = {"segments.frames": 3, "segments.overlap": 2, "baseline_sparse": False, "eval.restoration_rows": False,
             "eval.matched_row": False, "init_frame_stride": 1, "eval.stride": 1, "restorer.kind": "warp",
-            "stage1.iterations": 30, "stage2.refresh_every": 10}
+            "training.iterations": 30, "stage2.refresh_every": 10}
     report = run_pipeline(tiny_config(**base, **{"segments.share_static": True}), tmp_path / "shared", progress=False)
     seg = tmp_path / "shared" / "segments"
     first, second = seg / "seg00_00000-00003", seg / "seg01_00001-00004"

@@ -17,16 +17,16 @@ def test_overrides_apply_on_the_run_config(variants, tiny_run):
 
     run_dir, _ = tiny_run
     base = read_run_config(run_dir)
-    cfg = variants.variant_config(run_dir, ["stage1.prune_world_scale=0.1", "stage1.seed=3"])
-    assert cfg.stage1.prune_world_scale == 0.1 and cfg.stage1.seed == 3
-    assert cfg.stage1.iterations == base.stage1.iterations and cfg.scene == base.scene
+    cfg = variants.variant_config(run_dir, ["training.prune_world_scale=0.1", "training.seed=3"])
+    assert cfg.training.prune_world_scale == 0.1 and cfg.training.seed == 3
+    assert cfg.training.iterations == base.training.iterations and cfg.scene == base.scene
     # a new iteration count brings its own schedule, as `fixer4d run --iterations` would
-    from fixer4d.train.config import Stage1Config
+    from fixer4d.train.config import TrainingConfig
 
-    longer = variants.variant_config(run_dir, [f"stage1.iterations={4 * base.stage1.iterations}"])
-    derived = Stage1Config.for_iterations(4 * base.stage1.iterations)
-    assert longer.stage1.densify_until == derived.densify_until == 2 * base.stage1.iterations
-    assert longer.stage1.opacity_reset_every == derived.opacity_reset_every
+    longer = variants.variant_config(run_dir, [f"training.iterations={4 * base.training.iterations}"])
+    derived = TrainingConfig.for_iterations(4 * base.training.iterations)
+    assert longer.training.densify_until == derived.densify_until == 2 * base.training.iterations
+    assert longer.training.opacity_reset_every == derived.opacity_reset_every
 
 
 def test_reproduces_the_runs_stage1_row_and_leaves_the_run_alone(variants, tiny_run, tmp_path):

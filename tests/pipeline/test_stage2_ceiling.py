@@ -45,5 +45,5 @@ def test_oracle_targets_are_the_ground_truth_and_the_rows_are_reported(ceiling, 
 
 def test_only_stage2_and_trajectory_settings_may_change(ceiling, tiny_run, tmp_path):
     run_dir, _ = tiny_run
-    with pytest.raises(SystemExit, match="stage1.iterations"):
-        ceiling.main([str(run_dir), "--out", str(tmp_path / "x"), "--set", "stage1.iterations=5"])
+    with pytest.raises(SystemExit, match="training.iterations"):
+        ceiling.main([str(run_dir), "--out", str(tmp_path / "x"), "--set", "training.iterations=5"])

@@ -78,7 +78,7 @@ def test_budget_stops_new_variants(tmp_path):
 
 def test_study_on_tiny_scene_with_the_real_pipeline(tmp_path):
     """Two real configurations of the pipeline on the tiny scene: results, front and plots."""
-    base = {"stage1.iterations": 30, "stage2.refresh_every": 10, "trajectories.frames": 3,
+    base = {"training.iterations": 30, "stage2.refresh_every": 10, "trajectories.frames": 3,
             "trajectories.time_stride": 4, "init_frame_stride": 2, "eval.stride": 2, "init.mvs.planes": 24}
     variants = [{"name": "restore", "stage2.rounds": 1}, {"name": "no-restore", "stage2.rounds": 0}]
     results = run_study(StudyConfig(source="tiny", variants=variants, base=base), tmp_path, progress=False)
@@ -162,16 +162,16 @@ def test_variants_are_checked_and_a_finished_variant_is_not_reused_under_other_s
             run_study(StudyConfig(source="demo", variants=bad), tmp_path / "bad", run_variant=runner, progress=False)
     assert calls == [] and not (tmp_path / "bad").exists()
     v = [{"name": "fast", "tag": "fast"}]
-    run_study(StudyConfig(source="demo", variants=v, base={"stage1.iterations": 20}), tmp_path / "s",
+    run_study(StudyConfig(source="demo", variants=v, base={"training.iterations": 20}), tmp_path / "s",
               run_variant=runner, progress=False)
     # the same settings: read back, not run again
-    run_study(StudyConfig(source="demo", variants=v, base={"stage1.iterations": 20}), tmp_path / "s",
+    run_study(StudyConfig(source="demo", variants=v, base={"training.iterations": 20}), tmp_path / "s",
               run_variant=runner, progress=False)
     assert calls == ["fast"]
-    with pytest.raises(InputError, match=r"base stage1.iterations: 20 -> 300"):
-        run_study(StudyConfig(source="demo", variants=v, base={"stage1.iterations": 300}), tmp_path / "s",
+    with pytest.raises(InputError, match=r"base training.iterations: 20 -> 300"):
+        run_study(StudyConfig(source="demo", variants=v, base={"training.iterations": 300}), tmp_path / "s",
                   run_variant=runner, progress=False)
     with pytest.raises(InputError, match="overrides"):
-        run_study(StudyConfig(source="demo", variants=[{"name": "fast", "tag": "slow"}], base={"stage1.iterations": 20}),
+        run_study(StudyConfig(source="demo", variants=[{"name": "fast", "tag": "slow"}], base={"training.iterations": 20}),
                   tmp_path / "s", run_variant=runner, progress=False)
     assert calls == ["fast"]

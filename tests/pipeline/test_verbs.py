@@ -14,7 +14,7 @@ from fixer4d.cli.eval import find_model, method_name_for
 from pipeline_tiny import TINY
 
 TINY_ARGS = ["--iterations", "40", "--eval-stride", "2", "--quiet"] + [
-    a for k, v in TINY.items() if not k.startswith(("stage1.iterations", "eval.stride", "stage2."))
+    a for k, v in TINY.items() if not k.startswith(("training.iterations", "eval.stride", "stage2."))
     for a in ("--set", f"{k}={v}")]
 
 
@@ -47,9 +47,9 @@ def test_refine_continues_a_run_with_its_own_config(tiny_run, tmp_path, capsys):
     assert after["stage1"] == before["stage1"] and after["stage2"]["key"] != refined["stage2"]["key"]
     assert (run / "stale" / "cache-0" / "round_0").is_dir() and (run / "cache" / "round_0").is_dir()
     config = json.loads((run / "config.json").read_text())["config"]
-    assert config["stage2"]["refresh_every"] == 10 and config["stage1"]["iterations"] == 40
+    assert config["stage2"]["refresh_every"] == 10 and config["training"]["iterations"] == 40
     capsys.readouterr()
-    assert main(["refine", str(run), "--set", "stage1.iterations=10"]) == 2
+    assert main(["refine", str(run), "--set", "training.iterations=10"]) == 2
     assert "would change the stage-1 model" in capsys.readouterr().err
 
 

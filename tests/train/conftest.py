@@ -44,9 +44,9 @@ def small_clouds(small_scene):
 
 
 def small_config(iterations: int, **overrides):
-    from fixer4d.train.config import Stage1Config
+    from fixer4d.train.config import TrainingConfig
 
-    return Stage1Config.for_iterations(iterations, **{"seed": 0, "progress": False,
+    return TrainingConfig.for_iterations(iterations, **{"seed": 0, "progress": False,
                                                       "max_gaussians": TEST_MAX_GAUSSIANS, **overrides})
 
 

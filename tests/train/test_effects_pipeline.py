@@ -8,7 +8,7 @@ import pytest
 from fixer4d.pipeline.config import resolve
 from fixer4d.pipeline.run import run_pipeline
 
-TINY = {"stage1.iterations": 20, "stage2.rounds": 0, "init_frame_stride": 1, "eval.stride": 2,
+TINY = {"training.iterations": 20, "stage2.rounds": 0, "init_frame_stride": 1, "eval.stride": 2,
         "init.mvs.planes": 32, "baseline_sparse": False, "eval.restoration_rows": False}
 
 

@@ -10,7 +10,7 @@ import torch
 
 from fixer4d.errors import InputError
 from fixer4d.init.cloud import FrameCloud
-from fixer4d.train.config import Stage1Config
+from fixer4d.train.config import TrainingConfig
 from fixer4d.train.schedule import exponential_lr
 from fixer4d.train.model_init import model_from_clouds
 from fixer4d.train.trainer import Trainer
@@ -28,7 +28,7 @@ def test_training_raises_heldout_psnr(stage1_run):
         assert torch.isfinite(p).all(), name
 
 
-def _resume_config(make_config) -> Stage1Config:
+def _resume_config(make_config) -> TrainingConfig:
     # densify at 3, 6, 9 (stats and the split RNG cross the checkpoint at 6), reset at 5
     return make_config(12, densify_from=2, densify_every=3, densify_until=11, opacity_reset_every=5,
                        checkpoint_every=6, init_max_points=600)
@@ -95,7 +95,7 @@ def test_empty_init_without_bounds_is_a_clear_error(small_scene, make_config, mo
 
 
 def test_init_keeps_frame_times_and_caps_points(small_scene, small_clouds):
-    cfg = Stage1Config(init_max_points=500, init_opacity=0.1)
+    cfg = TrainingConfig(init_max_points=500, init_opacity=0.1)
     model = model_from_clouds(small_clouds, small_scene, cfg)
     assert model.num_gaussians == 500
     frame_times = {round(c.time, 6) for c in small_clouds}
@@ -127,7 +127,7 @@ def test_size_prunes_only_when_configured_and_after_the_reset(small_scene, small
 
 def test_size_prune_thresholds_must_be_positive():
     with pytest.raises(InputError, match="prune_world_scale"):
-        Stage1Config(prune_world_scale=0.0)
+        TrainingConfig(prune_world_scale=0.0)
 
 
 def test_exponential_lr():
@@ -153,11 +153,11 @@ def test_learning_rates_scale_with_extent(stage1_run):
 def test_config_round_trips_through_json():
     import json
 
-    cfg = Stage1Config.for_iterations(400, backend="reference")
-    assert Stage1Config.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+    cfg = TrainingConfig.for_iterations(400, backend="reference")
+    assert TrainingConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
     assert cfg.densify_until == 200 and cfg.densify_from < cfg.densify_until
     with pytest.raises(InputError, match="unknown keys"):
-        Stage1Config.from_dict({"iterations": 3, "z_cut": 4.5})
+        TrainingConfig.from_dict({"iterations": 3, "z_cut": 4.5})
 
 
 def test_frozen_rows_keep_their_values_bit_for_bit(small_scene, small_clouds, make_config):
@@ -204,7 +204,7 @@ def test_shuffled_frame_order_visits_every_frame_once_per_pass(small_scene, smal
         resumed.append(again._next_frame())
     assert resumed == drawn[T + 1:]
     # "iid" (the default) keeps drawing from the seeded generator, repeats allowed
-    assert Stage1Config().frame_order == "iid"
+    assert TrainingConfig().frame_order == "iid"
     with pytest.raises(InputError, match="frame_order"):
         make_config(4, frame_order="epochs")
 

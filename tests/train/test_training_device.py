@@ -1,4 +1,4 @@
-"""Where the trainer optimizes (``Stage1Config.device``, fixer4d/train/device.py).
+"""Where the trainer optimizes (``TrainingConfig.device``, fixer4d/train/device.py).
 
 Everywhere: how "auto", "cpu" and "cuda" resolve and what is refused; the device enters neither
 the stage keys nor a checkpoint's settings (a run resumes on the other device); a stage hands on
@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from fixer4d.errors import BackendUnavailable, InputError
-from fixer4d.train.config import Stage1Config
+from fixer4d.train.config import TrainingConfig
 from fixer4d.train.device import training_device
 from fixer4d.train.model_init import model_from_clouds
 from fixer4d.train.trainer import Trainer
@@ -50,22 +50,22 @@ def test_bad_devices_are_refused_naming_the_fix(device, backend, error, words):
 
 @pytest.mark.skipif(HAS_CUDA, reason="checks the refusal on a machine without CUDA")
 def test_cuda_without_cuda_says_so():
-    with pytest.raises(BackendUnavailable, match="CUDA is not available.*stage1.device=cpu or auto"):
+    with pytest.raises(BackendUnavailable, match="CUDA is not available.*training.device=cpu or auto"):
         training_device("cuda", "auto")
 
 
 def test_the_config_refuses_an_unknown_device():
     with pytest.raises(InputError, match="device 'gpu'"):
-        Stage1Config(device="gpu")
+        TrainingConfig(device="gpu")
 
 
 def test_the_device_is_not_part_of_the_stage_keys():
     from fixer4d.pipeline.config import resolve
     from fixer4d.pipeline.keys import matched_key, stage1_key, stage2_key
 
-    a = resolve("tiny", overrides={"stage1.device": "cpu"})
-    b = resolve("tiny", overrides={"stage1.device": "auto"})
-    assert a.stage1.device != b.stage1.device
+    a = resolve("tiny", overrides={"training.device": "cpu"})
+    b = resolve("tiny", overrides={"training.device": "auto"})
+    assert a.training.device != b.training.device
     assert stage1_key(a, "mvs") == stage1_key(b, "mvs")
     assert stage2_key(a) == stage2_key(b)
     assert matched_key(a) == matched_key(b)
@@ -88,7 +88,7 @@ def test_host_model_is_the_trained_model_in_host_memory(small_scene, small_cloud
     assert all(p.device.type == "cpu" for p in model.parameters())
 
 
-def _short_config(make_config, device: str) -> Stage1Config:
+def _short_config(make_config, device: str) -> TrainingConfig:
     """40 iterations that densify at 10, 20 and 30 and checkpoint at 20 and 40."""
     return make_config(SHORT_ITERATIONS, device=device, init_max_points=500, densify_from=10, densify_every=10,
                        densify_until=30, checkpoint_every=20)
