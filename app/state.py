@@ -23,7 +23,7 @@ SESSION_VERSION = 1
 # Undo history depth: each Gaussian edit keeps the removed Gaussians, so the stack is bounded.
 MAX_UNDO = 100
 # What the status line adds to a destructive edit.
-UNDO_HINT = "Ctrl+Z (Edit > Undo) brings it back"
+UNDO_HINT = "Ctrl+Z undoes it"
 # Default number of frames on a new trajectory (the paper's clips are short).
 DEFAULT_TRAJECTORY_FRAMES = 16
 

@@ -29,7 +29,7 @@ COLOR_PREVIEW = (1.0, 1.0, 1.0, 1.0)
 # for one resting view, so playback in that mode does not go through the frame cache.
 UNCACHED_MODES = ("blur",)
 # The status line's words for an image of every splat at full size, exact depth order.
-FULL_DETAIL = "full quality: 100% of the splats at full scale"
+FULL_DETAIL = "full quality: 100% splats, full scale"
 
 
 class View3D:
@@ -126,10 +126,10 @@ class View3D:
         a, tr = self.adaptive, self.source.training
         if not a.final:
             share = self.splats.stats.fraction
-            splats = "100% of the splats" if share >= 1.0 else f"the {100 * share:.0f}% most visible splats"
+            splats = f"{100 * share:.0f}% splats"  # the most visible ones (app.gl.lod)
             return f"moving: level of detail, {splats} at {a.scale:.2f} scale"
         if tr is not None and tr.state in ("setup", "running", "paused"):
-            return f"{FULL_DETAIL} (live training: the model taken at step {self._model_step})"
+            return f"{FULL_DETAIL}, training step {self._model_step}"
         return FULL_DETAIL
 
     def shown_image(self) -> np.ndarray | None:

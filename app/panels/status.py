@@ -1,6 +1,7 @@
-"""The status line in the main menu bar: what is open, the frame time, which image the 3D view
-shows (full detail or level of detail) and the latest message, each in a fixed order and elided
-to the bar's width so nothing runs off the window."""
+"""The status line in the main menu bar: what is open, which image the 3D view shows (full
+detail or level of detail) and the latest message, in a fixed order; the source's name gives
+way first, then the message, so nothing runs off the window. (The frame time is in the Debug
+panel.)"""
 from __future__ import annotations
 
 from imgui_bundle import imgui
@@ -8,7 +9,7 @@ from imgui_bundle import imgui
 from app.panels._layout import elide, tip
 
 # Narrowest the source label is squeezed to (pixels) before the message gives way too.
-MIN_LABEL_W = 90.0
+MIN_LABEL_W = 80.0
 
 
 def draw(viewer) -> None:
@@ -19,7 +20,7 @@ def draw(viewer) -> None:
     gap = 2.0 * imgui.get_style().item_spacing.x
     avail = imgui.get_content_region_avail().x - 3.0 * gap
     size = imgui.calc_text_size
-    meta = f"{unsaved}  {viewer.frame_ms:.0f} ms"
+    meta = unsaved
     line_w = size(line).x if line else 0.0
     label_w = max(MIN_LABEL_W, avail - size(mode).x - line_w - size(meta).x)
     label = elide(viewer.source.label, label_w)
@@ -33,7 +34,7 @@ def draw(viewer) -> None:
     viewer.record_item("status_mode")
     tip("which image the 3D view shows: full quality (every splat at full size, whenever the camera rests), "
         "playback from the frame cache, or level of detail while the camera moves", viewer)
-    if line:
+    if line and line_w >= size("...").x:
         shown = elide(line, line_w)
         imgui.same_line(0.0, gap)
         imgui.text_disabled(shown)

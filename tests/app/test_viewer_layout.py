@@ -7,8 +7,10 @@ from __future__ import annotations
 import itertools
 
 import pytest
+from imgui_bundle import imgui
 
 from app.panels._layout import overlaps
+from app.state import UNDO_HINT
 from doc_shots import save_shot
 from fixer4d.scene import load_scene
 from ui_walk import Recorder, busy_viewer
@@ -27,8 +29,11 @@ def tiny():
 def test_no_text_is_cut(make_viewer, tiny, tmp_path, monkeypatch, size):
     d = busy_viewer(make_viewer, tiny, tmp_path, size)
     v = d.viewer
+    v.state.status = f"delete trajectory 0-15_arc1: {UNDO_HINT}"  # a destructive edit's notice
     rec = Recorder(monkeypatch)
     d.frame()
+    x0, _, x1, _ = v.item_rects["status_line"]
+    assert x1 - x0 >= imgui.calc_text_size(v.state.status).x - 1.0  # shown whole, live training's line beside it
     assert {i.window for i in rec.items} >= {"View & edit", "Trajectories", "Restore", "Compare", "Training",
                                              "Debug", "Timeline", "Notifications", "Mouse and keys", "Run report",
                                              "##MainMenuBar"}
