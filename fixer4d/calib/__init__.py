@@ -36,7 +36,7 @@ def calibrate(files: "CaptureFiles", out: str | Path | None = None, *, config=No
 
     config = config or SfMConfig()
     rig = calibrate_sfm(files, config, progress=progress)
-    check_rig(rig, files.names, str(files.root), focal_given=config.focal is not None)
+    check_rig(rig, files.names, str(files.root))
     if out is not None:
         rig.write(out)
     return rig

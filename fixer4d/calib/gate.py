@@ -6,9 +6,10 @@ A rig passes when
   ``MAX_REPROJECTION_PX``;
 * the pairs with at least ``MIN_PAIR_MATCHES`` verified matches connect every camera, and each
   camera shares at least ``MIN_CAMERA_POINTS`` 3D points with the others;
-* the frames determine the focal length: forcing every focal ``sfm.FOCAL_PROBE`` times larger or
-  smaller raises the mean reprojection error by at least ``MIN_FOCAL_SENSITIVITY_PX`` after the
-  rest is refitted (``sfm.focal_sensitivity``; skipped when the focal was given);
+* every camera is determined: the standard errors of its focal, rotation and centre from the
+  last bundle adjustment's covariance (``fixer4d.calib.adjust``; with the focal priors the frames
+  allow) are at most ``MAX_FOCAL_SD_REL``, ``MAX_ROTATION_SD_DEG`` and ``MAX_CENTRE_SD_REL``, and
+  no focal prior contradicts the frames of a camera they do not determine (``priors.weigh_priors``);
 * the recovered field of view is in [``MIN_FOV_DEG``, ``MAX_FOV_DEG``].
 """
 from __future__ import annotations
@@ -26,18 +27,18 @@ MAX_REPROJECTION_PX = 1.5
 MIN_PAIR_MATCHES = 100
 # 3D points a camera must share with the others for its pose to rest on more than a patch.
 MIN_CAMERA_POINTS = 100
-# Rise of the mean reprojection error (pixels) when the focal is off by 10 %. Measured
-# (docs/calibration.md): the demo's parallel 2x2 rig 0.0000 px (focal off by 97 %: any focal
-# fits it), the same grid converging on the scene 0.001 px (focal off 7 %), four cameras on a 60
-# degree arc 0.003 px (off 4-5 %), Panoptic's four basketball cameras 0.015-0.05 px (off 3-16 %).
-# A 10 % focal error that costs under a quarter pixel is not pinned down by the frames.
-MIN_FOCAL_SENSITIVITY_PX = 0.25
+# Standard errors a camera may have: half of what a usable rig may be off by (2 % focal, 1 degree,
+# 2 % of the rig radius), so that an error of two standard errors stays within it.
+MAX_FOCAL_SD_REL = 0.01
+MAX_ROTATION_SD_DEG = 0.5
+MAX_CENTRE_SD_REL = 0.01
 # Fields of view outside this range are not lenses anyone films a scene with; a focal there is a
 # degenerate solution.
 MIN_FOV_DEG = 5.0
 MAX_FOV_DEG = 150.0
 
-ADVICE = ("give the focal length if you know it (`fixer4d calibrate CAPTURE --focal PX --out rig.json`), or film a "
+ADVICE = ("give the focal lengths you know as priors (`fixer4d calibrate CAPTURE --focal PX --out rig.json`, per camera "
+          "`--focal CAM=PX`, with an uncertainty `--focal CAM=PX:SD`), or film a "
           "ChArUco board through the volume with every camera (print it with `fixer4d calibrate --write-board "
           "board.png`) and put the board videos, named like the capture's, with its board.json in CAPTURE/board/, or "
           "put a calibration from another method (COLMAP, ...) beside the videos (rig.json, a COLMAP sparse model, "
@@ -61,7 +62,7 @@ def field_of_view_problems(cameras: list[RigCamera]) -> list[str]:
     return found
 
 
-def problems(rig: Rig, expected: list[str], focal_given: bool = False) -> list[str]:
+def problems(rig: Rig, expected: list[str]) -> list[str]:
     """What makes ``rig`` untrustworthy, one phrase each (empty: it passes)."""
     found = []
     names = [c.name for c in rig.cameras]
@@ -97,17 +98,32 @@ def problems(rig: Rig, expected: list[str], focal_given: bool = False) -> list[s
     weak = [f"{n} ({points[n]})" for n in expected if points[n] < MIN_CAMERA_POINTS and n not in missing]
     if weak:
         found.append(f"cameras {', '.join(weak)} share fewer than {MIN_CAMERA_POINTS} 3D points with the others")
-    sens = rig.checks.get("focal_sensitivity_px")
-    if not focal_given and sens is not None and sens < MIN_FOCAL_SENSITIVITY_PX:
-        found.append(f"the frames do not determine the focal length (a 10 % focal change moves the reprojection "
-                     f"error by {sens:.3f} px, need >= {MIN_FOCAL_SENSITIVITY_PX}; cameras that all face the same way "
-                     f"or see little depth cause this)")
-    return found + field_of_view_problems(rig.cameras)
+    return found + undetermined(rig.checks.get("cameras", {})) + field_of_view_problems(rig.cameras)
 
 
-def check_rig(rig: Rig, expected: list[str], label: str, focal_given: bool = False) -> Rig:
+def undetermined(figures: dict[str, dict]) -> list[str]:
+    """One phrase per camera whose focal, rotation or centre the frames (and the priors they
+    allow) do not determine, or whose focal prior they contradict; ``figures``: rig.checks["cameras"]."""
+    found = []
+    for name, c in figures.items():
+        f, sd = c["focal_px"], c["focal_sd_px"]
+        prior = c.get("prior") or {}
+        if prior.get("verdict") == "contradicts the frames":
+            found.append(f"camera {name}: the focal prior {prior['focal_px']:.1f} +- {prior['sd_px']:.1f} px "
+                         f"contradicts its frames ({c['frames_focal_px']:.1f} +- {c['frames_focal_sd_px']:.1f} px), "
+                         f"which do not determine it either")
+        elif sd > MAX_FOCAL_SD_REL * f or c["rotation_sd_deg"] > MAX_ROTATION_SD_DEG \
+                or c["centre_sd_rel"] > MAX_CENTRE_SD_REL:
+            found.append(f"camera {name} is not determined by the frames: standard errors focal {sd:.1f} px "
+                         f"({100 * sd / f:.1f} % of {f:.1f}, at most {100 * MAX_FOCAL_SD_REL:.0f} %), rotation "
+                         f"{c['rotation_sd_deg']:.2f} deg (at most {MAX_ROTATION_SD_DEG}), centre "
+                         f"{100 * c['centre_sd_rel']:.1f} % of the rig radius (at most {100 * MAX_CENTRE_SD_REL:.0f} %)")
+    return found
+
+
+def check_rig(rig: Rig, expected: list[str], label: str) -> Rig:
     """``rig`` if it passes; else InputError in one line: what is wrong, the per-pair figures, what to do."""
-    found = problems(rig, expected, focal_given)
+    found = problems(rig, expected)
     rig.checks["gate"] = {"passed": not found, "problems": found}
     if found:
         raise InputError(f"{label}: self-calibration refused: {'; '.join(found)}. Matches per pair: "

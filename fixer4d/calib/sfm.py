@@ -6,17 +6,20 @@ over time: at each of T timestamps spread over the clip, SIFT features (OpenCV) 
 pair are matched at that same instant (moving content matches too: at one instant it obeys the
 same epipolar geometry as the background). Each camera is one COLMAP image whose keypoints are
 the union of its T frames' keypoints; the pooled matches of a pair are verified together (one
-fundamental/essential matrix) and COLMAP's incremental mapper registers the V images with
-focal length and radial distortion refined in its bundle adjustments. The result is normalised
-to the rig: origin at the mean camera centre, unit = rig radius (the largest centre distance
-from that mean); orientation as COLMAP left it (its first registered camera's axes).
+fundamental/essential matrix) and COLMAP's incremental mapper registers the V images (one lens
+model shared while mapping, or the focal priors held). A last bundle adjustment
+(``fixer4d.calib.adjust``) refines every camera's own focal with the focal priors the
+frames allow (``fixer4d.calib.priors``) and gives each camera's standard errors, which the gate
+reads. The result is normalised to the rig: origin at the mean camera centre, unit = rig radius
+(the largest centre distance from that mean); orientation as COLMAP left it (its first registered
+camera's axes).
 """
 from __future__ import annotations
 
 import shutil
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -24,7 +27,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from tqdm import tqdm
 
+from fixer4d.calib.adjust import CameraState, Observations, repeat_weights
 from fixer4d.calib.colmap import pycolmap_module, quiet, rig_camera_from_colmap
+from fixer4d.calib.priors import FocalPrior, weigh_priors
 from fixer4d.calib.rig import Rig, RigCamera
 from fixer4d.errors import InputError
 
@@ -40,31 +45,27 @@ SFM_MAX_FEATURES = 4000
 SFM_RATIO = 0.8
 # Initial focal guess before bundle adjustment, as a multiple of the larger image side (COLMAP's default).
 FOCAL_GUESS = 1.2
-# COLMAP's lens model for self-calibration: one focal, the image centre, one radial coefficient.
-# Four views cannot pin down a principal point or tangential terms.
-SFM_CAMERA_MODEL = "SIMPLE_RADIAL"
-# Focal change used to probe whether the frames determine the focal length (``focal_sensitivity``).
-FOCAL_PROBE = 1.1
+# COLMAP's lens model for self-calibration: one focal, the image centre, no distortion. One pose
+# per camera for the whole clip is a handful of views: a principal point trades against the
+# camera's rotation, a radial term against its focal (freed, k1 moved Panoptic's four focals by
+# +3 to +5 % and bent the parallel demo grid's rotations by 1.5 degrees). A lens that does distort
+# shows as reprojection error, which the gate bounds.
+SFM_CAMERA_MODEL = "SIMPLE_PINHOLE"
 SCALE_SFM = "rig radius = 1 (structure from motion fixes no metric unit): origin at the mean camera centre"
 COLMAP_SEED = 0
 
 
 @dataclass
 class SfMConfig:
-    """timestamps: frames pooled per camera. max_features: SIFT per frame. intrinsics: "shared"
-    (one camera model for all cameras; they must share a size) or "per-camera"."""
+    """timestamps: frames pooled per camera. max_features: SIFT per frame. focal: priors per
+    camera name (``fixer4d.calib.priors``); cameras without one have their focal estimated."""
 
     timestamps: int = SFM_TIMESTAMPS
     max_features: int = SFM_MAX_FEATURES
     ratio: float = SFM_RATIO
-    intrinsics: str = "shared"
-    focal: float | None = None  # known focal length in pixels (held fixed), else estimated
+    focal: dict[str, FocalPrior] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.intrinsics not in ("shared", "per-camera"):
-            raise InputError(f"--intrinsics {self.intrinsics!r}: use shared or per-camera")
-        if self.focal is not None and not self.focal > 0:
-            raise InputError(f"--focal {self.focal}: a focal length in pixels must be > 0")
         if self.timestamps < 1:
             raise InputError(f"--timestamps {self.timestamps}: must be >= 1")
 
@@ -139,7 +140,7 @@ def pool_matches(files: CaptureFiles, config: SfMConfig, progress: bool = True) 
 
 
 def _write_database(pycolmap, db_path: Path, files: CaptureFiles, pooled: PooledMatches, shared: bool,
-                    focal: float | None) -> list[int]:
+                    focal: dict[str, FocalPrior]) -> list[int]:
     """A COLMAP database with one image per camera, its pooled keypoints and the raw matches;
     returns the image ids in camera order."""
     image_ids = []
@@ -147,10 +148,11 @@ def _write_database(pycolmap, db_path: Path, files: CaptureFiles, pooled: Pooled
         camera_id = None
         for c, src in enumerate(files.sources):
             if camera_id is None or not shared:
-                f = focal if focal is not None else FOCAL_GUESS * max(src.width, src.height)
+                prior = focal.get(src.name)
+                f = prior.focal_px if prior is not None else FOCAL_GUESS * max(src.width, src.height)
                 cam = pycolmap.Camera(model=SFM_CAMERA_MODEL, width=src.width, height=src.height,
-                                      params=[f, src.width / 2.0, src.height / 2.0, 0.0])
-                cam.has_prior_focal_length = focal is not None
+                                      params=[f, src.width / 2.0, src.height / 2.0])
+                cam.has_prior_focal_length = prior is not None
                 camera_id = db.write_camera(cam)
                 cam.camera_id = camera_id
                 rig = pycolmap.Rig()
@@ -171,58 +173,48 @@ def _write_database(pycolmap, db_path: Path, files: CaptureFiles, pooled: Pooled
     return image_ids
 
 
-def _reprojection_errors(rec, image_ids: list[int]) -> tuple[list[float | None], dict[tuple[int, int], int]]:
-    """Mean reprojection error (pixels) of each image's observations, and the 3D points each pair of images shares."""
-    errors: list[float | None] = []
-    for image_id in image_ids:
-        if image_id not in rec.images or not rec.images[image_id].has_pose:
-            errors.append(None)
-            continue
-        image = rec.images[image_id]
-        obs = [(p.xy, rec.points3D[p.point3D_id].xyz) for p in image.points2D if p.has_point3D()]
-        if not obs:
-            errors.append(None)
-            continue
-        xy = np.array([o[0] for o in obs], np.float64)
-        xyz = np.array([o[1] for o in obs], np.float64)
-        cfw = image.cam_from_world
-        cfw = cfw() if callable(cfw) else cfw
-        M = np.asarray(cfw.matrix(), np.float64)
-        pc = xyz @ M[:, :3].T + M[:, 3]
-        uv = np.asarray(rec.cameras[image.camera_id].img_from_cam(pc, check_cheirality=False), np.float64)
-        errors.append(float(np.mean(np.linalg.norm(uv - xy, axis=1))))
+def _shared_points(rec, image_ids: list[int]) -> dict[tuple[int, int], int]:
+    """The 3D points each pair of cameras (indices into ``image_ids``) shares."""
     index = {iid: k for k, iid in enumerate(image_ids)}
     shared: dict[tuple[int, int], int] = {}
     for p in rec.points3D.values():
         ks = sorted({index[e.image_id] for e in p.track.elements if e.image_id in index})
         for pair in combinations(ks, 2):
             shared[pair] = shared.get(pair, 0) + 1
-    return errors, shared
+    return shared
 
 
-def focal_sensitivity(pycolmap, rec, factor: float = FOCAL_PROBE) -> float:
-    """How much the mean reprojection error (pixels) rises when every focal length is forced
-    ``factor`` times larger or smaller and bundle adjustment refits everything else: the smaller
-    of the two rises. Near zero, the frames do not determine the focal length (e.g. cameras that
-    all face the same way: any focal fits them equally well, with a stretched scene)."""
-    import copy
+def _pose(image) -> np.ndarray:
+    """(4, 4) world-to-camera of a registered pycolmap image."""
+    cfw = image.cam_from_world
+    cfw = cfw() if callable(cfw) else cfw
+    w2c = np.eye(4)
+    w2c[:3] = np.asarray(cfw.matrix(), np.float64)
+    return w2c
 
-    base = rec.compute_mean_reprojection_error()
-    rises = []
-    for f in (factor, 1.0 / factor):
-        probe = copy.deepcopy(rec)
-        for cam in probe.cameras.values():
-            params = np.array(cam.params, np.float64)
-            params[list(cam.focal_length_idxs())] *= f
-            cam.params = params
-        options = pycolmap.BundleAdjustmentOptions()
-        options.refine_focal_length = False
-        options.refine_principal_point = False
-        options.refine_extra_params = True
-        options.print_summary = False
-        pycolmap.bundle_adjustment(probe, options)
-        rises.append(probe.compute_mean_reprojection_error() - base)
-    return float(min(rises))
+
+def _observations(rec, image_ids: list[int]) -> tuple[Observations, CameraState]:
+    """COLMAP's registered cameras (in ``image_ids`` order) and their observed points, moved to
+    the rig's frame: origin at the mean camera centre, unit = rig radius."""
+    cams = [rig_camera_from_colmap(rec.cameras[rec.images[i].camera_id], str(i), _pose(rec.images[i]), "SfM")
+            for i in image_ids]
+    centres = np.stack([np.linalg.inv(c.w2c)[:3, 3] for c in cams])
+    mean = centres.mean(0)
+    radius = max(float(np.max(np.linalg.norm(centres - mean, axis=1))), 1e-12)
+    point_ids = sorted(rec.points3D)
+    row = {pid: k for k, pid in enumerate(point_ids)}
+    cam, point, xy = [], [], []
+    for k, iid in enumerate(image_ids):
+        for p in rec.images[iid].points2D:
+            if p.has_point3D():
+                cam.append(k)
+                point.append(row[p.point3D_id])
+                xy.append(np.asarray(p.xy, np.float64))
+    points = (np.array([rec.points3D[pid].xyz for pid in point_ids], np.float64).reshape(-1, 3) - mean) / radius
+    state = CameraState(np.stack([c.w2c[:3, :3] for c in cams]), (centres - mean) / radius,
+                        np.array([c.K[0, 0] for c in cams]), np.stack([c.K[:2, 2] for c in cams]))
+    cam, xy = np.array(cam), np.array(xy).reshape(-1, 2)
+    return Observations(cam, np.array(point), xy, points, repeat_weights(cam, xy)), state
 
 
 def _normalise(cams: list[RigCamera]) -> list[RigCamera]:
@@ -242,18 +234,23 @@ def calibrate_sfm(files: CaptureFiles, config: SfMConfig | None = None, progress
     """Self-calibrate the rig of ``files``; returns the Rig (unchecked: ``fixer4d.calib.gate`` judges it).
 
     Cameras COLMAP could not register come back absent from ``rig.cameras``; ``rig.pairs`` holds
-    per pair the raw pooled matches, the geometrically verified ones and the 3D points both see.
+    per pair the raw pooled matches, the geometrically verified ones and the 3D points both see;
+    ``rig.checks["cameras"]`` per camera its focal, the standard errors of focal (px), rotation
+    (degrees) and centre (share of the rig radius), the frames' own focal and the prior's verdict.
     """
     config = config or SfMConfig()
     if len(files.sources) < 2:
         raise InputError(f"{files.root}: calibration needs at least 2 cameras, found {files.names}")
-    shared = config.intrinsics == "shared"
-    if shared and len({(s.width, s.height) for s in files.sources}) > 1:
-        shared = False  # cameras of different sizes cannot share one model
+    # one lens model while mapping (more matches per parameter) unless sizes or priors differ;
+    # the last adjustment frees every camera's focal
+    shared = (len({(s.width, s.height) for s in files.sources}) == 1
+              and len({config.focal.get(n) for n in files.names}) == 1)
     t0 = time.perf_counter()
     pycolmap = pycolmap_module()
     pooled = pool_matches(files, config, progress)
     checks: dict = {}
+    cams: list[RigCamera] = []
+    shared_points: dict[tuple[int, int], int] = {}
     work = Path(tempfile.mkdtemp(prefix="fixer4d_calib_"))
     try:
         db_path = work / "database.db"
@@ -277,41 +274,58 @@ def calibrate_sfm(files: CaptureFiles, config: SfMConfig | None = None, progress
             options.extract_colors = False
             options.num_threads = 1
             options.random_seed = COLMAP_SEED
-            options.ba_refine_focal_length = config.focal is None
+            options.ba_refine_focal_length = not config.focal
             options.ba_refine_principal_point = False
-            options.ba_refine_extra_params = config.focal is None
             if progress:
                 print("[fixer4d] calibrate: incremental mapping and bundle adjustment", flush=True)
             recs = pycolmap.incremental_mapping(str(db_path), str(work / "images"), str(work / "sparse"), options)
         rec = max(recs.values(), key=lambda r: (r.num_reg_images(), r.num_points3D())) if recs else None
-        if rec is None:
-            errors, shared_points, cams = [None] * len(image_ids), {}, []
-        else:
-            errors, shared_points = _reprojection_errors(rec, image_ids)
-            cams = []
-            for c, image_id in enumerate(image_ids):
-                if image_id in rec.images and rec.images[image_id].has_pose:
-                    image = rec.images[image_id]
-                    cfw = image.cam_from_world
-                    cfw = cfw() if callable(cfw) else cfw
-                    w2c = np.eye(4)
-                    w2c[:3] = np.asarray(cfw.matrix(), np.float64)
-                    rc = rig_camera_from_colmap(rec.cameras[image.camera_id], files.names[c], w2c, "SfM")
-                    rc.reprojection_error_px = errors[c]
-                    cams.append(rc)
-            if len(cams) >= 2:
-                cams = _normalise(cams)
-                if config.focal is None:
-                    with quiet(pycolmap):
-                        checks["focal_sensitivity_px"] = focal_sensitivity(pycolmap, rec)
-                checks["mean_reprojection_error_px"] = float(rec.compute_mean_reprojection_error())
+        if rec is not None:
+            shared_points = _shared_points(rec, image_ids)
+            registered = [c for c, i in enumerate(image_ids) if i in rec.images and rec.images[i].has_pose]
+            if len(registered) >= 2:
+                cams = _adjusted_cameras(rec, files, [image_ids[c] for c in registered], registered, config, checks)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     pairs = [{"cameras": [files.names[a], files.names[b]], "raw_matches": int(len(pooled.matches[(a, b)])),
               "verified_matches": int(verified[(a, b)]), "shared_points": int(shared_points.get((a, b), 0))}
              for a, b in pooled.matches]
+    given = f"focal priors for {sorted(config.focal)}" if config.focal else "focals estimated"
     rig = Rig(cams, pairs, [files.start + f for f in pooled.frames], SCALE_SFM,
-              f"structure from motion over {len(pooled.frames)} timestamps ({config.intrinsics} intrinsics, "
-              f"{SFM_CAMERA_MODEL}, focal {'given' if config.focal else 'estimated'})", checks)
+              f"structure from motion over {len(pooled.frames)} timestamps ({SFM_CAMERA_MODEL} per camera, {given})",
+              checks)
     rig.checks["seconds"] = round(time.perf_counter() - t0, 2)
     return rig
+
+
+def _adjusted_cameras(rec, files: CaptureFiles, image_ids: list[int], registered: list[int], config: SfMConfig,
+                      checks: dict) -> list[RigCamera]:
+    """The registered cameras after the last bundle adjustment (``priors.weigh_priors``); fills
+    ``checks["cameras"]`` with each one's figures and the residual's standard deviation."""
+    from fixer4d.calib.gate import MAX_FOCAL_SD_REL
+
+    names = [files.names[c] for c in registered]
+    obs, state = _observations(rec, image_ids)
+    final, free, verdicts = weigh_priors(obs, state, names, config.focal, MAX_FOCAL_SD_REL)
+    checks["reprojection_sd_px"] = round(final.sigma_px, 4)
+    checks["cameras"] = {}
+    cams = []
+    for k, (c, name) in enumerate(zip(registered, names)):
+        src = files.sources[c]
+        f = float(final.cameras.f[k])
+        K = np.array([[f, 0.0, final.cameras.c[k, 0]], [0.0, f, final.cameras.c[k, 1]], [0.0, 0.0, 1.0]])
+        w2c = np.eye(4)
+        w2c[:3, :3] = final.cameras.R[k]
+        w2c[:3, 3] = -final.cameras.R[k] @ final.cameras.C[k]
+        cams.append(RigCamera(name, src.width, src.height, K, w2c, {},
+                              float(final.mean_error_px[k])))
+        prior = config.focal.get(name)
+        checks["cameras"][name] = {
+            "focal_px": round(f, 2), "focal_sd_px": round(float(final.focal_sd_px[k]), 3),
+            "rotation_sd_deg": round(float(final.rotation_sd_deg[k]), 4),
+            "centre_sd_rel": round(float(final.centre_sd[k]), 5),
+            "frames_focal_px": round(float(free.cameras.f[k]), 2),
+            "frames_focal_sd_px": round(float(free.focal_sd_px[k]), 3),
+            "prior": None if prior is None else {"focal_px": prior.focal_px, "sd_px": prior.sd_px,
+                                                 "verdict": verdicts[name]}}
+    return _normalise(cams)

@@ -10,11 +10,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-# Focals of one rig that agree to 1 % are one lens model at one zoom (a board fit's spread is ~0.1 %).
-FOCAL_AGREEMENT = 0.01
-# A self-calibration with a given focal fits no distortion: a lens that moves the image corners by
-# more than this (pixels) is not lost in the SIFT keypoints' own error (~0.5-1 px) and would bend
-# the poses.
+# The self-calibration fits no distortion: a lens that moves the image corners by more than this
+# (pixels) is not lost in the keypoints' own error (~0.5-1 px) and would bend the poses.
 MAX_UNMODELLED_DISTORTION_PX = 1.0
 
 
@@ -47,12 +44,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help=f"frames pooled per camera (default {SFM_TIMESTAMPS})")
     sfm.add_argument("--max-features", type=int, default=SFM_MAX_FEATURES,
                      help=f"SIFT features per frame (default {SFM_MAX_FEATURES})")
-    sfm.add_argument("--intrinsics", choices=["shared", "per-camera"], default="shared",
-                     help="one lens model for every camera (same cameras) or one each")
-    sfm.add_argument("--focal", type=float, default=None,
-                     help="known focal length in pixels at the video's resolution (held fixed)")
+    sfm.add_argument("--focal", action="append", default=[], metavar="[CAM=]PX[:SD]",
+                     help="a focal length you know, in pixels at the videos' size, as a prior the frames are weighed "
+                          "against: for every camera (--focal 466) or one (--focal cam18=515; repeatable), known to "
+                          "1 %% unless SD says (pixels, or percent: --focal 466:2%%); the frames correct a prior they "
+                          "contradict where they determine the focal, else the camera is refused")
     sfm.add_argument("--focal-from", default=None, metavar="RIG",
-                     help="hold the focal of a rig.json fixed (e.g. one calibrated from a board) instead of --focal")
+                     help="each camera's focal from a rig.json (e.g. one calibrated from a board) as its prior, "
+                          "with the board's uncertainty")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -81,44 +80,57 @@ def _board_dir(args: argparse.Namespace) -> Path | None:
     return inside if is_capture(inside) else Path(args.capture)
 
 
-def focal_from(path: str, files) -> float:
-    """The focal (pixels at ``files``' frame size) of the rig.json at ``path``; InputError when
-    its cameras' focals differ by more than ``FOCAL_AGREEMENT`` (self-calibration holds one) or
-    its lenses distort by more than ``MAX_UNMODELLED_DISTORTION_PX``."""
+def focal_from(path: str, files) -> dict:
+    """{camera name: ``priors.FocalPrior``}: the focals (pixels at ``files``' frame size) of the
+    rig.json at ``path``, with its standard deviations where it recorded them (a board rig's
+    ``focal_std_rel``, else ``priors.DEFAULT_PRIOR_SD_REL``); InputError when a lens distorts by
+    more than ``MAX_UNMODELLED_DISTORTION_PX``."""
     import numpy as np
 
     from fixer4d.calib.formats import read_calibration
+    from fixer4d.calib.priors import DEFAULT_PRIOR_SD_REL, FocalPrior
     from fixer4d.calib.rig import distort_points
     from fixer4d.errors import InputError
     from fixer4d.scene.capture import match_rig
 
-    cams = match_rig(read_calibration(path, files.names), files, path)
-    focals = np.array([c.K[0, 0] for c in cams])
-    if focals.max() > focals.min() * (1 + FOCAL_AGREEMENT):
-        detail = ", ".join(f"{c.name} {f:.1f}" for c, f in zip(cams, focals))
-        raise InputError(f"--focal-from {path}: its cameras have different focals ({detail} px); self-calibration "
-                         f"holds one focal for all: use that rig itself (--calibration) or its board "
-                         f"(`fixer4d calibrate CAPTURE --board ...`)")
-    for c in cams:
+    rig = read_calibration(path, files.names)
+    std = rig.checks.get("focal_std_rel") or {}
+    priors = {}
+    for c in match_rig(rig, files, path):
         corners = np.array([[0.0, 0.0], [c.width, 0.0], [0.0, c.height], [c.width, c.height]])
         shift = float(np.max(np.linalg.norm(distort_points(c, corners) - corners, axis=1)))
         if shift > MAX_UNMODELLED_DISTORTION_PX:
             raise InputError(f"--focal-from {path}: camera {c.name}'s lens moves the image corners by {shift:.1f} px, "
-                             f"which a self-calibration with a given focal does not model (at most "
+                             f"which a self-calibration does not model (at most "
                              f"{MAX_UNMODELLED_DISTORTION_PX} px): use that rig itself (--calibration) or its board "
                              f"(`fixer4d calibrate CAPTURE --board ...`)")
-    return float(focals.mean())
+        f = float(c.K[0, 0])
+        priors[c.name] = FocalPrior(f, f * float(std.get(c.name) or DEFAULT_PRIOR_SD_REL))
+    return priors
+
+
+def _uncertainty(figures: dict | None) -> str:
+    """'; standard errors focal 2.1 px, rotation 0.05 deg, centre 0.3 % of the rig radius; prior ...' or ''."""
+    if not figures:
+        return ""
+    prior = figures.get("prior")
+    said = "" if prior is None else (f"; focal prior {prior['focal_px']:.1f} +- {prior['sd_px']:.1f} px "
+                                     f"{prior['verdict']} (frames alone: {figures['frames_focal_px']:.1f} +- "
+                                     f"{figures['frames_focal_sd_px']:.1f} px)")
+    return (f"; standard errors focal {figures['focal_sd_px']:.1f} px, rotation {figures['rotation_sd_deg']:.2f} deg, "
+            f"centre {100 * figures['centre_sd_rel']:.1f} % of the rig radius{said}")
 
 
 def _print_rig(rig, out: str) -> None:
     from fixer4d.calib.board_calib import board_pair_table
     from fixer4d.calib.gate import pair_table
 
+    figures = rig.checks.get("cameras", {})
     for c in rig.cameras:
         err = "n/a" if c.reprojection_error_px is None else f"{c.reprojection_error_px:.2f} px"
         lens = ", ".join(f"{k} {v:+.4f}" for k, v in c.distortion.items() if v)
         print(f"{c.name}: {c.width}x{c.height}, focal {c.K[0, 0]:.1f} px, principal point ({c.K[0, 2]:.1f}, "
-              f"{c.K[1, 2]:.1f}), {lens or 'no distortion'}, reprojection {err}")
+              f"{c.K[1, 2]:.1f}), {lens or 'no distortion'}, reprojection {err}{_uncertainty(figures.get(c.name))}")
     if rig.pairs:
         table = board_pair_table(rig) if "shared_frames" in rig.pairs[0] else pair_table(rig)
         print(f"per pair: {table}")
@@ -129,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
     from fixer4d.calib import calibrate
     from fixer4d.calib.board import BoardSpec, write_board_image
     from fixer4d.calib.board_calib import calibrate_board
+    from fixer4d.calib.priors import parse_focal_priors
     from fixer4d.calib.sfm import SfMConfig
     from fixer4d.errors import InputError
     from fixer4d.scene import parse_frame_range
@@ -143,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
             return 0
     if args.capture is None or args.out is None:
         raise InputError("calibrate needs a CAPTURE folder and --out rig.json (or only --write-board PNG)")
-    if args.focal is not None and args.focal_from is not None:
+    if args.focal and args.focal_from is not None:
         raise InputError("give --focal or --focal-from, not both")
     frame_range = parse_frame_range(args.frames) if args.frames else None
     board_dir = _board_dir(args)
@@ -159,9 +172,8 @@ def run(args: argparse.Namespace) -> int:
         rig.write(args.out)
     else:
         files = CaptureFiles(args.capture, parse_offsets(args.offset), frame_range)
-        focal = focal_from(args.focal_from, files) if args.focal_from else args.focal
-        config = SfMConfig(timestamps=args.timestamps, max_features=args.max_features, intrinsics=args.intrinsics,
-                           focal=focal)
+        focal = focal_from(args.focal_from, files) if args.focal_from else parse_focal_priors(args.focal, files.names)
+        config = SfMConfig(timestamps=args.timestamps, max_features=args.max_features, focal=focal)
         rig = calibrate(files, args.out, config=config, progress=not args.quiet)
     _print_rig(rig, args.out)
     return 0

@@ -177,25 +177,25 @@ def test_a_camera_missing_from_the_board_videos_is_named(tmp_path, capsys):
 
 
 
-def test_focal_from_a_board_rig_is_rescaled_and_must_agree(tmp_path, tiny4, capture_writer):
-    """`--focal-from RIG`: the rig's focal at the videos' size (a board filmed at twice the size);
-    cameras whose focals differ cannot share the self-calibration's one focal."""
+def test_focal_from_a_board_rig_gives_each_camera_its_prior(tmp_path, tiny4, capture_writer):
+    """`--focal-from RIG`: each camera's focal at the videos' size (a board filmed at twice the
+    size) as its prior, with the board's uncertainty; a distorting lens is refused."""
     from fixer4d.cli.calibrate import focal_from
+    from fixer4d.calib.priors import DEFAULT_PRIOR_SD_REL
     from fixer4d.calib.rig import Rig
     from fixer4d.scene.capture import CaptureFiles
 
     scene, ids = tiny4
     names = capture_writer(scene, tmp_path / "cap", ids)
     files = CaptureFiles(tmp_path / "cap")
-    focals = [300.0, 301.0, 299.5, 300.5]
-    Rig([RigCamera(n, 128, 96, [[f, 0, 64], [0, f, 48], [0, 0, 1]], np.eye(4)) for n, f in zip(names, focals)]).write(
-        tmp_path / "board_rig.json")
-    assert focal_from(str(tmp_path / "board_rig.json"), files) == pytest.approx(np.mean(focals) / 2)
-    focals[2] = 330.0
-    Rig([RigCamera(n, 128, 96, [[f, 0, 64], [0, f, 48], [0, 0, 1]], np.eye(4)) for n, f in zip(names, focals)]).write(
-        tmp_path / "board_rig.json")
-    with pytest.raises(InputError, match="different focals"):
-        focal_from(str(tmp_path / "board_rig.json"), files)
+    focals = [300.0, 301.0, 330.0, 300.5]
+    board_rig = Rig([RigCamera(n, 128, 96, [[f, 0, 64], [0, f, 48], [0, 0, 1]], np.eye(4))
+                     for n, f in zip(names, focals)], checks={"focal_std_rel": {names[0]: 0.002}})
+    board_rig.write(tmp_path / "board_rig.json")
+    priors = focal_from(str(tmp_path / "board_rig.json"), files)
+    assert [priors[n].focal_px for n in names] == pytest.approx([f / 2 for f in focals])
+    assert priors[names[0]].sd_px == pytest.approx(0.002 * 150.0)
+    assert priors[names[1]].sd_px == pytest.approx(DEFAULT_PRIOR_SD_REL * 150.5)
     Rig([RigCamera(n, 128, 96, [[300.0, 0, 64], [0, 300.0, 48], [0, 0, 1]], np.eye(4), {"k1": -0.5})
          for n in names]).write(tmp_path / "board_rig.json")
     with pytest.raises(InputError, match="lens moves the image corners"):

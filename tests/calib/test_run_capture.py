@@ -17,14 +17,18 @@ def _config(source, **scene) -> RunConfig:
     return dataclasses.replace(cfg, scene=dataclasses.replace(cfg.scene, source=str(source), **scene))
 
 
-def test_a_calibration_beside_the_videos_is_used_as_is(tmp_path, tiny4, capture_writer):
+def test_the_calibration_beside_the_videos_is_recorded_and_copied_into_the_run(tmp_path, tiny4, capture_writer):
+    from fixer4d.calib.rig import read_rig_json
+
     scene, ids = tiny4
     capture_writer(scene, tmp_path / "cap", ids)
     Rig([RigCamera(scene.cameras[i].name, 64, 48, scene.cameras[i].K, scene.cameras[i].w2c) for i in ids]).write(
         tmp_path / "cap" / "rig.json")
-    cfg = _config(tmp_path / "cap")
-    assert calibrate_into_run(cfg, tmp_path / "run", progress=False) is cfg
-    assert not (tmp_path / "run").exists()
+    cfg = calibrate_into_run(_config(tmp_path / "cap"), tmp_path / "run", progress=False)
+    assert cfg.scene.calibration == str((tmp_path / "run" / "rig.json").resolve())
+    copied = read_rig_json(tmp_path / "run" / "rig.json")
+    assert copied.names() == sorted(scene.cameras[i].name for i in ids)
+    assert f"copied from {(tmp_path / 'cap' / 'rig.json').resolve()}" in copied.source
     other = _config("demo")
     assert calibrate_into_run(other, tmp_path / "run", progress=False) is other
 
