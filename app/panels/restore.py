@@ -7,7 +7,7 @@ import re
 
 from imgui_bundle import imgui
 
-from app.panels._layout import combo_fit, error_text, leave_room_for_label, one_line, panel, tip
+from app.panels._layout import combo_fit, elide, leave_room_for_label, one_line, panel, tip
 
 
 def draw(viewer) -> None:
@@ -41,20 +41,35 @@ def draw(viewer) -> None:
                     queue_restore(viewer, k, f)
             imgui.separator()
             for n, item in enumerate(reversed(src.restore.items)):
-                imgui.push_id(str(n))
-                if item.status in ("rendering", "queued", "running", "submitted"):
-                    # the button first: a long clip name wraps instead of pushing it out of the panel
-                    if imgui.small_button("cancel"):
-                        item.cancel()
-                    viewer.record_item(f"restore_cancel_{n}")
-                    tip(f"stop restoring {item.key} (a clip being restored is not written to the cache)", viewer)
-                    imgui.same_line()
-                imgui.text_wrapped(f"{item.key}  {item.status}")
-                imgui.progress_bar(item.progress, imgui.ImVec2(-1, 0))
-                err = item.error or (getattr(item.job, "error", None) if item.job is not None else None)
-                if err:
-                    error_text(str(err))
-                imgui.pop_id()
+                restore_item(viewer, n, item)
+
+
+def restore_item(viewer, n: int, item) -> None:
+    """One queued restoration in exactly two lines, whatever its state: [cancel] and the clip
+    name, then a progress bar that says the status (or the error, whole on hover), so a job that
+    finishes or fails never moves the rows under it."""
+    imgui.push_id(str(n))
+    active = item.status in ("rendering", "queued", "running", "submitted")
+    imgui.begin_disabled(not active)
+    if imgui.small_button("cancel"):
+        item.cancel()
+    imgui.end_disabled()
+    viewer.record_item(f"restore_cancel_{n}")
+    tip(f"stop restoring {item.key} (a clip being restored is not written to the cache)" if active else
+        f"{item.key} is {item.status}", viewer)
+    imgui.same_line()
+    one_line(item.key, viewer, disabled=False)
+    err = item.error or (getattr(item.job, "error", None) if item.job is not None else None)
+    text = f"{item.status}: {err}" if err else item.status
+    shown = elide(text, max(imgui.get_content_region_avail().x - 8.0, 8.0))
+    if err:
+        imgui.push_style_color(imgui.Col_.plot_histogram.value, imgui.ImVec4(0.8, 0.25, 0.2, 1.0))
+    imgui.progress_bar(item.progress, imgui.ImVec2(-1, 0), shown)
+    if err:
+        imgui.pop_style_color()
+    if shown != text:
+        tip(text, viewer)
+    imgui.pop_id()
 
 
 def queue_restore(viewer, k: int, frame: int):

@@ -7,7 +7,7 @@ import time
 import numpy as np
 from imgui_bundle import imgui, implot
 
-from app.panels._layout import error_text, leave_room_for_label, panel, tip
+from app.panels._layout import error_text, leave_room_for_label, one_line, panel, tip
 
 # Loss curves drawn from at most this many points (the history is decimated to it).
 PLOT_POINTS = 2000
@@ -21,15 +21,9 @@ def draw(viewer) -> None:
         if tr is None:
             imgui.text_wrapped("Showing a saved model. Open a scene (fixer4d-view SCENE) to train live.")
         else:
+            # the controls first, on lines that stay: the state and progress lines under them
+            # come and go (setup, errors) without moving a control under the pointer
             total = tr.total_steps
-            imgui.text_wrapped(f"state: {tr.state}   step {tr.step}" + (f" of {total}" if total else ""))
-            if tr.state == "setup":
-                elapsed = 0.0 if tr.setup_started is None else time.monotonic() - tr.setup_started
-                imgui.text_wrapped(f"setting up ({elapsed:.0f} s): {tr.setup_status or 'starting'}")
-            if total:
-                imgui.progress_bar(min(tr.step / total, 1.0), imgui.ImVec2(-1, 0))
-            if tr.error:
-                error_text(tr.error)
             control = {"idle": ("start", tr.start, "start training in the background"),
                        "running": ("pause", tr.pause, "pause training after the current step (the model shown stays)"),
                        "setup": ("pause", tr.pause, "pause training once it is set up"),
@@ -40,12 +34,9 @@ def draw(viewer) -> None:
                 tip(control[2], viewer)
                 if clicked:
                     control[1]()
-            g = viewer.state.gaussians
-            rate, eta = tr.steps_per_s, tr.eta_s
-            imgui.text_wrapped(f"Gaussians: {0 if g is None else g.n}   {rate:.2f} steps/s" if rate else
-                               f"Gaussians: {0 if g is None else g.n}")
-            if eta is not None and tr.state == "running":
-                imgui.text_wrapped(f"step time {1e3 * tr.step_seconds:.0f} ms   ETA {format_duration(eta)}")
+                imgui.same_line()
+            imgui.align_text_to_frame_padding()  # the line is a button high with or without one
+            one_line(f"{tr.state}, step {tr.step}" + (f" of {total}" if total else ""), viewer, disabled=False)
             st2 = getattr(tr.trainer, "stage2", None)
             if st2 is not None:
                 leave_room_for_label("lambda_gen")
@@ -58,6 +49,19 @@ def draw(viewer) -> None:
                 tip("refresh the pseudo-targets every K steps (stage 2)", viewer)
                 if changed and k > 0:
                     tr.set_stage2(refresh_every=k)
+            if total:
+                imgui.progress_bar(min(tr.step / total, 1.0), imgui.ImVec2(-1, 0))
+            if tr.state == "setup":
+                elapsed = 0.0 if tr.setup_started is None else time.monotonic() - tr.setup_started
+                imgui.text_wrapped(f"setting up ({elapsed:.0f} s): {tr.setup_status or 'starting'}")
+            if tr.error:
+                error_text(tr.error)
+            g = viewer.state.gaussians
+            rate, eta = tr.steps_per_s, tr.eta_s
+            imgui.text_wrapped(f"Gaussians: {0 if g is None else g.n}   {rate:.2f} steps/s" if rate else
+                               f"Gaussians: {0 if g is None else g.n}")
+            if eta is not None and tr.state == "running":
+                imgui.text_wrapped(f"step time {1e3 * tr.step_seconds:.0f} ms   ETA {format_duration(eta)}")
             hist = tr.losses()
             if hist:
                 last = hist[-1]

@@ -136,3 +136,27 @@ def test_every_destructive_action_is_undoable_and_says_so(make_viewer, tiny, tmp
     assert not v.request_close() and not v.quit_confirmed
     d.frame(2)
     assert "close_discard" in v.item_rects and not v.quit_confirmed
+
+
+def test_jobs_that_change_state_move_no_control(make_viewer, tiny, tmp_path):
+    """A restoration that fails (its error line) and live training going from setup to running
+    to failed leave the Restore and Training panels' controls where they were."""
+    from ui_walk import busy_viewer
+
+    d = busy_viewer(make_viewer, tiny, tmp_path, DEFAULT_WINDOW)
+    v = d.viewer
+    v.show_help = v.show_report = v.show_notifications = False
+    failed, running = v.source.restore.items  # shown newest first: running, then failed
+    tr = v.source.training
+    tr.state, tr.setup_started, tr.setup_status = "setup", None, "init: mvs point clouds of every 2nd frame"
+    d.frame(2)
+    corner = lambda name: v.item_rects[name][:2]  # noqa: E731 (x0, y0)
+    before = {name: corner(name) for name in ("restore_cancel_0", "restore_cancel_1", "training_control")}
+    running.status, running.error = "failed", "a long error from the restorer " * 4
+    tr.state, tr.error = "running", None
+    d.frame(2)
+    assert {name: corner(name) for name in before} == before
+    tr.state, tr.error = "failed", "RuntimeError: out of memory at step 20"
+    d.frame(2)
+    assert {name: corner(name) for name in ("restore_cancel_0", "restore_cancel_1")} == {
+        name: before[name] for name in ("restore_cancel_0", "restore_cancel_1")}
