@@ -142,3 +142,20 @@ class CameraResponse(torch.nn.Module):
             resp.log_gain.copy_(log_gain)
             resp.bias.copy_(torch.tensor(data["bias"], dtype=torch.float32))
         return resp
+
+
+def train_view_render_fn(render_fn, response: CameraResponse, train_cameras: list) -> Any:
+    """``render_fn(camera, t) -> (H, W, 3)`` for scoring the fit to the train views: a train camera
+    (``train_cameras``, in the response's view order; matched by name) comes out through its
+    trained response, clipped to [0, 1] as the camera records it; any other camera as
+    ``render_fn`` renders it."""
+    index = {c.name: k for k, c in enumerate(train_cameras)}
+    with torch.no_grad():
+        gains, biases = (x.cpu().numpy() for x in response.gains_biases())
+
+    def fn(camera, t: float) -> np.ndarray:
+        rgb = render_fn(camera, t)
+        k = index.get(camera.name)
+        return rgb if k is None else np.clip(rgb * gains[k] + biases[k], 0.0, 1.0).astype(np.float32)
+
+    return fn

@@ -111,9 +111,13 @@ def write_report(run_dir: Path, scene_text: str, rows: list[dict[str, Any]], sta
     report = {"rows": rows, "stage_seconds": stage_seconds, "scene": scene_text, **(extra or {})}
     atomic.write_json(run_dir / "report.json", report)
     lines = [f"# fixer4d report: {run_dir.name}", "", f"Scene: {scene_text}", ""]
-    if any(r.get("held_out") is False for r in rows):
+    held_out = not any(r.get("held_out") is False for r in rows)
+    if not held_out:
+        response = ((report.get("model") or {}).get("camera_response")
+                    and " Each train view is rendered through the colour response its camera trained (the sparse "
+                        "baseline trains none).")
         lines += ["No held-out camera: every camera trained, so the table shows the fit to the train views, not "
-                  "novel-view quality (`fixer4d run CAPTURE --holdout CAM` holds one camera out).", ""]
+                  f"novel-view quality (`fixer4d run CAPTURE --holdout CAM` holds one camera out).{response or ''}", ""]
     if report.get("model"):
         lines += [camera_response_line(report["model"]), ""]
     if report.get("restorer"):
@@ -139,7 +143,8 @@ def write_report(run_dir: Path, scene_text: str, rows: list[dict[str, Any]], sta
                      f"{_fmt(r['lpips'], 4)} | {_fmt(r['seconds'], 1)} |")
     fractions = [r.get("unobserved_fraction") for r in rows if r.get("unobserved_fraction") is not None]
     if fractions:
-        lines += ["", f"PSNR unobserved: over the held-out pixels that no train camera explains in the stage-1 model "
+        lines += ["", f"PSNR unobserved: over the {'held-out' if held_out else 'train-view'} pixels that no train "
+                      f"camera explains in the stage-1 model "
                       f"({100 * fractions[0]:.1f} % of them; restore.visibility, from renders only). PSNR "
                       "exposure-aligned: after a per-image per-channel affine colour fit to the ground truth. "
                       f"{ROW_IDENTITY} is the {ROW_MVS} render itself; {ROW_BLUR} a Gaussian blur of it."]

@@ -373,16 +373,26 @@ def evaluate_stage(ctx: StageContext, name: str, render_fn: Callable[[Camera, fl
                    unobserved: Callable[[int, int], np.ndarray] | None = None) -> dict[str, Any]:
     """Held-out metrics of ``render_fn`` -> RUN/eval/<slug>/metrics.json (keyed by ``inputs_key``,
     the key of the model or restorer it evaluates). unobserved: the held-out pixels no train
-    camera explains (``restoration.UnobservedMasks``), scored as ``psnr_unobserved``."""
+    camera explains (``restoration.UnobservedMasks``), scored as ``psnr_unobserved``. A scene
+    without held-out cameras scores the fit to its train views, each through the colour response
+    its camera trained (``camera_response.train_view_render_fn``; the sparse init's stage 1 trains
+    none)."""
     import json
 
     from fixer4d.eval.evaluate import evaluate
+    from fixer4d.pipeline.report import ROW_COLMAP
 
+    response = None if ctx.scene.test_ids or name == ROW_COLMAP else stage1_response(ctx)
+    if response is not None:
+        from fixer4d.model.camera_response import train_view_render_fn
+
+        render_fn = train_view_render_fn(render_fn, response, [ctx.scene.cameras[i] for i in ctx.scene.train_ids])
     slug = eval_slug(name)
     out = ctx.path / "eval" / slug
     stage = f"eval:{slug}"
     ev = ctx.config.eval
-    key = stage_key("eval", inputs_key, ev.stride, ev.examples, EVAL_METRICS_VERSION, unobserved is not None)
+    key = stage_key("eval", inputs_key, ev.stride, ev.examples, EVAL_METRICS_VERSION, unobserved is not None,
+                    *(("train views through their response",) if response is not None else ()))
     if ctx.run.records.done(stage, key) and (out / "metrics.json").exists():
         return json.loads((out / "metrics.json").read_text())
     ctx.run.records.begin(stage, key)
