@@ -17,6 +17,13 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
                         help="print the resolved config (every key, validated) and exit without running")
 
 
+def add_keep_checkpoints_argument(parser: argparse.ArgumentParser) -> None:
+    """--keep-checkpoints (``run_pipeline``'s ``keep_checkpoints``)."""
+    parser.add_argument("--keep-checkpoints", action="store_true",
+                        help="keep each stage's newest checkpoints (training.keep_checkpoints of them) after the stage's "
+                             "outputs are written; by default a finished stage leaves none")
+
+
 def add_paper_stage2_argument(parser: argparse.ArgumentParser) -> None:
     """--paper-stage2 (``paper_stage2_overrides``)."""
     parser.add_argument("--paper-stage2", action="store_true",

@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import argparse
 
-from fixer4d.cli.config_args import add_config_arguments, frame_range_override, maybe_print_config, resolve_from_args
+from fixer4d.cli.config_args import (add_config_arguments, add_keep_checkpoints_argument, frame_range_override,
+                                     maybe_print_config, resolve_from_args)
 
 # What makes a run a reconstruction: no stage 2 and no extra rows.
 RECONSTRUCT_ONLY = {"stage2.rounds": 0, "baseline_sparse": False, "eval.restoration_rows": False,
@@ -29,6 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--eval-stride", type=int, default=None, help="evaluate every S-th frame")
     add_config_arguments(parser)
     parser.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true", help="no progress bars")
+    add_keep_checkpoints_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -43,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if not args.out:
         raise InputError("--out RUN is required (the run folder)")
-    report = run_pipeline(config, args.out, progress=not args.quiet)
+    report = run_pipeline(config, args.out, progress=not args.quiet, keep_checkpoints=args.keep_checkpoints)
     row = report["rows"][-1]
     print(f"{row['method']}: held-out PSNR {row['psnr']:.2f} dB, DSSIM1 {row['dssim1']:.4f} "
           f"-> {args.out}/model_stage1.ply, {args.out}/metrics.json")

@@ -11,7 +11,8 @@ from __future__ import annotations
 import argparse
 
 from fixer4d.errors import InputError
-from fixer4d.cli.config_args import add_paper_stage2_argument, maybe_print_config, paper_stage2_overrides
+from fixer4d.cli.config_args import (add_keep_checkpoints_argument, add_paper_stage2_argument, maybe_print_config,
+                                     paper_stage2_overrides)
 
 # Sections refine may change: anything else would make the stage-1 model stale.
 REFINABLE = ("stage2.", "restorer.", "trajectories.", "eval.", "self_check.")
@@ -31,6 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"a config value in {', '.join(k.rstrip('.') for k in REFINABLE)} by dotted key")
     parser.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
     parser.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true", help="no progress bars")
+    add_keep_checkpoints_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -69,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
     if maybe_print_config(args, config):
         return 0
     folder.update_config(config)
-    report = run_stages(StageContext(run=folder, scene=folder.scene, progress=not args.quiet))
+    report = run_stages(StageContext(run=folder, scene=folder.scene, progress=not args.quiet,
+                                     keep_checkpoints=args.keep_checkpoints))
     for row in report["rows"]:
         if row.get("status") == "ok":
             print(f"{row['method']}: held-out PSNR {row['psnr']:.2f} dB")

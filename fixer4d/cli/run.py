@@ -4,8 +4,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fixer4d.cli.config_args import (add_config_arguments, add_paper_stage2_argument, frame_range_override,
-                                         maybe_print_config, paper_stage2_overrides, resolve_from_args)
+from fixer4d.cli.config_args import (add_config_arguments, add_keep_checkpoints_argument, add_paper_stage2_argument,
+                                     frame_range_override, maybe_print_config, paper_stage2_overrides,
+                                     resolve_from_args)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,11 +46,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="seed of the whole run: the run's torch seed and stage 1's and stage 2's "
                              "(`--set seed=S` alone seeds torch only; the stages keep their own seeds)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_keep_checkpoints_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    from fixer4d.pipeline.capture_rig import calibrate_into_run
     from fixer4d.errors import InputError
+    from fixer4d.pipeline.capture_rig import calibrate_into_run
     from fixer4d.pipeline.run import run_pipeline
     from fixer4d.scene.capture import parse_offsets
 
@@ -71,6 +73,6 @@ def run(args: argparse.Namespace) -> int:
     if not args.out:
         raise InputError("--out RUN is required (the run folder)")
     config = calibrate_into_run(config, args.out, progress=not args.quiet)
-    run_pipeline(config, args.out, progress=not args.quiet)
+    run_pipeline(config, args.out, progress=not args.quiet, keep_checkpoints=args.keep_checkpoints)
     print(open(f"{args.out}/report.md").read())
     return 0

@@ -33,7 +33,7 @@ log = logging.getLogger("fixer4d.pipeline")
 
 
 def open_context(config: RunConfig, out: str | Path, *, progress: bool = True,
-                 stage_cache: str | Path | None = None) -> S.StageContext:
+                 stage_cache: str | Path | None = None, keep_checkpoints: bool = False) -> S.StageContext:
     """Load and check the scene, then create (or resume) the run folder: a bad scene or frame
     range fails here, before anything is written."""
     from fixer4d.scene import validate_scene
@@ -45,19 +45,21 @@ def open_context(config: RunConfig, out: str | Path, *, progress: bool = True,
     training_device(config.training.device, config.training.backend)  # a device that is not there, likewise
     run = RunFolder.create(out, config)
     return S.StageContext(run=run, scene=scene, progress=progress,
-                          cache=StageCache(stage_cache) if stage_cache is not None else None)
+                          cache=StageCache(stage_cache) if stage_cache is not None else None,
+                          keep_checkpoints=keep_checkpoints)
 
 
 def run_pipeline(config: RunConfig, out: str | Path, *, progress: bool = True,
-                 stage_cache: str | Path | None = None) -> dict[str, Any]:
+                 stage_cache: str | Path | None = None, keep_checkpoints: bool = False) -> dict[str, Any]:
     """Run (or resume) the whole method; returns the report dict (also RUN/report.json).
 
     stage_cache: a folder shared by several runs (a study) where finished inits and stage-1
-    models are kept and reused by runs whose settings match.
+    models are kept and reused by runs whose settings match. keep_checkpoints: keep each stage's
+    checkpoints after its outputs are written (by default they go).
     """
     if config.segments.frames is not None:
-        return run_segmented(config, out, progress=progress, stage_cache=stage_cache)
-    ctx = open_context(config, out, progress=progress, stage_cache=stage_cache)
+        return run_segmented(config, out, progress=progress, stage_cache=stage_cache, keep_checkpoints=keep_checkpoints)
+    ctx = open_context(config, out, progress=progress, stage_cache=stage_cache, keep_checkpoints=keep_checkpoints)
     return run_stages(ctx)
 
 
@@ -260,16 +262,16 @@ def segment_config(config: RunConfig, start: int, stop: int, shared: tuple[Path,
                                executor=dataclasses.replace(config.executor, kind="local"))
 
 
-def _run_segment(job: tuple[dict[str, Any], str]) -> dict[str, Any]:
+def _run_segment(job: tuple[dict[str, Any], str, bool]) -> dict[str, Any]:
     """One segment's whole pipeline (a top-level function, so Ray can ship it)."""
-    config_dict, out = job
-    report = run_pipeline(RunConfig.from_dict(config_dict), out, progress=False)
+    config_dict, out, keep_checkpoints = job
+    report = run_pipeline(RunConfig.from_dict(config_dict), out, progress=False, keep_checkpoints=keep_checkpoints)
     report["peak_rss_mb"] = peak_rss_mb()
     return report
 
 
 def run_segmented(config: RunConfig, out: str | Path, *, progress: bool = True,
-                  stage_cache: str | Path | None = None) -> dict[str, Any]:
+                  stage_cache: str | Path | None = None, keep_checkpoints: bool = False) -> dict[str, Any]:
     """Run a long capture as overlapping segments on the configured executor, then evaluate the
     stitched models over the whole clip (``segments.SegmentedModel``)."""
     import time
@@ -278,11 +280,11 @@ def run_segmented(config: RunConfig, out: str | Path, *, progress: bool = True,
     from fixer4d.pipeline.executors import executor_for
     from fixer4d.pipeline.segments import SegmentedModel, owners, segment_dir, split_segments
 
-    ctx = open_context(config, out, progress=progress, stage_cache=stage_cache)
+    ctx = open_context(config, out, progress=progress, stage_cache=stage_cache, keep_checkpoints=keep_checkpoints)
     scene = ctx.scene
     ranges = split_segments(scene.num_frames, config.segments.frames, config.segments.overlap)
     dirs = [str(segment_dir(ctx.path, k, r)) for k, r in enumerate(ranges)]
-    jobs = [(segment_config(config, s, e).to_dict(), d) for (s, e), d in zip(ranges, dirs)]
+    jobs = [(segment_config(config, s, e).to_dict(), d, keep_checkpoints) for (s, e), d in zip(ranges, dirs)]
     sharing = config.segments.share_static and len(ranges) > 1
     if progress:
         how = "; the first one first, its static Gaussians shared with the others" if sharing else ""
@@ -356,7 +358,7 @@ def _share_static(config: RunConfig, run_dir: Path, ranges, dirs: list[str], job
     atomic.write_json(shared_dir / "summary.json", summary)
     for k in range(1, len(jobs)):
         s, e = ranges[k]
-        jobs[k] = (segment_config(config, s, e, (shared_dir, summary["sh_degree"])).to_dict(), dirs[k])
+        jobs[k] = (segment_config(config, s, e, (shared_dir, summary["sh_degree"])).to_dict(), dirs[k], jobs[k][2])
     return summary
 
 

@@ -60,6 +60,9 @@ class StageContext:
     scene: Any
     progress: bool = True
     cache: StageCache | None = None
+    # keep a finished stage's checkpoints (`--keep-checkpoints`); by default a stage's checkpoints
+    # go once its outputs are written
+    keep_checkpoints: bool = False
     _train_scene: Any = dataclasses.field(default=None, repr=False)
 
     @property
@@ -152,7 +155,7 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
         report["camera_response"] = trainer.response.to_json()
     atomic.write_json(model_path.parent / EFFECTS_NAME, report)
     ctx.run.records.finish(name, key, time.perf_counter() - t0 + prior)
-    _drop_checkpoints(model_path.parent, 1)
+    _finished(ctx, model_path.parent, 1)
     if ctx.cache is not None:
         ctx.cache.store(key, [model_path, model_path.parent / EFFECTS_NAME], ctx.run.records.seconds(name))
     return model
@@ -278,6 +281,7 @@ def stage2(ctx: StageContext, model, refresh: Callable[[Any, int], None] | None 
     model = trainer.host_model()
     save_ply(model, final)
     ctx.run.records.finish("stage2", key, time.perf_counter() - t0 + prior)
+    _finished(ctx, ctx.path, 2)
     return model
 
 
@@ -306,7 +310,7 @@ def matched_stage1(ctx: StageContext, model):
     model = trainer.host_model()
     save_ply(model, path)
     ctx.run.records.finish("matched", key, time.perf_counter() - t0 + prior)
-    _drop_checkpoints(out, 1)
+    _finished(ctx, out, 1)
     return model
 
 
@@ -420,6 +424,12 @@ def retire_stage2(ctx: StageContext) -> None:
         log.warning("stage 2 is off (rounds = 0): moved the earlier %s to %s", final, _move_aside(final))
     elif forgot:
         log.warning("stage 2 is off (rounds = 0): dropped the earlier stage-2 record")
+
+
+def _finished(ctx: StageContext, run_dir: Path, stage: int) -> None:
+    """A stage's outputs are written: its checkpoints under ``run_dir`` go, unless the run keeps them."""
+    if not ctx.keep_checkpoints:
+        _drop_checkpoints(run_dir, stage)
 
 
 def _drop_checkpoints(run_dir: Path, stage: int) -> None:

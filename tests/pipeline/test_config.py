@@ -10,6 +10,7 @@ from fixer4d.cli import main
 from fixer4d.errors import InputError
 from fixer4d.pipeline import config_tree
 from fixer4d.pipeline.config import FORMAT_VERSION, RunConfig, migrate_v1, resolve
+from fixer4d.train.config import TrainingConfig
 
 
 def test_defaults_and_schedule_scaling():
@@ -26,7 +27,7 @@ def test_a_new_iteration_count_rescales_a_written_out_schedule():
     overriding the iterations derives it again, except keys the user set to other values or
     gives beside the new count."""
     from fixer4d.study import variant_config
-    from fixer4d.train.config import SCHEDULE_KEYS, TrainingConfig
+    from fixer4d.train.config import SCHEDULE_KEYS
 
     full = resolve("demo").to_dict()
     longer = resolve(config_file=full, overrides={"training.iterations": 3000}, defaults={})
@@ -150,7 +151,52 @@ def test_a_scene_path_is_stored_absolute(tmp_path, monkeypatch):
 def test_the_dataclasses_are_the_one_source_of_defaults():
     """A run's defaults are the stage dataclasses' own, and their schedule is the one their
     iteration count derives (so a default config and a rescheduled one agree)."""
-    from fixer4d.train.config import TrainingConfig
-
     assert resolve().to_dict() == RunConfig().to_dict()
     assert TrainingConfig() == TrainingConfig.for_iterations(TrainingConfig.iterations)
+
+
+def _notes(caplog) -> list[str]:
+    return [r.getMessage() for r in caplog.records if "is now called" in r.getMessage()]
+
+
+def test_a_stage1_section_and_set_key_still_load_with_a_note(tmp_path, caplog):
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps({"stage1": {"iterations": 77, "seed": 4}}))
+    with caplog.at_level("WARNING", logger="fixer4d.pipeline"):
+        c = resolve("tiny", config_file=old)
+    assert (c.training.iterations, c.training.seed) == (77, 4)
+    assert c.training.densify_until == TrainingConfig.for_iterations(77).densify_until
+    assert _notes(caplog) == [f"--config {old}: config section 'stage1' is now called 'training' (read as 'training')"]
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="fixer4d.pipeline"):
+        c = resolve("tiny", overrides={"stage1.iterations": 90, "stage1.max_gaussians": 5000})
+    assert (c.training.iterations, c.training.max_gaussians) == (90, 5000)
+    assert len(_notes(caplog)) == 2 and "--set stage1.iterations" in _notes(caplog)[0]
+    with pytest.raises(InputError, match="'stage1' and 'training' are the same section"):
+        resolve("tiny", config_file={"stage1": {"seed": 1}, "training": {"seed": 2}})
+
+
+def test_a_run_folder_written_before_the_rename_resumes_under_the_same_keys(tmp_path, caplog):
+    from fixer4d.pipeline.keys import stage1_key, stage2_key
+    from fixer4d.pipeline.run_folder import RunFolder
+
+    config = resolve("tiny", overrides={"training.iterations": 12})
+    run = RunFolder.create(tmp_path / "run", config).path
+    stored = json.loads((run / "config.json").read_text())
+    stored["format_version"] = 2  # as the run folders made before "training" was called so
+    stored["config"] = {("stage1" if k == "training" else k): v for k, v in stored["config"].items()}
+    (run / "config.json").write_text(json.dumps(stored))
+    with caplog.at_level("WARNING", logger="fixer4d.pipeline"):
+        folder = RunFolder.create(run, config)  # the same configuration: resumes, nothing refused
+    assert len(_notes(caplog)) == 1 and str(run / "config.json") in _notes(caplog)[0]
+    assert folder.config == config
+    assert (stage1_key(folder.config, "mvs"), stage2_key(folder.config)) == (stage1_key(config, "mvs"), stage2_key(config))
+    rewritten = json.loads((run / "config.json").read_text())
+    assert rewritten["format_version"] == FORMAT_VERSION and "training" in rewritten["config"]
+
+
+def test_stage1config_is_a_deprecated_name_of_trainingconfig():
+    import fixer4d.train.config as train_config
+
+    with pytest.deprecated_call(match="Stage1Config is now TrainingConfig"):
+        assert train_config.Stage1Config is TrainingConfig

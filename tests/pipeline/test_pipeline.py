@@ -195,3 +195,24 @@ def test_restoration_rows_are_keyed_by_the_gate_settings():
             ((None, True), (VisibilityConfig(), True), (VisibilityConfig(), False),
              (VisibilityConfig(angle_full_deg=20.0), True))}
     assert len(keys) == 4 and gate_settings(None, False) is None
+
+
+def test_a_finished_run_leaves_no_stage_checkpoint_and_records_its_device(tiny_run):
+    from fixer4d.train.device import device_kind
+
+    run_dir, report = tiny_run
+    assert sorted(str(p.relative_to(run_dir)) for p in run_dir.rglob("*.pt")) == []
+    training = tiny_config().training
+    assert report["training_device"] == device_kind(training.device, training.backend)
+
+
+def test_keep_checkpoints_keeps_each_finished_stages_newest(tmp_path):
+    config = tiny_config(**{"baseline_sparse": False, "eval.matched_row": False, "eval.restoration_rows": False,
+                            "self_check.enabled": False})
+    run_pipeline(config, tmp_path / "run", progress=False, keep_checkpoints=True)
+    kept = sorted(p.name for p in (tmp_path / "run" / "checkpoints").iterdir())
+    stage1 = [n for n in kept if n.startswith("stage1_")]
+    stage2 = [n for n in kept if n.startswith("stage2_")]
+    assert kept == stage1 + stage2 and 1 <= len(stage1) <= config.training.keep_checkpoints
+    assert 1 <= len(stage2) <= config.training.keep_checkpoints
+    assert stage1[-1] == f"stage1_{config.training.iterations:07d}.pt"

@@ -1,11 +1,12 @@
 """Where the trainer optimizes (``TrainingConfig.device``, fixer4d/train/device.py).
 
-Everywhere: how "auto", "cpu" and "cuda" resolve and what is refused; the device enters neither
-the stage keys nor a checkpoint's settings (a run resumes on the other device); a stage hands on
-its model in host memory.
+Everywhere: how "auto", "cpu" and "cuda" resolve and what is refused; the device trained on is
+a result's provenance: a CUDA training has its own stage keys (a CPU one keys as before), a
+checkpoint records its device and resumes on it only; a stage hands on its model in host memory.
 
 With CUDA and gsplat: stage 1 keeps every tensor of its state on the GPU while it steps, densifies,
-writes checkpoints that a CPU trainer resumes from, and reaches the CPU kernel's held-out quality.
+writes checkpoints that a CUDA trainer resumes from and a CPU trainer refuses, and reaches the CPU
+kernel's held-out quality.
 """
 from __future__ import annotations
 
@@ -59,24 +60,53 @@ def test_the_config_refuses_an_unknown_device():
         TrainingConfig(device="gpu")
 
 
-def test_the_device_is_not_part_of_the_stage_keys():
+# The stage keys of the tiny run on the CPU, as every run folder made before the device entered
+# the keys has them: a CPU training keys nothing more, so those folders resume as they were.
+TINY_CPU_KEYS = {"stage1": "1c00029558a813f9", "stage2": "0c1352d62b391f77", "matched": "dfe1193473a0a083"}
+
+
+def test_the_device_trained_on_keys_a_cuda_training_only(monkeypatch):
+    import fixer4d.pipeline.keys as keys
     from fixer4d.pipeline.config import resolve
-    from fixer4d.pipeline.keys import matched_key, stage1_key, stage2_key
 
-    a = resolve("tiny", overrides={"training.device": "cpu"})
-    b = resolve("tiny", overrides={"training.device": "auto"})
-    assert a.training.device != b.training.device
-    assert stage1_key(a, "mvs") == stage1_key(b, "mvs")
-    assert stage2_key(a) == stage2_key(b)
-    assert matched_key(a) == matched_key(b)
+    def keys_of(config):
+        return {"stage1": keys.stage1_key(config, "mvs"), "stage2": keys.stage2_key(config),
+                "matched": keys.matched_key(config)}
+
+    on_cpu = resolve("tiny", overrides={"training.device": "cpu"})
+    asked_auto = resolve("tiny", overrides={"training.device": "auto"})
+    assert on_cpu.training.device != asked_auto.training.device
+    monkeypatch.setattr(keys, "device_kind", lambda device, backend: "cpu")
+    assert keys_of(on_cpu) == keys_of(asked_auto) == TINY_CPU_KEYS  # the request is not the provenance
+    monkeypatch.setattr(keys, "device_kind", lambda device, backend: "cuda")
+    on_cuda = keys_of(asked_auto)
+    assert all(on_cuda[k] != TINY_CPU_KEYS[k] for k in TINY_CPU_KEYS)  # a CUDA stage is not the CPU's
 
 
-def test_a_checkpoint_resumes_under_another_device_setting(small_scene, small_clouds, make_config, tmp_path):
+def _tampered(path, **changes) -> None:
+    state = torch.load(path, weights_only=True)
+    for k, v in changes.items():
+        if v is None:
+            state.pop(k)
+        else:
+            state[k] = v
+    torch.save(state, path)
+
+
+def test_a_checkpoint_records_its_device_and_resumes_on_it_only(small_scene, small_clouds, make_config, tmp_path):
     cfg = make_config(8, checkpoint_every=4, init_max_points=400, device="cpu")
     Trainer(model_from_clouds(small_clouds, small_scene, cfg), small_scene, cfg, run_dir=tmp_path).train(4)
-    other = make_config(8, checkpoint_every=4, init_max_points=400, device="auto")
+    (ckpt,) = Trainer.list_checkpoints(tmp_path, 1)
+    assert torch.load(ckpt, weights_only=True)["device"] == "cpu"
+    other = make_config(8, checkpoint_every=2, keep_checkpoints=3, init_max_points=400, device="cpu")  # neutral
     resumed = Trainer(model_from_clouds(small_clouds, small_scene, other), small_scene, other, run_dir=tmp_path)
     assert resumed.resume() and resumed.step_count == 4
+    _tampered(ckpt, device="cuda")
+    again = Trainer(model_from_clouds(small_clouds, small_scene, cfg), small_scene, cfg, run_dir=tmp_path)
+    with pytest.raises(InputError, match="trained on cuda, but this training runs on cpu"):
+        again.resume()
+    _tampered(ckpt, device=None)  # a checkpoint from before the device was recorded resumes as it did
+    assert again.resume() and again.step_count == 4
 
 
 def test_host_model_is_the_trained_model_in_host_memory(small_scene, small_clouds, make_config):
@@ -95,8 +125,8 @@ def _short_config(make_config, device: str) -> TrainingConfig:
 
 
 @needs_gsplat
-def test_stage1_on_cuda_keeps_its_state_there_and_resumes_on_the_cpu(small_scene, small_clouds, make_config,
-                                                                     tmp_path):
+def test_stage1_on_cuda_keeps_its_state_there_and_resumes_on_cuda_only(small_scene, small_clouds, make_config,
+                                                                       tmp_path):
     cfg = _short_config(make_config, "cuda")
     gpu = Trainer(model_from_clouds(small_clouds, small_scene, cfg), small_scene, cfg, run_dir=tmp_path)
     gpu.train()
@@ -106,12 +136,14 @@ def test_stage1_on_cuda_keeps_its_state_there_and_resumes_on_the_cpu(small_scene
     assert any(h["num_gaussians"] != gpu.history[0]["num_gaussians"] for h in gpu.history)  # it densified
     assert gpu.history[-1]["psnr"] > gpu.history[0]["psnr"] + 1.0
 
-    # its last checkpoint resumes on the CPU
-    cfg = _short_config(make_config, "cpu")
+    # its last checkpoint resumes on CUDA, and the CPU refuses it: one training, one device
     resumed = Trainer(model_from_clouds(small_clouds, small_scene, cfg), small_scene, cfg, run_dir=tmp_path)
     assert resumed.resume() and resumed.step_count == SHORT_ITERATIONS
-    assert resumed.model.means.device.type == "cpu"
-    assert torch.equal(resumed.model.means, gpu.model.means.cpu())
+    assert torch.equal(resumed.model.means, gpu.model.means)
+    cpu_cfg = _short_config(make_config, "cpu")
+    on_cpu = Trainer(model_from_clouds(small_clouds, small_scene, cpu_cfg), small_scene, cpu_cfg, run_dir=tmp_path)
+    with pytest.raises(InputError, match="trained on cuda, but this training runs on cpu"):
+        on_cpu.resume()
     host = gpu.host_model()
     assert host is gpu.model and host.means.device.type == "cpu"
 
