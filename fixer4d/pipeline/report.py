@@ -94,8 +94,11 @@ def self_check_line(check: dict[str, Any]) -> str:
         se = (g.get(name) or {}).get("se_db")
         return f"{label} {psnr[name]:.2f} dB" + ("" if se is None else f" ({g[name]['gain_db']:+.2f} ± {se:.2f})")
 
-    return (f"Stage-2 self-check on held-back train camera {check['held_back_camera']} (fold of cameras "
-            f"{check['fold_cameras']} at scale {check['scale']:g}, {secs:.0f} s): before {psnr['skip']:.2f} dB, "
+    # a fold recorded before the cameras' names were kept names them by index
+    held = check.get("held_back_name", check["held_back_camera"])
+    fold = ", ".join(str(c) for c in check.get("fold_names", check["fold_cameras"]))
+    return (f"Stage-2 self-check on held-back train camera {held} (fold of cameras {fold} at scale "
+            f"{check['scale']:g}, {secs:.0f} s): before {psnr['skip']:.2f} dB, "
             f"{fig('continue', 'more training')}, {fig('refine', 'stage 2')}{margin} -> "
             f"**{check['decision']}**: the final model is {_FINAL[check['decision']]}. Gains are over before, per "
             f"scored frame: mean ± standard error.")

@@ -182,6 +182,8 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
         "decision": decision,
         "held_back_camera": int(held),
         "fold_cameras": [int(i) for i in views.train_ids],
+        "held_back_name": scene.cameras[int(held)].name,
+        "fold_names": [scene.cameras[int(i)].name for i in views.train_ids],
         "scale": sc.scale,
         "frames": eval_frames,
         "psnr": psnr,

@@ -113,3 +113,13 @@ def test_the_train_view_fit_scores_each_camera_through_its_trained_response(tmp_
              for name, fn in (("raw", dense), ("baseline", baseline),
                               ("response", train_view_render_fn(dense, response, train)))}
     assert score["raw"] < score["baseline"] < score["response"]
+
+
+def test_the_self_check_line_names_cameras_by_name():
+    from fixer4d.pipeline.report import self_check_line
+
+    check = {"decision": "skip", "held_back_camera": 2, "fold_cameras": [0, 1, 3], "held_back_name": "cam18",
+             "fold_names": ["cam01", "cam09", "cam23"], "scale": 0.5, "psnr": {"skip": 25.0, "continue": 24.9,
+                                                                             "refine": 24.8}}
+    line = self_check_line(check)
+    assert "held-back train camera cam18 (fold of cameras cam01, cam09, cam23 at scale 0.5" in line
