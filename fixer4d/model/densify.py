@@ -62,16 +62,18 @@ class DensifyStats:
 
         The pixel-space gradient is converted to NDC (x W/2, y H/2) so that the threshold does
         not depend on the image resolution (the convention of 3DGS's viewspace gradient).
+
+        The rows not drawn are selected away rather than indexed out (``torch.where`` instead of
+        a boolean mask), so nothing is read back to the host: on a GPU the step does not wait
+        here. A drawn row gets the same sums as ``grad_accum[vis] += g[vis]``, bit for bit; an
+        undrawn one adds an exact zero.
         """
         vis = radii.reshape(-1) > 0
-        if not bool(vis.any()):
-            return
-        scale = torch.tensor([width * 0.5, height * 0.5], dtype=means2d_grad.dtype, device=means2d_grad.device)
-        g = (means2d_grad.detach() * scale).norm(dim=-1).to(self.grad_accum.dtype)
-        self.grad_accum[vis] += g[vis]
-        self.denom[vis] += 1.0
+        g = ndc_grad_norm(means2d_grad, width, height).to(self.grad_accum.dtype)
+        self.grad_accum += torch.where(vis, g, 0.0)
+        self.denom += vis.to(self.denom.dtype)
         r = radii.detach().to(self.max_radii.dtype) / float(max(width, height))
-        self.max_radii[vis] = torch.maximum(self.max_radii[vis], r[vis])
+        self.max_radii.copy_(torch.where(vis, torch.maximum(self.max_radii, r), self.max_radii))
 
     def mean_grad(self) -> torch.Tensor:
         """(N,) average gradient norm over the views that drew each Gaussian (0 if none)."""
@@ -83,6 +85,13 @@ class DensifyStats:
     @classmethod
     def from_state_dict(cls, d: dict[str, torch.Tensor]) -> "DensifyStats":
         return cls(d["grad_accum"].clone(), d["denom"].clone(), d["max_radii"].clone())
+
+
+def ndc_grad_norm(means2d_grad: torch.Tensor, width: int, height: int) -> torch.Tensor:
+    """(N,) norm of a pixel-space gradient (N, 2) in NDC units (x W/2, y H/2), so that the
+    densification threshold does not depend on the image resolution."""
+    g = means2d_grad.detach()
+    return torch.stack([g[:, 0] * (width * 0.5), g[:, 1] * (height * 0.5)], -1).norm(dim=-1)
 
 
 # ---- optimizer surgery -------------------------------------------------------------------

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import torch
 
+from fixer4d.model.densify import ndc_grad_norm
 from fixer4d.model.spacetime import SpacetimeGaussians
 
 # Time bins of the per-Gaussian gradient statistics: 4 bins of a clip resolve "only while the
@@ -54,15 +55,13 @@ class TemporalStats:
 
     @torch.no_grad()
     def update(self, means2d_grad: torch.Tensor, radii: torch.Tensor, width: int, height: int, t: float) -> None:
-        """Add one view rendered at clip time t (same conventions as DensifyStats.update)."""
+        """Add one view rendered at clip time t (same conventions as DensifyStats.update, and as
+        it without reading a value back)."""
         vis = radii.reshape(-1) > 0
-        if not bool(vis.any()):
-            return
         b = min(int(float(t) * self.grad.shape[1]), self.grad.shape[1] - 1)
-        scale = torch.tensor([width * 0.5, height * 0.5], dtype=means2d_grad.dtype, device=means2d_grad.device)
-        g = (means2d_grad.detach() * scale).norm(dim=-1).to(self.grad.dtype)
-        self.grad[vis, b] += g[vis]
-        self.count[vis, b] += 1.0
+        g = ndc_grad_norm(means2d_grad, width, height).to(self.grad.dtype)
+        self.grad[:, b] += torch.where(vis, g, 0.0)
+        self.count[:, b] += vis.to(self.count.dtype)
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         return {"grad": self.grad.clone(), "count": self.count.clone()}

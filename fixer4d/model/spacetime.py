@@ -138,7 +138,7 @@ class SpacetimeGaussians(nn.Module):
             self.register_parameter(name, nn.Parameter(init))
         self.register_buffer("dynamic", torch.ones(n, dtype=torch.bool, device=device))
         self.register_buffer("frozen", torch.zeros(n, dtype=torch.bool, device=device))
-        self._dyn_cache: tuple[Any, torch.Tensor] | None = None
+        self._index_cache: dict[str, tuple[Any, torch.Tensor]] = {}
 
     # ---- construction -----------------------------------------------------------------
     @classmethod
@@ -323,13 +323,23 @@ class SpacetimeGaussians(nn.Module):
         return self
 
     def _dynamic_index(self) -> torch.Tensor:
-        """(D,) int64 indices of the dynamic Gaussians, cached until ``dynamic`` changes
-        (keyed on the tensor's identity and in-place version counter)."""
-        d = self.dynamic
+        """(D,) int64 indices of the dynamic Gaussians, cached until ``dynamic`` changes."""
+        return self._row_index("dynamic")
+
+    def frozen_index(self) -> torch.Tensor:
+        """(F,) int64 indices of the frozen Gaussians, cached until ``frozen`` changes: a trainer
+        reads it every step, and ``nonzero`` waits for a GPU, so it runs once per change."""
+        return self._row_index("frozen")
+
+    def _row_index(self, buffer: str) -> torch.Tensor:
+        """``nonzero`` of the bool buffer ``buffer``, cached until it changes (keyed on the tensor's
+        identity and in-place version counter)."""
+        d = getattr(self, buffer)
         key = (id(d), d._version, d.data_ptr(), d.device, d.shape[0])
-        if self._dyn_cache is None or self._dyn_cache[0] != key:
-            self._dyn_cache = (key, torch.nonzero(d, as_tuple=False).reshape(-1))
-        return self._dyn_cache[1]
+        cached = self._index_cache.get(buffer)
+        if cached is None or cached[0] != key:
+            cached = self._index_cache[buffer] = (key, torch.nonzero(d, as_tuple=False).reshape(-1))
+        return cached[1]
 
     # ---- evaluation -------------------------------------------------------------------
     def at(self, t: float | torch.Tensor, camera_center: np.ndarray | None = None) -> Snapshot:

@@ -9,6 +9,8 @@ a hand-written backward, fixer4d/render/cpu.py and cpu_kernels.py), "gsplat" (CU
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 
 from fixer4d.errors import BackendUnavailable, InputError
@@ -16,11 +18,11 @@ from fixer4d.geometry.camera import Camera
 from fixer4d.model.snapshot import Snapshot
 from fixer4d.render.constants import ALPHA_MIN
 from fixer4d.render.output import RenderOutput  # re-exported: fixer4d.render.api.RenderOutput
-from fixer4d.render.project import COLOR_LIMIT, guard_extremes, project_gaussians
+from fixer4d.render.project import COLOR_LIMIT, guard_extremes, guard_extremes_traced, project_gaussians
 
 BACKENDS = ("auto", "reference", "cpu", "gsplat")
 
-__all__ = ["BACKENDS", "RenderOutput", "render", "resolve_backend"]
+__all__ = ["BACKENDS", "RenderOutput", "render", "render_batch", "resolve_backend"]
 
 
 def resolve_backend(backend: str, device: torch.device) -> str:
@@ -128,3 +130,24 @@ def render(snapshot: Snapshot, camera: Camera, background: torch.Tensor | tuple 
     depth = depth_acc / torch.clamp(alpha, min=ALPHA_MIN)
     return RenderOutput(rgb=rgb, alpha=alpha, depth=depth, radii=proj.radii, means2d=proj.means2d,
                         n_fragments=int(n_fragments), backend=name)
+
+
+def render_batch(snapshot: Snapshot, cameras: Sequence[Camera], background: torch.Tensor,
+                 matrices: tuple[torch.Tensor, torch.Tensor] | None = None) -> list[RenderOutput]:
+    """``render(snapshot, camera, background, backend="gsplat")`` for each of ``cameras`` (one
+    image size), in one gsplat call and without reading a value back to the host, so that a GPU
+    trainer's host never waits for the device here. For a caller that checks its snapshot's
+    model and its background itself (the trainer: once, and every few steps), since ``render``'s
+    input checks each read values back; the snapshot passes through ``guard_extremes_traced``.
+    ``matrices``: the cameras' (viewmats, Ks) on the snapshot's device
+    (``gsplat_backend.camera_matrices``, made once), else they are copied over for this call.
+    ``render`` per camera is the reference it is tested against."""
+    import fixer4d.render.gsplat_backend as gsplat_backend
+
+    sizes = {(c.width, c.height) for c in cameras}
+    if len(sizes) != 1:
+        raise InputError(f"render_batch: cameras of one image size, got {sorted(sizes)}")
+    (width, height), = sizes
+    viewmats, Ks = matrices if matrices is not None else gsplat_backend.camera_matrices(list(cameras),
+                                                                                        snapshot.means.device)
+    return gsplat_backend.render_batch(guard_extremes_traced(snapshot), viewmats, Ks, width, height, background)

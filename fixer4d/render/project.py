@@ -73,6 +73,23 @@ def guard_extremes(snapshot: Snapshot, camera: Camera) -> Snapshot:
     return Snapshot(means=means, quats=quats, scales=scales, opacities=snapshot.opacities, colors=colors)
 
 
+def guard_extremes_traced(snapshot: Snapshot) -> Snapshot:
+    """``guard_extremes`` for a GPU's hot path and several cameras at once: the same bounds,
+    applied to every Gaussian by elementwise selects instead of after reading the peaks back, so
+    the host does not wait for the device. A Gaussian beyond MEAN_LIMIT or SCALE_LIMIT is made
+    invisible where no camera can be in its way (at the origin, unit scales, opacity 0) rather
+    than moved behind one camera; values within the bounds pass unchanged, bit for bit."""
+    means, scales, quats = snapshot.means, snapshot.scales, snapshot.quats
+    with torch.no_grad():
+        far = ((means.detach().abs().amax(-1) > MEAN_LIMIT) | (scales.detach().abs().amax(-1) > SCALE_LIMIT))
+        top = quats.detach().abs().amax(-1, keepdim=True)
+        divisor = torch.where(top > QUAT_RESCALE_ABOVE, top, torch.ones_like(top))
+    return Snapshot(means=torch.where(far[:, None], torch.zeros_like(means), means), quats=quats / divisor,
+                    scales=torch.where(far[:, None], torch.ones_like(scales), scales),
+                    opacities=torch.where(far, torch.zeros_like(snapshot.opacities), snapshot.opacities),
+                    colors=snapshot.colors.clamp(-COLOR_LIMIT, COLOR_LIMIT))
+
+
 @dataclass
 class Projection:
     """N projected splats in one camera.

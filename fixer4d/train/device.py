@@ -3,8 +3,9 @@
     device = training_device("auto", "auto")   # torch.device("cuda") with gsplat, else "cpu"
 
 The model, its optimizer state, the densification statistics and the loss live on that device
-while a Trainer steps; scene frames and cached pseudo-targets stay in host memory and one frame
-at a time is copied over. Everything the pipeline's stages hand on (saved PLYs, returned
+while a Trainer steps; on CUDA the train views' frames, their moving-pixel weights and camera
+matrices are copied over once (fixer4d.train.trainer), stage 2's cached pseudo-targets one
+frame at a time. Everything the pipeline's stages hand on (saved PLYs, returned
 models, checkpoints on disk) is in host memory, so a CUDA-trained stage is read by every later
 stage, by the viewer and on a machine without a GPU alike.
 

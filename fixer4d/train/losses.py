@@ -211,6 +211,19 @@ def stg_loss_torch(render: torch.Tensor, target: torch.Tensor, weight: torch.Ten
     return out if cast_back is None else out.to(cast_back)
 
 
+def stg_loss_device(render: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """``stg_loss_torch`` without reading a value back, for a GPU trainer's hot path (where each
+    read waits for the device): shapes and dtypes are checked on the host, values are not. The
+    caller vouches for them: targets and weights checked once when cached, the render's
+    finiteness read with the loss every few steps. A render beyond FLOAT32_SAFE_VALUE, which
+    ``stg_loss_torch`` would take to float64, has diverged; here it stays in float32 and shows as
+    a non-finite loss at that check."""
+    if render.shape != target.shape or render.numel() == 0 or not render.is_floating_point():
+        raise InputError(f"stg_loss_device: expected two non-empty float images of one shape, got "
+                         f"{render.dtype} {tuple(render.shape)} and {target.dtype} {tuple(target.shape)}")
+    return _stg_loss(render, target, weight)
+
+
 def _stg_loss(render: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None) -> torch.Tensor:
     """``stg_loss_torch`` on checked inputs."""
     if weight is None:
@@ -227,7 +240,13 @@ def psnr_torch(a: torch.Tensor, b: torch.Tensor) -> float:
     if not (torch.is_tensor(a) and torch.is_tensor(b)) or a.shape != b.shape or a.numel() == 0:
         raise InputError(f"psnr_torch: expected two non-empty tensors of one shape, got "
                          f"{tuple(getattr(a, 'shape', ()))} and {tuple(getattr(b, 'shape', ()))}")
-    mse = float((a.detach().double() - b.detach().double()).pow(2).mean())
+    mse = float(mean_squared_error(a, b))
     if not math.isfinite(mse):
         raise InputError(f"psnr_torch: the images contain NaN/inf or values too large to square (MSE {mse})")
     return psnr_from_mse(mse)
+
+
+def mean_squared_error(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """The float64 mean squared difference of two images as a 0-d tensor on their device (what
+    ``psnr_torch`` reads; a trainer reads it every few steps)."""
+    return (a.detach().double() - b.detach().double()).pow(2).mean()

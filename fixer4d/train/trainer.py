@@ -15,6 +15,14 @@ Everything random draws from the trainer's own generators (numpy for frames/view
 batches, a torch.Generator for split sampling) whose states live in the checkpoints
 (fixer4d.train.checkpoints), so a run killed and resumed from its last checkpoint reproduces the
 uninterrupted run exactly.
+
+A step reads nothing back to the host (on a GPU each read waits for the device, and the host
+could not queue the next step's kernels meanwhile): the loss, the PSNR and the model's
+finiteness of CHECK_EVERY steps come back in one read, which reports a non-finite loss naming
+its step. With gsplat (the CUDA path) the scene's train frames, the moving-pixel weights and the
+camera matrices are copied to the device once, and the views of a step are rendered in one call
+(``render.api.render_batch``); the CPU kernels render view by view (``render.api.render``) with
+the host-side checks of every call, which cost nothing there.
 """
 from __future__ import annotations
 
@@ -36,7 +44,8 @@ from fixer4d.model.effect_revisions import TemporalStats, revise_effects
 from fixer4d.model.effects import EffectsConfig
 from fixer4d.model.snapshot import Snapshot
 from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians
-from fixer4d.render.api import RenderOutput, render
+from fixer4d.psnr import psnr_from_mse
+from fixer4d.render.api import RenderOutput, render, render_batch, resolve_backend
 from fixer4d.render.constants import ALPHA_MIN
 from fixer4d.render.views import model_render_fn
 from fixer4d.scene.base import MultiViewVideo
@@ -44,7 +53,7 @@ from fixer4d.train.checkpoints import (CHECKPOINT_FORMAT, check_resumable, list_
                                        remove_partial_checkpoints, training_settings, write_checkpoint)
 from fixer4d.train.config import TrainingConfig, Stage2Config
 from fixer4d.train.device import training_device
-from fixer4d.train.losses import psnr_torch, stg_loss
+from fixer4d.train.losses import mean_squared_error, stg_loss, stg_loss_device
 from fixer4d.train.model_init import scene_extent
 from fixer4d.train.pseudo_targets import PseudoCache, PseudoTargets, RefreshFn
 from fixer4d.train.schedule import StageSchedule
@@ -55,6 +64,11 @@ log = logging.getLogger("fixer4d.train")
 ADAM_EPS = 1e-15
 # Seconds of each part of a step, reported by ``Trainer.step``.
 TIMING_KEYS = ("t_at", "t_render", "t_loss", "t_backward", "t_optim", "t_densify", "t_refresh")
+# Steps between two reads of the scalars of the steps in between (loss, PSNR) and of the model's
+# finiteness: every read waits for a GPU, so a step reads nothing and CHECK_EVERY steps come back
+# in one read. 10 = the progress bar's refresh; a diverged run trains on for at most 9 steps
+# before it is reported (and a checkpoint reads first, so none is written from it).
+CHECK_EVERY = 10
 # A rendered view of a step: its render, camera and ``_drawn`` radii (densification statistics).
 RenderedView = tuple[RenderOutput, Camera, torch.Tensor]
 
@@ -118,9 +132,9 @@ class Trainer:
         self._frame_pass: tuple[int, np.ndarray] | None = None  # (pass index, frame order) of "shuffled"
         self.rng = np.random.default_rng(seed)
         self.generator = torch.Generator().manual_seed(seed)
-        if self.device.type == "cuda":
-            # CUDA scatter kernels are nondeterministic by default; CPU ones are deterministic.
-            torch.use_deterministic_algorithms(True, warn_only=True)
+        # No process-wide torch.use_deterministic_algorithms: the step's index_add / index_copy /
+        # index_fill write each row once, so their results do not depend on the order of CUDA's
+        # atomics; gsplat's backward adds with atomics whatever torch is told.
         self.step_count = 0
         self.optimizer = self._make_optimizer()
         # per-train-camera colour response (None: the cameras agree on colour)
@@ -136,6 +150,12 @@ class Trainer:
         self.history: list[dict[str, float]] = []
         self.train_seconds = 0.0  # wall time spent in train(), summed over resumed sessions
         self._moving_packed: np.ndarray | None = None  # (V, T, H, ceil(W/8)) train-view moving masks, bit-packed
+        # the CUDA path: train frames, camera matrices and pixel weights on the device (_DeviceFrames)
+        self._frames = (_DeviceFrames(scene, self.train_ids, self.device)
+                        if resolve_backend(config.backend, self.device) == "gsplat" else None)
+        # (host scalars, device values) of the steps not read back yet (_read_back)
+        self._pending: list[tuple[dict[str, float], torch.Tensor]] = []
+        self._last: dict[str, float] = {}
         self._lock = threading.RLock()
         self._stop = threading.Event()
 
@@ -170,11 +190,14 @@ class Trainer:
     def step(self) -> dict[str, float]:
         """One optimization step. Returns loss, loss_stg, loss_gen (stage 2), psnr (train views),
         num_gaussians, step, lr_means and the seconds spent in each part (t_at, t_render, t_loss,
-        t_backward, t_optim, t_densify, t_refresh)."""
+        t_backward, t_optim, t_densify, t_refresh); reads them back at once (``train`` reads
+        every CHECK_EVERY steps)."""
         with self._lock:
-            return self._step()
+            self._step()
+            return self._read_back()
 
-    def _step(self) -> dict[str, float]:
+    def _step(self) -> None:
+        """One step; its scalars wait on the device in ``_pending`` until ``_read_back``."""
         timing = dict.fromkeys(TIMING_KEYS, 0.0)
         if self.pseudo is not None:
             tic = time.perf_counter()
@@ -186,7 +209,7 @@ class Trainer:
         views = self.rng.choice(len(self.train_ids), size=k, replace=False)
         t = self.scene.time(frame)
         outputs: list[RenderedView] = []
-        loss_stg, psnrs = self._observed_loss(frame, t, views, outputs, timing)
+        loss_stg, mses = self._observed_loss(frame, t, views, outputs, timing)
 
         # L = mean_v L_STG(view v) + lambda_gen * mean_p L1(pseudo p): both per-view means, as the
         # paper states it. The gradient taken is that of V x L: Adam is invariant to the overall
@@ -207,7 +230,7 @@ class Trainer:
         else:
             loss = loss_stg
         grads = self._evidence_grads(pseudo_outputs, evidence, n_views, timing) if evidence else []
-        self._backward(loss, n_views, timing)
+        self._backward(loss * n_views, timing)
         if self.schedule.densify_stats == "all":
             outputs = outputs + pseudo_outputs
         self._gather_stats(outputs, grads, t, timing)
@@ -224,23 +247,48 @@ class Trainer:
         tic = time.perf_counter()
         counts = self._density_control()
         timing["t_densify"] += time.perf_counter() - tic
-        self.model.check(f"stage {self.stage} step {self.step_count}")
 
-        rec = {"step": float(self.step_count), "loss": float(loss.detach()), "loss_stg": float(loss_stg.detach()),
-               "loss_gen": float(loss_gen.detach()), "psnr": float(np.mean(psnrs)),
-               "num_gaussians": float(self.model.num_gaussians),
+        rec = {"step": float(self.step_count), "num_gaussians": float(self.model.num_gaussians),
                "lr_means": self.optimizer.param_groups[0]["lr"], **timing,
                **{f"densify_{k}": float(v) for k, v in counts.items()}}
-        self.history.append({k: rec[k] for k in ("step", "loss", "psnr", "num_gaussians")})
-        return rec
+        scalars = torch.stack([x.detach().to(torch.float64) for x in (loss, loss_stg, loss_gen)])
+        self._pending.append((rec, torch.cat([scalars, mses])))
+
+    def _read_back(self) -> dict[str, float]:
+        """Read the scalars of the steps not read yet, and whether every Parameter is finite, in
+        one transfer; add the steps to ``history`` and return the newest one's record (with loss,
+        loss_stg, loss_gen and psnr). NumericalError naming the first step whose loss is not
+        finite (its state went on for the steps since; resume from the last checkpoint), or the
+        Parameter that is not."""
+        if not self._pending:
+            return dict(self._last)
+        pending, self._pending = self._pending, []
+        finite = torch.stack([torch.isfinite(p).all() for p in self.model.parameters()]).all()
+        values = torch.cat([v for _, v in pending] + [finite.to(torch.float64).reshape(1)]).tolist()
+        at = 0
+        for rec, v in pending:
+            loss, loss_stg, loss_gen, *mses = values[at:at + v.numel()]
+            at += v.numel()
+            if not math.isfinite(loss):
+                raise NumericalError(f"stage {self.stage} step {int(rec['step'])}: the loss is {loss}; "
+                                     "lower the learning rates or resume from the last checkpoint")
+            rec.update(loss=loss, loss_stg=loss_stg, loss_gen=loss_gen,
+                       psnr=float(np.mean([psnr_from_mse(m) for m in mses])))
+            self.history.append({k: rec[k] for k in ("step", "loss", "psnr", "num_gaussians")})
+        if not values[-1]:
+            self.model.check(f"stage {self.stage} step {self.step_count}")
+        self._last = pending[-1][0]
+        return dict(self._last)
 
     def _observed_loss(self, frame: int, t: float, views: np.ndarray, outputs: list[RenderedView],
-                       timing: dict[str, float]) -> tuple[torch.Tensor, list[float]]:
+                       timing: dict[str, float]) -> tuple[torch.Tensor, torch.Tensor]:
         """Sum over the train views ``views`` (indices into train_ids) at ``frame`` (time ``t``) of
-        L_STG, and each view's PSNR; the renders go to ``outputs``."""
+        L_STG, and (V,) each view's mean squared error (float64); the renders go to ``outputs``."""
         shared = self.model.config.sh_degree == 0  # colours do not depend on the camera
+        if shared and self._frames is not None and self._frames.batches:
+            return self._observed_loss_batched(frame, t, views, outputs, timing)
         loss_stg = torch.zeros((), device=self.device)
-        psnrs = []
+        mses = []
         snap = None
         for v in views:
             cam_id = self.train_ids[int(v)]
@@ -249,22 +297,49 @@ class Trainer:
             if snap is None or not shared:
                 snap = self.model.at(t, camera_center=None if shared else cam.center)
             timing["t_at"] += time.perf_counter() - tic
-            out = self._render_view(snap, cam, outputs, timing)
+            out = self._render_view(snap, cam, outputs, timing, view=int(v))
             tic = time.perf_counter()
-            target = torch.from_numpy(np.ascontiguousarray(self.scene.frame(frame, cam_id))).to(self.device)
             recorded = out.rgb if self.response is None else self.response.apply(out.rgb, int(v))
-            loss_stg = loss_stg + stg_loss(recorded, target, self._pixel_weight(int(v), frame))
-            psnrs.append(psnr_torch(recorded, target))
+            if self._frames is None:
+                target = torch.from_numpy(np.ascontiguousarray(self.scene.frame(frame, cam_id)))
+                loss_stg = loss_stg + stg_loss(recorded, target, self._pixel_weight(int(v), frame))
+            else:
+                target = self._frames.target(int(v), frame)
+                loss_stg = loss_stg + stg_loss_device(recorded, target, self._pixel_weight(int(v), frame))
+            mses.append(mean_squared_error(recorded, target))
             timing["t_loss"] += time.perf_counter() - tic
-        return loss_stg, psnrs
+        return loss_stg, torch.stack(mses)
 
-    def _backward(self, loss: torch.Tensor, n_views: int, timing: dict[str, float]) -> None:
-        """Backpropagate ``n_views`` x ``loss`` (refusing a non-finite loss) and hold the frozen rows."""
-        if not bool(torch.isfinite(loss)):
-            raise NumericalError(f"stage {self.stage} step {self.step_count}: the loss is {float(loss)}; "
-                                 "lower the learning rates or resume from the last checkpoint")
+    def _observed_loss_batched(self, frame: int, t: float, views: np.ndarray, outputs: list[RenderedView],
+                               timing: dict[str, float]) -> tuple[torch.Tensor, torch.Tensor]:
+        """``_observed_loss`` on the CUDA path with view-independent colours: one snapshot, the
+        views rendered in one gsplat call, one loss over the (V, H, W, 3) batch (V x its mean
+        is the per-view sum)."""
         tic = time.perf_counter()
-        (loss * n_views).backward()
+        snap = self.model.at(t)
+        timing["t_at"] += time.perf_counter() - tic
+        index = [int(v) for v in views]
+        tic = time.perf_counter()
+        cams = [self.scene.cameras[self.train_ids[v]] for v in index]
+        rendered = render_batch(snap, cams, self.background, matrices=self._frames.matrices(index))
+        timing["t_render"] += time.perf_counter() - tic
+        outputs.extend((out, cam, _drawn(snap, out)) for out, cam in zip(rendered, cams))
+        tic = time.perf_counter()
+        recorded = torch.stack([out.rgb if self.response is None else self.response.apply(out.rgb, v)
+                                for out, v in zip(rendered, index)])
+        target = torch.stack([self._frames.target(v, frame) for v in index])
+        weights = [self._pixel_weight(v, frame) for v in index]
+        weight = None if weights[0] is None else torch.stack(weights)
+        loss_stg = len(index) * stg_loss_device(recorded, target, weight)
+        mses = (recorded.detach().double() - target.double()).pow(2).mean(dim=(1, 2, 3))
+        timing["t_loss"] += time.perf_counter() - tic
+        return loss_stg, mses
+
+    def _backward(self, loss: torch.Tensor, timing: dict[str, float]) -> None:
+        """Backpropagate ``loss`` and hold the frozen rows (a non-finite loss is reported when
+        the step's scalars are read back, ``_read_back``)."""
+        tic = time.perf_counter()
+        loss.backward()
         self._hold_frozen_rows()
         timing["t_backward"] = time.perf_counter() - tic
 
@@ -320,12 +395,12 @@ class Trainer:
     def _hold_frozen_rows(self) -> None:
         """Zero the gradients of the frozen rows: Adam's moments of a row whose gradient is always
         zero stay zero, so its update is exactly zero and the row keeps its value bit for bit."""
-        frozen = self.model.frozen
-        if not bool(frozen.any()):
+        frozen = self.model.frozen_index()
+        if frozen.numel() == 0:
             return
         for p in self.model.parameters():
             if p.grad is not None:
-                p.grad[frozen] = 0.0
+                p.grad.index_fill_(0, frozen, 0.0)
 
     def _pixel_weight(self, view: int, frame: int) -> torch.Tensor | None:
         """(H, W) weight of the observed loss at train view ``view`` (index into train_ids) and
@@ -335,21 +410,30 @@ class Trainer:
         w = float(self.config.moving_loss_weight)
         if w <= 0.0:
             return None
+        if self._frames is not None and self._frames.weights is not None:
+            return self._frames.weights[view][frame]
         if self._moving_packed is None:
             from fixer4d.init.masks import moving_masks_for_scene
 
             masks = moving_masks_for_scene(self.scene, self.train_ids, list(range(self.scene.num_frames)))
             self._moving_packed = np.packbits(masks, axis=-1)
+            if self._frames is not None:
+                self._frames.cache_weights(self._moving_packed, w)
+                return self._frames.weights[view][frame]
         width = self.scene.cameras[self.train_ids[view]].width
         m = np.unpackbits(self._moving_packed[view, frame], axis=-1, count=width).astype(np.float32)
-        return torch.from_numpy(1.0 + w * m).to(self.device)
+        return torch.from_numpy(1.0 + w * m)
 
     def _render_view(self, snap: Snapshot, cam: Camera, outputs: list[RenderedView],
-                     timing: dict[str, float]) -> RenderOutput:
-        """Render ``snap`` at ``cam`` (seconds into ``timing["t_render"]``) and record the view in
-        ``outputs`` for the densification statistics."""
+                     timing: dict[str, float], view: int | None = None) -> RenderOutput:
+        """Render ``snap`` at ``cam`` (train view ``view``, or None) (seconds into
+        ``timing["t_render"]``) and record the view in ``outputs`` for the densification statistics."""
         tic = time.perf_counter()
-        out = render(snap, cam, background=self.background, backend=self.config.backend)
+        if self._frames is None:
+            out = render(snap, cam, background=self.background, backend=self.config.backend)
+        else:
+            matrices = None if view is None else self._frames.matrices([view])
+            (out,) = render_batch(snap, [cam], self.background, matrices=matrices)
         timing["t_render"] += time.perf_counter() - tic
         outputs.append((out, cam, _drawn(snap, out)))
         return out
@@ -422,18 +506,23 @@ class Trainer:
         tic = last = time.perf_counter()
         try:
             while self.step_count < end and not self._stop.is_set():
-                rec = self.step()
+                with self._lock:
+                    self._step()
                 now = time.perf_counter()
                 self.train_seconds += now - last  # before a checkpoint, so that it records it
                 last = now
                 bar.update(1)
-                if self.step_count % 10 == 0 or self.step_count == end:
+                if self.step_count % CHECK_EVERY == 0 or self.step_count == end:
+                    with self._lock:
+                        rec = self._read_back()
                     bar.set_postfix(loss=f"{rec['loss']:.4f}", psnr=f"{rec['psnr']:.2f}",
                                     n=int(rec["num_gaussians"]), refresh=False)
                 if self.run_dir is not None and self.step_count % self.config.checkpoint_every == 0:
                     self.save_checkpoint()
         finally:
             bar.close()
+        with self._lock:
+            rec = self._read_back() if self._pending else rec
         if self.run_dir is not None and rec and self.step_count % self.config.checkpoint_every != 0:
             self.save_checkpoint()
         rec = dict(rec)
@@ -460,7 +549,10 @@ class Trainer:
     list_checkpoints = staticmethod(list_checkpoints)
 
     def state_dict(self) -> dict[str, Any]:
+        """Everything a resumed run needs; reads the pending steps back first (``_read_back``:
+        no checkpoint of a diverged model)."""
         with self._lock:
+            self._read_back()
             return {
                 "format": CHECKPOINT_FORMAT, "stage": self.stage, "step": self.step_count, "round": self.round,
                 "extent": self.extent,
@@ -493,6 +585,7 @@ class Trainer:
             if "temporal_stats" in state:
                 self.temporal_stats = TemporalStats.from_state_dict(state["temporal_stats"]).to(self.device)
                 self.revisions = dict(state.get("revisions", self.revisions))
+            self._pending, self._last = [], {}
             self.rng.bit_generator.state = state["numpy_rng"]
             self.generator.set_state(state["torch_generator"])
             self.history = list(state.get("history", []))
@@ -527,6 +620,41 @@ class Trainer:
         self.load_checkpoint(found[-1])
         log.info("resumed stage %d from %s (step %d)", self.stage, found[-1], self.step_count)
         return True
+
+
+class _DeviceFrames:
+    """The CUDA path's copies on the training device, made once: every train view's frames
+    ((T, H, W, 3) float32 per view; the demo's 4 views x 30 frames at 200x150 are 43 MB, the
+    Panoptic split's at 640x360 330 MB), its camera matrices for gsplat and, once the moving
+    masks are estimated, its pixel weights ((T, H, W) per view)."""
+
+    def __init__(self, scene: MultiViewVideo, train_ids: list, device: torch.device) -> None:
+        frames = [np.stack([scene.frame(f, c) for f in range(scene.num_frames)]) for c in train_ids]
+        self.frames = [torch.from_numpy(np.ascontiguousarray(f, dtype=np.float32)).to(device) for f in frames]
+        if not all(bool(torch.isfinite(f).all()) for f in self.frames):
+            raise NumericalError(f"{scene.name}: a train frame has NaN/inf pixels; the scene's images are corrupt")
+        from fixer4d.render.gsplat_backend import camera_matrices
+
+        cameras = [scene.cameras[c] for c in train_ids]
+        self.viewmats, self.Ks = camera_matrices(cameras, device)
+        self.batches = len({(c.width, c.height) for c in cameras}) == 1  # gsplat batches one image size
+        self.weights: list[torch.Tensor] | None = None
+        self.device = device
+
+    def target(self, view: int, frame: int) -> torch.Tensor:
+        return self.frames[view][frame]
+
+    def matrices(self, views: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
+        """(viewmats (C, 4, 4), Ks (C, 3, 3)) of train views ``views``, gathered on the device."""
+        return torch.stack([self.viewmats[v] for v in views]), torch.stack([self.Ks[v] for v in views])
+
+    def cache_weights(self, packed: np.ndarray, w: float) -> None:
+        """The pixel weights 1 + ``w`` x mask of every view and frame from the bit-packed moving
+        masks (V, T, H, ceil(W/8)), as ``Trainer._pixel_weight`` computes one of them."""
+        self.weights = []
+        for view, frame in enumerate(self.frames):
+            m = np.unpackbits(packed[view], axis=-1, count=frame.shape[2]).astype(np.float32)
+            self.weights.append(torch.from_numpy(1.0 + w * m).to(self.device))
 
 
 class _Snapshots:

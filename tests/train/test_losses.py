@@ -107,3 +107,15 @@ def test_psnr_torch_known_mse():
     a = torch.zeros(8, 8, 3)
     assert losses.psnr_torch(a, a + 0.1) == pytest.approx(20.0, abs=1e-5)
     assert losses.psnr_torch(a, a) == float("inf")
+
+
+def test_the_device_loss_is_the_torch_loss_without_value_checks():
+    """``stg_loss_device`` (the CUDA training path) computes ``stg_loss_torch`` on a batch of
+    views with per-pixel weights, and refuses mismatched shapes on the host."""
+    g = torch.Generator().manual_seed(3)
+    render, target = torch.rand(2, 12, 10, 3, generator=g), torch.rand(2, 12, 10, 3, generator=g)
+    weight = 1.0 + 4.0 * (torch.rand(2, 12, 10, generator=g) > 0.5).float()
+    assert torch.equal(losses.stg_loss_device(render, target, weight), losses.stg_loss_torch(render, target, weight))
+    assert torch.equal(losses.stg_loss_device(render, target), losses.stg_loss_torch(render, target))
+    with pytest.raises(InputError, match="one shape"):
+        losses.stg_loss_device(render, target[:1])
