@@ -7,7 +7,9 @@ builds it).
 Kinds (docs/design.md §11): ``learned`` (a small per-scene CNN trained leave-one-camera-out on the
 scene's own train cameras, ``restore/learned.py``; needs its weights), ``warp`` (the geometric
 ``ReferenceWarpRestorer``) and ``cogvideo`` (CogVideoX video-to-video, GPU + local weights).
-``settings_key()`` is exactly what changes a pseudo-target, for cache keys and reports.
+``sr_prior`` (``restore/sr_prior.py``, off by default) passes any kind's output through Real-ESRGAN
+where its confidence is low. ``settings_key()`` is exactly what changes a pseudo-target, for cache
+keys and reports.
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from fixer4d.errors import InputError
 import fixer4d.restore.constants as C
 from fixer4d.restore.cogvideo import CogVideoConfig
 from fixer4d.restore.reference_warp import ReferenceWarpConfig
+from fixer4d.restore.sr_prior import SRPriorConfig
 
 KINDS = ("learned", "warp", "cogvideo")
 # The learned restorer's files inside its weights folder (RUN/restorer/).
@@ -81,13 +84,15 @@ class RestoreConfig:
     """The restorer of a run: ``kind`` (learned | warp | cogvideo) and each kind's settings.
 
     The learned restorer also uses ``warp`` (its inputs are the reference warps and the warp
-    restorer's output), so ``warp`` settings change its targets too.
+    restorer's output), so ``warp`` settings change its targets too. ``sr_prior`` applies to every
+    kind's output when enabled.
     """
 
     kind: str = "warp"
     warp: ReferenceWarpConfig = field(default_factory=ReferenceWarpConfig)
     learned: LearnedRestorerConfig = field(default_factory=LearnedRestorerConfig)
     cogvideo: CogVideoConfig = field(default_factory=CogVideoConfig)
+    sr_prior: SRPriorConfig = field(default_factory=SRPriorConfig)
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -101,7 +106,8 @@ class RestoreConfig:
         """From ``to_dict()`` output. Keys of ``ReferenceWarpConfig`` at the top level (the older flat
         ``restorer`` section, e.g. ``restorer.use_extra_views``) go to ``warp``; unknown keys raise."""
         d = dict(d or {})
-        sections = {"warp": ReferenceWarpConfig, "learned": LearnedRestorerConfig, "cogvideo": CogVideoConfig}
+        sections = {"warp": ReferenceWarpConfig, "learned": LearnedRestorerConfig, "cogvideo": CogVideoConfig,
+                    "sr_prior": SRPriorConfig}
         parts: dict[str, dict[str, Any]] = {name: dict(d.pop(name, None) or {}) for name in sections}
         kind = d.pop("kind", "warp")
         warp_fields = {f.name for f in dataclasses.fields(ReferenceWarpConfig)}
@@ -109,8 +115,8 @@ class RestoreConfig:
             if key in warp_fields:
                 parts["warp"][key] = d.pop(key)
         if d:
-            raise InputError(f"restorer config: unknown key(s) {sorted(d)}; expected kind, warp, learned, cogvideo "
-                             "(or ReferenceWarpConfig fields)")
+            raise InputError(f"restorer config: unknown key(s) {sorted(d)}; expected kind, warp, learned, cogvideo, "
+                             "sr_prior (or ReferenceWarpConfig fields)")
         built = {}
         for name, klass in sections.items():
             known = {f.name for f in dataclasses.fields(klass)}
@@ -124,9 +130,14 @@ class RestoreConfig:
         return cls(kind=str(kind), **built)
 
     def settings_key(self) -> dict[str, Any]:
-        """JSON-able: exactly the settings that change a pseudo-target of this kind."""
+        """JSON-able: exactly the settings that change a pseudo-target of this kind (the prior's
+        only when it is enabled, so keys of runs without it stay as they were)."""
         if self.kind == "warp":
-            return {"kind": "warp", "warp": dataclasses.asdict(self.warp)}
-        if self.kind == "learned":
-            return {"kind": "learned", "warp": dataclasses.asdict(self.warp), "learned": dataclasses.asdict(self.learned)}
-        return {"kind": "cogvideo", "cogvideo": dataclasses.asdict(self.cogvideo)}
+            key = {"kind": "warp", "warp": dataclasses.asdict(self.warp)}
+        elif self.kind == "learned":
+            key = {"kind": "learned", "warp": dataclasses.asdict(self.warp), "learned": dataclasses.asdict(self.learned)}
+        else:
+            key = {"kind": "cogvideo", "cogvideo": dataclasses.asdict(self.cogvideo)}
+        if self.sr_prior.enabled:
+            key["sr_prior"] = dataclasses.asdict(self.sr_prior)
+        return key

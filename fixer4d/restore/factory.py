@@ -10,11 +10,22 @@ from fixer4d.restore.config import WEIGHTS_FILE, RestoreConfig
 
 
 def build_restorer(config: RestoreConfig, weights_dir: str | Path | None = None):
-    """The restorer ``config`` selects. ``weights_dir``: the learned restorer's folder (RUN/restorer).
+    """The restorer ``config`` selects, wrapped in the Real-ESRGAN prior when
+    ``config.sr_prior.enabled`` (``restore.sr_prior.SRPriorRestorer``). ``weights_dir``: the
+    learned restorer's folder (RUN/restorer).
 
     learned without weights raises InputError saying how to train them; cogvideo on a machine
     without diffusers, its local weights or CUDA raises BackendUnavailable naming what is missing.
     """
+    restorer = _restorer_of_kind(config, weights_dir)
+    if config.sr_prior.enabled:
+        from fixer4d.restore.sr_prior import SRPriorRestorer
+
+        return SRPriorRestorer(restorer, config.sr_prior)
+    return restorer
+
+
+def _restorer_of_kind(config: RestoreConfig, weights_dir: str | Path | None):
     if config.kind == "warp":
         from fixer4d.restore.reference_warp import ReferenceWarpRestorer
 
