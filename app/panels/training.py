@@ -36,7 +36,12 @@ def draw(viewer) -> None:
                     control[1]()
                 imgui.same_line()
             imgui.align_text_to_frame_padding()  # the line is a button high with or without one
-            one_line(f"{tr.state}, step {tr.step}" + (f" of {total}" if total else ""), viewer, disabled=False)
+            one_line(tr.state, viewer, disabled=False)
+            if total:
+                imgui.progress_bar(min(tr.step / total, 1.0), imgui.ImVec2(-1, 0), f"step {tr.step} of {total}")
+            else:  # (as high as the bar that replaces it once the trainer is set up)
+                imgui.align_text_to_frame_padding()
+                imgui.text(f"step {tr.step}")
             st2 = getattr(tr.trainer, "stage2", None)
             if st2 is not None:
                 leave_room_for_label("lambda_gen")
@@ -49,8 +54,6 @@ def draw(viewer) -> None:
                 tip("refresh the pseudo-targets every K steps (stage 2)", viewer)
                 if changed and k > 0:
                     tr.set_stage2(refresh_every=k)
-            if total:
-                imgui.progress_bar(min(tr.step / total, 1.0), imgui.ImVec2(-1, 0))
             if tr.state == "setup":
                 elapsed = 0.0 if tr.setup_started is None else time.monotonic() - tr.setup_started
                 imgui.text_wrapped(f"setting up ({elapsed:.0f} s): {tr.setup_status or 'starting'}")

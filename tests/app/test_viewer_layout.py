@@ -45,6 +45,19 @@ def test_no_text_is_cut(make_viewer, tiny, tmp_path, monkeypatch, size):
         assert not overlaps(ra, rb), (a, ra, b, rb)
     for name, (x0, y0, x1, y1) in v.window_rects.items():
         assert 0 <= x0 and 0 <= y0 and x1 <= size[0] + 1 and y1 <= size[1] + 1, (name, v.window_rects[name])
+    # the File > Open dialog (full paths, the runs opened before) fits the window too
+    from app.files import remember_recent
+    from app.panels import files
+
+    remember_recent(v.services.config_dir, str(tmp_path / ("a_folder_with_a_long_name_" * 6) / "run"))
+    files.ask(v, "open")
+    d.frame(2)
+    rec.clear()
+    d.frame()
+    dialog = [i for i in rec.items if i.window == "File"]
+    assert len(dialog) >= 5 and not [why for i in dialog if (why := i.cut()) is not None]
+    assert all(0 <= i.rect[0] and i.rect[2] <= size[0] for i in dialog)
+    d.press("escape")  # closes it
     # the picture: the holes overlay with its numbers (the Gaussian colour modes greyed out)
     from app.legends import legend
 
