@@ -2,8 +2,8 @@
 
 The rig does not move and its cameras are synchronized, so every camera has one pose and one
 set of intrinsics for the whole clip, while the scene in front of it changes. Matches are pooled
-over time: at each of T timestamps spread over the clip, SIFT features (OpenCV) of every camera
-pair are matched at that same instant (moving content matches too: at one instant it obeys the
+over time: at each of T timestamps spread over the clip, the features of every camera pair (SIFT,
+or XFeat + LighterGlue for wide baselines: ``fixer4d.calib.matchers``) are matched at that same instant (moving content matches too: at one instant it obeys the
 same epipolar geometry as the background). Each camera is one COLMAP image whose keypoints are
 the union of its T frames' keypoints; the pooled matches of a pair are verified together (one
 fundamental/essential matrix) and COLMAP's incremental mapper registers the V images (one lens
@@ -29,6 +29,7 @@ from tqdm import tqdm
 
 from fixer4d.calib.adjust import CameraState, Observations, repeat_weights
 from fixer4d.calib.colmap import pycolmap_module, quiet, rig_camera_from_colmap
+from fixer4d.calib.matchers import MATCHERS, make_matcher
 from fixer4d.calib.priors import FocalPrior, weigh_priors
 from fixer4d.calib.rig import Rig, RigCamera
 from fixer4d.errors import InputError
@@ -57,15 +58,19 @@ COLMAP_SEED = 0
 
 @dataclass
 class SfMConfig:
-    """timestamps: frames pooled per camera. max_features: SIFT per frame. focal: priors per
-    camera name (``fixer4d.calib.priors``); cameras without one have their focal estimated."""
+    """timestamps: frames pooled per camera. max_features: keypoints per frame. ratio: SIFT's
+    ratio test. matcher: ``matchers.MATCHERS``. focal: priors per camera name
+    (``fixer4d.calib.priors``); cameras without one have their focal estimated."""
 
     timestamps: int = SFM_TIMESTAMPS
     max_features: int = SFM_MAX_FEATURES
     ratio: float = SFM_RATIO
+    matcher: str = "sift"
     focal: dict[str, FocalPrior] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        if self.matcher not in MATCHERS:
+            raise InputError(f"--matcher {self.matcher!r}: use one of {', '.join(MATCHERS)}")
         if self.timestamps < 1:
             raise InputError(f"--timestamps {self.timestamps}: must be >= 1")
 
@@ -73,34 +78,6 @@ class SfMConfig:
 def spread_frames(num_frames: int, count: int) -> list[int]:
     """``count`` frame numbers spread evenly over [0, num_frames)."""
     return sorted({int(round(v)) for v in np.linspace(0, num_frames - 1, min(count, num_frames))})
-
-
-def _features(gray: np.ndarray, max_features: int) -> tuple[np.ndarray, np.ndarray]:
-    """SIFT -> (keypoints (N, 2) in fixer4d's pixel convention (+0.5), descriptors (N, 128) float32 RootSIFT)."""
-    import cv2
-
-    sift = cv2.SIFT_create(nfeatures=max_features)
-    kps, desc = sift.detectAndCompute(gray, None)
-    if desc is None or not kps:
-        return np.zeros((0, 2), np.float32), np.zeros((0, 128), np.float32)
-    xy = np.array([k.pt for k in kps], np.float32) + 0.5
-    desc = desc / np.maximum(desc.sum(1, keepdims=True), 1e-12)  # RootSIFT: L1 normalise, then sqrt
-    return xy, np.sqrt(desc).astype(np.float32)
-
-
-def _match(d1: np.ndarray, d2: np.ndarray, ratio: float) -> np.ndarray:
-    """Mutual nearest neighbours passing the ratio test -> (M, 2) index pairs."""
-    import cv2
-
-    if len(d1) < 2 or len(d2) < 2:
-        return np.zeros((0, 2), np.int64)
-    bf = cv2.BFMatcher(cv2.NORM_L2)
-    fwd = bf.knnMatch(d1, d2, k=2)
-    back = bf.knnMatch(d2, d1, k=1)
-    best_back = np.array([m[0].trainIdx for m in back])
-    out = [(m[0].queryIdx, m[0].trainIdx) for m in fwd
-           if len(m) == 2 and m[0].distance < ratio * m[1].distance and best_back[m[0].trainIdx] == m[0].queryIdx]
-    return np.array(out, np.int64).reshape(-1, 2)
 
 
 @dataclass
@@ -113,9 +90,9 @@ class PooledMatches:
 
 
 def pool_matches(files: CaptureFiles, config: SfMConfig, progress: bool = True) -> PooledMatches:
-    """Features of every camera at the spread frames, matched per pair at the same instant."""
-    import cv2
-
+    """Features of every camera at the spread frames, matched per pair at the same instant
+    (``config.matcher``, ``fixer4d.calib.matchers``)."""
+    matcher = make_matcher(config.matcher, config.max_features, config.ratio)
     frames = spread_frames(files.num_frames, config.timestamps)
     V = len(files.sources)
     keypoints: list[list[np.ndarray]] = [[] for _ in range(V)]
@@ -125,13 +102,12 @@ def pool_matches(files: CaptureFiles, config: SfMConfig, progress: bool = True) 
     for t, f in enumerate(frames):
         feats = []
         for c in range(V):
-            gray = cv2.cvtColor(files.frame(f, c), cv2.COLOR_RGB2GRAY)
-            xy, desc = _features(gray, config.max_features)
+            xy, desc = matcher.features(files.frame(f, c))
             offsets[c, t] = sum(len(k) for k in keypoints[c])
             keypoints[c].append(xy)
             feats.append(desc)
         for a, b in matches:
-            m = _match(feats[a], feats[b], config.ratio)
+            m = matcher.match(feats[a], feats[b])
             matches[(a, b)].append(m + [offsets[a, t], offsets[b, t]])
         bar.update(1)
     bar.close()
@@ -292,7 +268,8 @@ def calibrate_sfm(files: CaptureFiles, config: SfMConfig | None = None, progress
              for a, b in pooled.matches]
     given = f"focal priors for {sorted(config.focal)}" if config.focal else "focals estimated"
     rig = Rig(cams, pairs, [files.start + f for f in pooled.frames], SCALE_SFM,
-              f"structure from motion over {len(pooled.frames)} timestamps ({SFM_CAMERA_MODEL} per camera, {given})",
+              f"structure from motion over {len(pooled.frames)} timestamps ({config.matcher} matches, "
+              f"{SFM_CAMERA_MODEL} per camera, {given})",
               checks)
     rig.checks["seconds"] = round(time.perf_counter() - t0, 2)
     return rig

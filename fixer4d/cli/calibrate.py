@@ -18,6 +18,7 @@ MAX_UNMODELLED_DISTORTION_PX = 1.0
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from fixer4d.calib.board import BOARD_FOLDER, SPEC_SYNTAX
     from fixer4d.calib.board_calib import BOARD_FRAMES
+    from fixer4d.calib.matchers import MATCHERS
     from fixer4d.calib.sfm import SFM_MAX_FEATURES, SFM_TIMESTAMPS
 
     parser.add_argument("capture", nargs="?", default=None,
@@ -43,7 +44,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sfm.add_argument("--timestamps", type=int, default=SFM_TIMESTAMPS,
                      help=f"frames pooled per camera (default {SFM_TIMESTAMPS})")
     sfm.add_argument("--max-features", type=int, default=SFM_MAX_FEATURES,
-                     help=f"SIFT features per frame (default {SFM_MAX_FEATURES})")
+                     help=f"keypoints per frame (default {SFM_MAX_FEATURES})")
+    sfm.add_argument("--matcher", choices=MATCHERS, default="sift",
+                     help="sift (default), or xfeat: XFeat + LighterGlue, a learned matcher for cameras 60-90 degrees "
+                          "apart (pip install 'fixer4d[xfeat]'; CPU)")
     sfm.add_argument("--focal", action="append", default=[], metavar="[CAM=]PX[:SD]",
                      help="a focal length you know, in pixels at the videos' size, as a prior the frames are weighed "
                           "against: for every camera (--focal 466) or one (--focal cam18=515; repeatable), known to "
@@ -173,7 +177,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         files = CaptureFiles(args.capture, parse_offsets(args.offset), frame_range)
         focal = focal_from(args.focal_from, files) if args.focal_from else parse_focal_priors(args.focal, files.names)
-        config = SfMConfig(timestamps=args.timestamps, max_features=args.max_features, focal=focal)
+        config = SfMConfig(timestamps=args.timestamps, max_features=args.max_features, matcher=args.matcher,
+                           focal=focal)
         rig = calibrate(files, args.out, config=config, progress=not args.quiet)
     _print_rig(rig, args.out)
     return 0
