@@ -102,13 +102,16 @@ def _per_step_counts(trainer: Trainer, steps: int) -> list[list[tuple[str, str]]
     return [counter.calls[a:b] for a, b in zip(starts, starts[1:])]
 
 
-def _trainer(small_scene, small_clouds, make_config, **overrides) -> Trainer:
+def _trainer(small_scene, small_clouds, make_config, response: bool = False, **overrides) -> Trainer:
+    from fixer4d.model.camera_response import CameraResponse
+
     cfg = make_config(200, backend="gsplat", device="cpu", init_max_points=400, densify_from=10, densify_every=100,
                       densify_until=150, checkpoint_every=1000, **overrides)
-    return Trainer(model_from_clouds(small_clouds, small_scene, cfg), small_scene, cfg)
+    return Trainer(model_from_clouds(small_clouds, small_scene, cfg), small_scene, cfg,
+                   camera_response=CameraResponse(len(small_scene.train_ids)) if response else None)
 
 
-@pytest.mark.parametrize("overrides", [{}, {"views_per_step": 3, "moving_loss_weight": 0.0}])
+@pytest.mark.parametrize("overrides", [{}, {"views_per_step": 3, "moving_loss_weight": 0.0}, {"response": True}])
 def test_a_steady_training_step_on_the_cuda_path_syncs_at_most_three_times(small_scene, small_clouds, make_config,
                                                                           monkeypatch, overrides):
     gsplat_stand_in.install(monkeypatch)
