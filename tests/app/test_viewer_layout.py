@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 
+import numpy as np
 import pytest
 from imgui_bundle import imgui
 
@@ -14,7 +15,7 @@ from app.state import UNDO_HINT
 from doc_shots import save_shot
 from fixer4d.scene import load_scene
 from ui_walk import Recorder, busy_viewer
-from viewer_helpers import gl_ctx, make_viewer  # noqa: F401 (fixtures)
+from viewer_helpers import DEFAULT_WINDOW, gl_ctx, make_viewer  # noqa: F401 (fixtures)
 
 pytestmark = pytest.mark.gl
 DOCKED = ("viewport", "view", "timeline", "trajectories", "restore", "compare", "training", "debug")
@@ -25,7 +26,7 @@ def tiny():
     return load_scene("tiny")
 
 
-@pytest.mark.parametrize("size", [(1024, 640), (1440, 900)])
+@pytest.mark.parametrize("size", [(1024, 640), DEFAULT_WINDOW])
 def test_no_text_is_cut(make_viewer, tiny, tmp_path, monkeypatch, size):
     d = busy_viewer(make_viewer, tiny, tmp_path, size)
     v = d.viewer
@@ -65,4 +66,9 @@ def test_no_text_is_cut(make_viewer, tiny, tmp_path, monkeypatch, size):
     v.state.debug_mode = "holes"
     d.frame(3)
     assert [t for _, t in legend(v).ticks()] == ["0", "0.5", "1"]
-    save_shot(v.screenshot(d.fbo), f"viewer_layout_{size[0]}x{size[1]}", tmp_path)
+    shot = v.screenshot(d.fbo)
+    save_shot(shot, f"viewer_layout_{size[0]}x{size[1]}", tmp_path)
+    if size == DEFAULT_WINDOW:  # each panel on its own, for the docs' panel table
+        for name in DOCKED[1:]:
+            x0, y0, x1, y1 = (int(round(c)) for c in v.window_rects[name])
+            save_shot(np.ascontiguousarray(shot[y0:y1, x0:x1]), f"viewer_{name}", tmp_path)

@@ -13,7 +13,6 @@ import pytest
 from app.sources import app_services, initial_state
 from app.state import UNDO_HINT
 from app.viewer import ViewerSource
-from doc_shots import save_shot
 from fixer4d.scene import load_scene
 from viewer_helpers import DEFAULT_WINDOW, gl_ctx, make_viewer, scene_gaussians  # noqa: F401 (fixtures)
 
@@ -70,12 +69,6 @@ def test_a_finished_render_moves_nothing_and_a_click_where_render_video_was_dele
     assert "no desktop opener" in st.status and str(job.result) in st.status and "copied" in st.status
     assert imgui.get_clipboard_text() == str(job.result)
     assert _places(v) == before
-    x0, y0, x1, y1 = v.window_rects["viewport"]
-    d.move((x0 + x1) / 2, (y0 + y1) / 2)  # the mouse off the panel for the picture
-    d.frame(2)
-    shot = v.screenshot(d.fbo)
-    x0, y0, x1, y1 = (int(round(c)) for c in v.window_rects["trajectories"])
-    save_shot(np.ascontiguousarray(shot[y0:y1, x0:x1]), "viewer_trajectories", tmp_path)
     rx0, ry0, rx1, ry1 = before["render_video"]
     d.click((rx0 + rx1) / 2, (ry0 + ry1) / 2)  # where "render video" was (and still is)
     d.frame()
