@@ -211,6 +211,20 @@ def stg_loss_torch(render: torch.Tensor, target: torch.Tensor, weight: torch.Ten
     return out if cast_back is None else out.to(cast_back)
 
 
+def masked_l1_device(a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """``masked_l1`` without reading a value back (stage 2's pseudo-views on a GPU; the caller
+    vouches for the values, as for ``stg_loss_device``)."""
+    _same_shape(a, b, "masked_l1_device")
+    return (a - b).abs().mean() if weight is None else _masked_l1(a, b, weight)
+
+
+def _same_shape(a: torch.Tensor, b: torch.Tensor, who: str) -> None:
+    """InputError unless a and b are non-empty float tensors of one shape (checked on the host)."""
+    if a.shape != b.shape or a.numel() == 0 or not a.is_floating_point():
+        raise InputError(f"{who}: expected two non-empty float images of one shape, got "
+                         f"{a.dtype} {tuple(a.shape)} and {b.dtype} {tuple(b.shape)}")
+
+
 def stg_loss_device(render: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
     """``stg_loss_torch`` without reading a value back, for a GPU trainer's hot path (where each
     read waits for the device): shapes and dtypes are checked on the host, values are not. The
@@ -218,9 +232,7 @@ def stg_loss_device(render: torch.Tensor, target: torch.Tensor, weight: torch.Te
     finiteness read with the loss every few steps. A render beyond FLOAT32_SAFE_VALUE, which
     ``stg_loss_torch`` would take to float64, has diverged; here it stays in float32 and shows as
     a non-finite loss at that check."""
-    if render.shape != target.shape or render.numel() == 0 or not render.is_floating_point():
-        raise InputError(f"stg_loss_device: expected two non-empty float images of one shape, got "
-                         f"{render.dtype} {tuple(render.shape)} and {target.dtype} {tuple(target.shape)}")
+    _same_shape(render, target, "stg_loss_device")
     return _stg_loss(render, target, weight)
 
 

@@ -61,8 +61,9 @@ class PseudoTargets:
     """
 
     def __init__(self, config: Stage2Config, cache: PseudoCache, refresh_cache: RefreshFn | None,
-                 train_cameras: Sequence[Camera]) -> None:
+                 train_cameras: Sequence[Camera], device: torch.device | str = "cpu") -> None:
         self.config = config
+        self.device = torch.device(device)  # where decoded clips are kept (the training device)
         self.cache = cache
         self.refresh_cache = refresh_cache
         self.train_cameras = list(train_cameras)
@@ -134,12 +135,13 @@ class PseudoTargets:
         if key in self._clips:
             self._clips.move_to_end(key)
             return self._clips[key]
-        rgb = torch.from_numpy(np.ascontiguousarray(entry.rgb(), dtype=np.float32))
-        conf = torch.from_numpy(np.ascontiguousarray(self.weight(entry), dtype=np.float32))
+        rgb = torch.from_numpy(np.ascontiguousarray(entry.rgb(), dtype=np.float32)).to(self.device)
+        conf = torch.from_numpy(np.ascontiguousarray(self.weight(entry), dtype=np.float32)).to(self.device)
         hidden = None
         if self.config.densify_stats == "evidence":
             unobserved = entry.unobserved()
-            hidden = None if unobserved is None else torch.from_numpy(np.ascontiguousarray(unobserved, dtype=np.float32))
+            hidden = (None if unobserved is None else
+                      torch.from_numpy(np.ascontiguousarray(unobserved, dtype=np.float32)).to(self.device))
         self._clips[key] = (rgb, conf, hidden)
         while len(self._clips) > max(self.config.max_cached_clips, 1):
             self._clips.popitem(last=False)
@@ -165,16 +167,18 @@ class PseudoTargets:
         return weight
 
     def loss(self, model: SpacetimeGaussians, rng: np.random.Generator, render_view: RenderView,
-             timing: dict[str, float], evidence: list[torch.Tensor] | None = None) -> torch.Tensor:
+             timing: dict[str, float], evidence: list[torch.Tensor] | None = None,
+             l1: Callable[..., torch.Tensor] = masked_l1) -> torch.Tensor:
         """Mean over ``batch_pseudo`` cached novel frames, drawn uniformly from the loaded round
         with ``rng``, of the (confidence-weighted) L1 between the model rendered at the frame's
         camera *and its clip's time* and the restored frame. Adds seconds to ``timing``'s t_at
         and t_loss. ``evidence``, when given, receives per frame (in render order) its term of
-        the same mean restricted to the pixels no train camera explains (``evidence_weight``)."""
+        the same mean restricted to the pixels no train camera explains (``evidence_weight``).
+        ``l1``: the weighted L1 (``masked_l1_device`` on a GPU trainer's hot path)."""
         s2 = self.config
         total = int(self.entry_offsets[-1])
         picks = rng.integers(0, total, size=s2.batch_pseudo)
-        device = model.means.device  # the cached clips stay in host memory; one frame is copied over
+        device = model.means.device  # the clips were decoded onto it (``_decoded``)
         loss = torch.zeros((), device=device)
         for flat in picks:
             e_idx = int(np.searchsorted(self.entry_offsets, flat, side="right") - 1)
@@ -193,8 +197,8 @@ class PseudoTargets:
                                  f"{cam.height}x{cam.width}; the cache is stale, refresh it")
             weighted = (s2.confidence_weighting and s2.pseudo_target == "restored") or s2.pseudo_mask != "all"
             weight = conf[f].to(device) if weighted else None
-            loss = loss + masked_l1(out.rgb, target, weight)
+            loss = loss + l1(out.rgb, target, weight)
             if evidence is not None:
-                evidence.append(masked_l1(out.rgb, target, self.evidence_weight(entry, f).to(device)) / max(len(picks), 1))
+                evidence.append(l1(out.rgb, target, self.evidence_weight(entry, f).to(device)) / max(len(picks), 1))
             timing["t_loss"] += time.perf_counter() - tic
         return loss / max(len(picks), 1)

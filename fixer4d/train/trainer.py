@@ -30,6 +30,7 @@ import logging
 import math
 import threading
 import time
+from collections import OrderedDict
 from pathlib import Path
 from typing import Any, Callable
 
@@ -53,7 +54,7 @@ from fixer4d.train.checkpoints import (CHECKPOINT_FORMAT, check_resumable, list_
                                        remove_partial_checkpoints, training_settings, write_checkpoint)
 from fixer4d.train.config import TrainingConfig, Stage2Config
 from fixer4d.train.device import training_device
-from fixer4d.train.losses import mean_squared_error, stg_loss, stg_loss_device
+from fixer4d.train.losses import masked_l1, masked_l1_device, mean_squared_error, stg_loss, stg_loss_device
 from fixer4d.train.model_init import scene_extent
 from fixer4d.train.pseudo_targets import PseudoCache, PseudoTargets, RefreshFn
 from fixer4d.train.schedule import StageSchedule
@@ -69,6 +70,9 @@ TIMING_KEYS = ("t_at", "t_render", "t_loss", "t_backward", "t_optim", "t_densify
 # in one read. 10 = the progress bar's refresh; a diverged run trains on for at most 9 steps
 # before it is reported (and a checkpoint reads first, so none is written from it).
 CHECK_EVERY = 10
+# Pseudo-view cameras whose gsplat matrices stay on the device: a stage-2 round's trajectories
+# hold a few dozen cameras (trajectories.frames per pair), so a round's are all kept.
+CAMERA_CACHE = 256
 # A rendered view of a step: its render, camera and ``_drawn`` radii (densification statistics).
 RenderedView = tuple[RenderOutput, Camera, torch.Tensor]
 
@@ -121,7 +125,8 @@ class Trainer:
         self.stage2 = stage2
         self.schedule = StageSchedule.stage1(config) if stage2 is None else StageSchedule.stage2(config, stage2)
         # stage 2's restored frames (None in stage 1)
-        self.pseudo = None if stage2 is None else PseudoTargets(stage2, cache, refresh_cache, scene.train_cameras)
+        self.pseudo = (None if stage2 is None else
+                       PseudoTargets(stage2, cache, refresh_cache, scene.train_cameras, device=self.device))
         self.run_dir = Path(run_dir) if run_dir is not None else None
         self.stage = self.schedule.stage
         self.train_ids = list(scene.train_ids)
@@ -225,7 +230,7 @@ class Trainer:
         if self.pseudo is not None and self.schedule.draws_pseudo_views:
             loss_gen = self.pseudo.loss(self.model, self.rng,
                                         lambda snap, cam: self._render_view(snap, cam, pseudo_outputs, timing), timing,
-                                        evidence=evidence)
+                                        evidence=evidence, l1=masked_l1 if self._frames is None else masked_l1_device)
             loss = loss_stg + self.schedule.lambda_gen * loss_gen
         else:
             loss = loss_stg
@@ -432,7 +437,7 @@ class Trainer:
         if self._frames is None:
             out = render(snap, cam, background=self.background, backend=self.config.backend)
         else:
-            matrices = None if view is None else self._frames.matrices([view])
+            matrices = self._frames.matrices([view]) if view is not None else self._frames.camera(cam)
             (out,) = render_batch(snap, [cam], self.background, matrices=matrices)
         timing["t_render"] += time.perf_counter() - tic
         outputs.append((out, cam, _drawn(snap, out)))
@@ -640,6 +645,7 @@ class _DeviceFrames:
         self.batches = len({(c.width, c.height) for c in cameras}) == 1  # gsplat batches one image size
         self.weights: list[torch.Tensor] | None = None
         self.device = device
+        self._cameras: OrderedDict[int, tuple[Camera, tuple[torch.Tensor, torch.Tensor]]] = OrderedDict()
 
     def target(self, view: int, frame: int) -> torch.Tensor:
         return self.frames[view][frame]
@@ -647,6 +653,21 @@ class _DeviceFrames:
     def matrices(self, views: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
         """(viewmats (C, 4, 4), Ks (C, 3, 3)) of train views ``views``, gathered on the device."""
         return torch.stack([self.viewmats[v] for v in views]), torch.stack([self.Ks[v] for v in views])
+
+    def camera(self, cam: Camera) -> tuple[torch.Tensor, torch.Tensor]:
+        """(viewmats (1, 4, 4), Ks (1, 3, 3)) of a camera that is no train view (stage 2's
+        pseudo-views), copied over on its first render and kept for the last CAMERA_CACHE ones."""
+        hit = self._cameras.get(id(cam))
+        if hit is not None and hit[0] is cam:
+            self._cameras.move_to_end(id(cam))
+            return hit[1]
+        from fixer4d.render.gsplat_backend import camera_matrices
+
+        matrices = camera_matrices([cam], self.device)
+        self._cameras[id(cam)] = (cam, matrices)  # the camera is kept, so its id is not reused meanwhile
+        while len(self._cameras) > CAMERA_CACHE:
+            self._cameras.popitem(last=False)
+        return matrices
 
     def cache_weights(self, packed: np.ndarray, w: float) -> None:
         """The pixel weights 1 + ``w`` x mask of every view and frame from the bit-packed moving

@@ -196,3 +196,25 @@ def test_the_traced_guard_keeps_sane_values_and_hides_extreme_ones():
     torch.testing.assert_close(out.quats[3], torch.tensor([1.0, 0.0, 0.3, 0.0]))
     assert out.colors[4, 2] == COLOR_LIMIT
     assert all(bool(torch.isfinite(getattr(out, f)).all()) for f in ("means", "scales", "quats", "colors"))
+
+
+@pytest.mark.parametrize("densify_stats", ["evidence", "all"])
+def test_a_stage2_step_on_the_cuda_path_syncs_at_most_three_times(small_scene, small_clouds, make_config,
+                                                                 monkeypatch, densify_stats):
+    """Stage 2's pseudo-views too: their restored frames and weights decoded onto the device once,
+    their cameras' matrices copied once, their L1 taken without reading values back."""
+    from test_stage2_loss import FakeCache, _endpoint_clip
+
+    from fixer4d.train.config import Stage2Config
+
+    gsplat_stand_in.install(monkeypatch)
+    cfg = make_config(200, backend="gsplat", device="cpu", init_max_points=400, densify_every=100)
+    stage2 = Stage2Config(refresh_every=1000, rounds=1, batch_pseudo=2, densify_stats=densify_stats)
+    trainer = Trainer(model_from_clouds(small_clouds, small_scene, cfg), small_scene, cfg, stage2=stage2,
+                      cache=FakeCache({0: [_endpoint_clip(small_scene, nan_endpoints=False)]}))
+    trainer.train(FIRST_MEASURED - 1)
+    assert trainer.schedule.gathers_stats(trainer.step_count + 1)
+    counts = _per_step_counts(trainer, MEASURED_STEPS)
+    worst = max(counts, key=len)
+    assert len(worst) <= MAX_SYNCS_PER_STEP, f"{len(worst)} synchronizing calls in one step: {worst}"
+    assert trainer.history[-1]["loss"] > 0
