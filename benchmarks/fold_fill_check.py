@@ -12,7 +12,7 @@ held-back camera is rendered, its unobserved weight computed from the three came
 are scored against its real frame over the classes all, unobserved (weight > 0.5) and observed.
 
 Only train cameras are read, so any verdict here could choose a setting per run. Compare with
-``benchmarks/restoration_gate.py`` on the validation cameras (docs/stage2.md section 4c): a fold
+``benchmarks/restoration_gate.py`` on the validation cameras (docs/decisions/unobserved-fill.md, "Also tried"): a fold
 that agrees with them where they agree, and tells the test camera apart where it differs, would
 be a signal for the gate.
 """

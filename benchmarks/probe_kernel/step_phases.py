@@ -8,7 +8,7 @@ one image per iteration, torch on one thread, numba on every core. Phases: model
 includes its gradient), backward (backward kernel + projection backward), Adam step. Medians
 over --iters iterations after 2 warm-ups, plus wall and process-CPU per iteration and wall ns
 per blended fragment. FIXER4D_FUSED_LOSS=0 runs the torch loss for comparison. The figures in
-docs/render.md ("Kernel v5") came from this script on the idle machine.
+docs/render.md at commit 9fd7044 ("Kernel v5") came from this script on the idle machine.
 """
 from __future__ import annotations
 

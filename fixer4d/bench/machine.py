@@ -34,8 +34,8 @@ REF_ROUNDS = 400
 # Best of this many runs: the minimum is the machine's speed, the rest is other load.
 REF_REPEATS = 5
 # Below this single/parallel ratio on two or more threads the second vCPU adds little: two vCPUs
-# that are real cores give 1.6-2.0 on the reference workload (1.67 on the 2-core Xeon of
-# docs/render.md, whose turbo clock drops with both cores busy), two hyper-threads of one core 1.0-1.3.
+# that are real cores give 1.6-2.0 on the reference workload (1.67 on a 2-core Xeon whose turbo
+# clock drops with both cores busy), two hyper-threads of one core 1.0-1.3.
 SHARED_CORE_SPEEDUP = 1.5
 # Above this share of stolen CPU time the hypervisor took enough to move a timing by as much.
 STEAL_NOTICE = 0.05

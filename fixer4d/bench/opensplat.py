@@ -38,7 +38,7 @@ import numpy as np
 
 from fixer4d.errors import InputError
 
-# The last side-by-side measurement (docs/render.md, "OpenSplat side by side, measured"):
+# The last side-by-side measurement (docs/render.md at commit 9fd7044, "OpenSplat side by side, measured"):
 # 2026-11-24 (with the fused loss, parallel binning and fused Adam), `fixer4d bench train-step
 # --opensplat ... --repeats 3` (10 timed iterations of fixer4d, 60 of OpenSplat) on the idle
 # 2-core machine (nothing else running; the 1-minute load 0.6-1.9 is the benchmark's own two
@@ -47,7 +47,7 @@ from fixer4d.errors import InputError
 # (github.com/WebODM/OpenSplat bd0400d, the newest line) built from source with
 # -DGPU_RUNTIME=CPU -DCMAKE_BUILD_TYPE=Release. Wall and CPU seconds (all threads) per
 # iteration, keyed by (Gaussians, width, height). Cited in tables when no binary is given, never
-# used as a divisor. (Earlier side-by-side figures are kept in docs/render.md.)
+# used as a divisor. (Earlier side-by-side figures: that page too; the bench's own: docs/scale.md.)
 OPENSPLAT_CITED = {
     "source": "2026-11-24, idle 2-core machine, alternating, medians of 3; "
               "OpenSplat 1.2.0 (WebODM/OpenSplat bd0400d) CPU build",

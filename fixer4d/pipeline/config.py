@@ -122,7 +122,7 @@ class EvalConfig:
     # their depth (restore.unobserved_fill); false: the render, its holes restored whatever the
     # confidence. Chosen on the validation cameras, Restoration (init) on Panoptic 4/14, split c
     # 2/12, demo_val: fill 21.11 / 20.88 / 25.41 dB (depth-blind: 20.97 / 20.87 / 25.42), render
-    # 19.89 / 20.56 / 25.36 (docs/stage2.md sections 1b, 1c).
+    # 19.89 / 20.56 / 25.36 (docs/decisions/unobserved-fill.md).
     fill_unobserved: bool = True
 
     def __post_init__(self) -> None:

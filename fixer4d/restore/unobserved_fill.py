@@ -15,7 +15,7 @@ depth the fill takes its boundary colours from the pixels at or behind the regio
 (``background_boundary_weights``); an occluder's edge constrains it only weakly.
 
 Over all pixels of the validation cameras, stage-1 models, the Restoration rows' clips
-(benchmarks/restoration_gate.py; docs/stage2.md sections 1b, 1c): render / plain fill / this fill
+(benchmarks/restoration_gate.py; docs/decisions/background-fill.md): render / plain fill / this fill
 17.82 / 20.94 / 21.09 dB on Panoptic 4/14, 19.81 / 20.50 / 20.53 on split c 2/12, 25.15 / 25.22 /
 25.22 on demo_val.
 """
@@ -36,7 +36,7 @@ _NEIGHBOURS = ((0, 1), (0, -1), (1, 0), (-1, 0))
 
 # How far in front of an unseen pixel (relative depth) a boundary pixel may be and still give it
 # its colour: a boundary pixel (ref - d) / ref in front of it weighs exp(-that / tol). Chosen on
-# the validation cameras among 0.02, 0.05, 0.1 and 0.2 (docs/stage2.md section 1c): the largest
+# the validation cameras among 0.02, 0.05, 0.1 and 0.2 (docs/decisions/background-fill.md): the largest
 # mean gain over the plain fill whose worst camera set stays within 0.01 dB of it (0.02 and 0.05
 # gain most on the real folders, +0.19 / +0.09 and +0.17 / +0.06 dB, but cost demo_val 0.02 and
 # 0.01 dB; 0.1: +0.15 / +0.03, demo_val -0.004).

@@ -1,4 +1,4 @@
-"""Procedural dynamic benchmark scenes from a JSON spec, ray-cast exactly (see docs/scenes.md).
+"""Procedural dynamic benchmark scenes from a JSON spec, ray-cast exactly (docs/design.md §7).
 
 A spec describes a camera rig, a clip (frames, fps), textured primitives with optional motion,
 and lighting. ``SyntheticScene`` is a ``MultiViewVideo`` whose frames and ground-truth depth
@@ -241,7 +241,7 @@ def build_world(spec: dict, where: str = "<spec>") -> raycast.World:
 
 
 def build_rig(spec: dict, where: str = "<spec>") -> list[Camera]:
-    """Cameras cam00..camNN of the spec's rig (see docs/scenes.md, "rig")."""
+    """Cameras cam00..camNN of the spec's rig (docs/design.md §7)."""
     p = _Spec(where)
     rig = spec.get("rig")
     if not isinstance(rig, dict):

@@ -56,8 +56,8 @@ class TrainingConfig:
 
     # Sized so that the demo (three stage-1 trainings, two restoration rounds, six evaluations)
     # ends within 10 minutes on 2 idle CPU cores; raise it for quality. The schedule keys below
-    # are TrainingConfig.for_iterations(1500)'s (a test keeps them in step). docs/protocol.md lists
-    # the figures behind this default and the Gaussian budget.
+    # are TrainingConfig.for_iterations(1500)'s (a test keeps them in step). The figures behind this
+    # default and the Gaussian budget: docs/decisions/stage1-defaults.md, stage1-budget.md.
     iterations: int = 1500
     seed: int = 0
     backend: str = "auto"
@@ -82,7 +82,7 @@ class TrainingConfig:
     init_opacity: float = 0.1
     # Hard cap on the model size during densification: ~0.7 Gaussian per pixel of one 200x150
     # view; a larger budget fits the train views better and generalizes worse at 1500 iterations
-    # (docs/training.md).
+    # (docs/decisions/stage1-budget.md).
     max_gaussians: int = 20_000
 
     # -- observed loss ---------------------------------------------------------------------
@@ -90,9 +90,10 @@ class TrainingConfig:
     # marks (fixer4d.init.masks; w = 1 + this there, 1 elsewhere). Moving content is a few to
     # ~15 % of a static rig's pixels, so with uniform weights the static world dominates every
     # gradient, and time-local Gaussians each see only the frames near their own time. 4 gives
-    # Panoptic's people (~12 % of the train pixels) ~40 % of the loss; measured (docs/dynamic.md):
+    # Panoptic's people (~12 % of the train pixels) ~40 % of the loss; measured:
     # Panoptic stage 1 psnr_dynamic 15.9 -> 17.8 dB and static 20.7 -> 21.6 dB, demo unchanged
-    # overall and +0.6 dB on its moving pixels. 0 = the plain L_STG.
+    # overall and +0.6 dB on its moving pixels (docs/dynamic.md at commit 9fd7044; the validation
+    # runs: docs/decisions/stage1-defaults.md). 0 = the plain L_STG.
     moving_loss_weight: float = 4.0
 
     # -- learning rates (STGS "lite" values) ------------------------------------------------
@@ -138,7 +139,7 @@ class TrainingConfig:
     # dome wall and floor of a Panoptic split) leave holes that nothing nearby can refill. 1500
     # iterations, both tests at 0.1 vs off: Panoptic split c stage 1 19.01 -> 22.59 dB (seed 1
     # with the tests: 18.83), shared split 23.79 -> 23.99, demo 25.03 -> 24.74 (mean of 3 seeds;
-    # LPIPS 0.081 -> 0.064); docs/training.md.
+    # LPIPS 0.081 -> 0.064); docs/decisions/stage1-defaults.md.
     prune_world_scale: float | None = None
     prune_screen_fraction: float | None = None
     opacity_reset_every: int = 500
@@ -256,7 +257,7 @@ class Stage2Config:
     # "evidence" the observed views plus the pseudo-views' gradient of their loss restricted to
     # the pixels no train camera explains (restore.visibility), so that a pseudo-target can grow
     # the model only where no real view already decides it. Chosen on the validation cameras
-    # (docs/stage2.md): with gated targets, Full - STGS w/ MVS on Panoptic 4/14, split c 2/12 and
+    # (docs/decisions/stage2-targets.md): with gated targets, Full - STGS w/ MVS on Panoptic 4/14, split c 2/12 and
     # demo_val +0.11 / +0.48 / +0.03 dB (evidence) against +0.17 / +0.39 / +0.01 (all).
     densify_stats: str = "evidence"
     # restored clips held decoded in memory (each is F frames of H x W x 3 float32)
@@ -267,7 +268,8 @@ class Stage2Config:
     # (restore.visibility: holes and surfaces no train camera sees near the novel ray get the full
     # weight, observed ones ``observed_weight``). Chosen on the validation cameras (Panoptic 4/14
     # and split c 2/12, Full): all 18.88 / 18.69, observed_weight 0.25 18.30 / 19.07, unobserved
-    # only 18.49 / 18.47; "all" has the best mean and the best worst case (docs/stage2.md).
+    # only 18.49 / 18.47; "all" has the best mean and the best worst case
+    # (docs/decisions/pseudo-loss-mask.md).
     pseudo_mask: str = "all"
     observed_weight: float = 0.0
     # What a pseudo-view frame asks the model to render: "restored" the restorer's output, weighted
@@ -277,7 +279,7 @@ class Stage2Config:
     # pixel at weight 1: observed pixels of a novel view are held where they were at the last
     # refresh (a proximal anchor against the drift that more training on four views causes), and
     # only unobserved ones move towards the restorer. Chosen on the validation cameras
-    # (docs/stage2.md), Full - STGS w/ MVS on Panoptic 4/14, split c 2/12, demo_val: restored
+    # (docs/decisions/stage2-targets.md), Full - STGS w/ MVS on Panoptic 4/14, split c 2/12, demo_val: restored
     # +0.22 / -0.05 / +0.12 dB, gated +0.11 / +0.48 / +0.03 (both with evidence densification
     # for gated, the paper's for restored); against the matched control restored loses up to
     # 0.38 dB, gated at most 0.20.
@@ -285,7 +287,7 @@ class Stage2Config:
     # The gated targets' fallback where the restorer does not act: false, the render of the
     # refresh (holes restored whatever the confidence); true, the render with its unobserved
     # pixels filled from the observed ones (restore.unobserved_fill, as the Restoration rows).
-    # Chosen on the validation cameras (docs/stage2.md), Full on Panoptic 4/14, split c 2/12,
+    # Chosen on the validation cameras (docs/decisions/unobserved-fill.md), Full on Panoptic 4/14, split c 2/12,
     # demo_val: render 18.51 / 20.75 / 25.32 dB, fill 18.29 / 20.60 / 25.38 (the self-check's
     # decision each time); on split c's fold the fill's stage 2 scored 18.49 dB against 19.00.
     fill_unobserved: bool = False

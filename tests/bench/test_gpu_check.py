@@ -13,7 +13,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "benchmarks" / "gpu_check.sh"
 STAGES = ["install", "build", "tests", "demo", "panoptic", "step"]
-# Issue 44: the check fits in 8 minutes of device time, of which the machine's start takes about one.
+# The check fits in 8 minutes of device time, of which the machine's start takes about one.
 STAGE_BUDGET_S = 7 * 60
 
 

@@ -50,7 +50,7 @@ def test_the_response_learns_the_cameras_relative_gains(trained):
     expect = (np.log(GAINS) - np.log(GAINS).mean(0)).ravel()
     learned = np.log(gain.detach().numpy()).ravel()
     # a short run: the response follows the cameras' gains (correlated, the right size) while the
-    # Gaussians' colours settle; a full stage 1 recovers them within ~1 % (docs/dynamic.md)
+    # Gaussians' colours settle; a full stage 1 recovers them within ~1 % (docs/dynamic.md at commit 9fd7044)
     slope = float(learned @ expect / (expect @ expect))
     assert float(np.corrcoef(learned, expect)[0, 1]) > 0.9 and 0.4 < slope < 1.3, (learned, expect)
 

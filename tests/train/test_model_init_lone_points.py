@@ -1,4 +1,4 @@
-"""The sparse baseline's init survives frames with 1-3 triangulated points (issue 45): a frame's
+"""The sparse baseline's init survives frames with 1-3 triangulated points: a frame's
 only point takes its scale from the points of every frame instead of a NaN."""
 from __future__ import annotations
 
