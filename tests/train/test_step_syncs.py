@@ -22,7 +22,7 @@ import gsplat_stand_in
 from fixer4d.train.model_init import model_from_clouds
 from fixer4d.train.trainer import Trainer
 
-# Issue 44's cap: a step may read back its scalars and flags, a few times at most.
+# The cap: a step may read back its scalars and flags, a few times at most.
 MAX_SYNCS_PER_STEP = 3
 # Steps measured: past the first steps (caches filled), inside the densification window (the
 # statistics are gathered), with no densification step among them.
