@@ -28,11 +28,13 @@ G, CX, CY = 6, 7, 8
 # match pooled from a moving object must not bend the rig).
 HUBER_PX = 2.0
 # Where the optical axis meets the image, as a standard deviation from the image centre (share of
-# the image diagonal): lens mounting and sensor placement keep it within about a percent. The
-# frames of a few static views barely tell it from a rotation, so the adjustment holds it at the
-# centre, and this uncertainty enters the covariance (the rotations' and focals' standard errors
-# include what an unknown principal point leaves open).
-PRINCIPAL_POINT_SD_REL = 0.005
+# the image diagonal): lens mounting and sensor placement put it within about 1-2 % (the
+# calibrated Panoptic HD cameras: 0.2-0.95 %). The frames of a few static views barely tell it
+# from a rotation, so the adjustment holds it at the centre, and this uncertainty enters the
+# covariance: the rotations' and focals' standard errors include what an unknown principal point
+# leaves open (at 0.5 %, the XFeat-matched Panoptic rig passed with focals 2 % and a rotation
+# 1.2 degrees off: three to four of its standard errors).
+PRINCIPAL_POINT_SD_REL = 0.01
 # Keypoints of one static feature found at different timestamps lie within about a pixel of each other.
 REPEAT_RADIUS_PX = 1.0
 # Levenberg-Marquardt iterations; started from COLMAP's solution it converges in a few.
@@ -113,7 +115,7 @@ def _reprojection(x_cams: np.ndarray, X: np.ndarray, obs: Observations, base: Ca
 
 
 def _jacobians(x_cams: np.ndarray, X: np.ndarray, obs: Observations, base: CameraState) -> tuple[np.ndarray, np.ndarray]:
-    """Central differences: (M, 2, 8) d residual / d its camera's parameters, (M, 2, 3) d residual
+    """Central differences: (M, 2, 9) d residual / d its camera's parameters, (M, 2, 3) d residual
     / d its point. Every residual depends on one camera and one point, so perturbing a parameter of
     all cameras (or all points) at once gives one column per observation."""
     eps = 1e-6
@@ -131,8 +133,8 @@ def _jacobians(x_cams: np.ndarray, X: np.ndarray, obs: Observations, base: Camer
 
 
 def _normal_equations(Jc, Jp, r, w, obs: Observations, V: int, N: int):
-    """Weighted normal equations in blocks: U (V*8, V*8), W (V*8, N, 3), Vp (N, 3, 3), gradients
-    bc (V*8,) and bp (N, 3) (of 0.5 * sum w |r|^2)."""
+    """Weighted normal equations in blocks: U (P, P), W (P, N, 3), Vp (N, 3, 3), gradients bc (P,)
+    and bp (N, 3) (of 0.5 * sum w |r|^2), for P = V * 9 camera parameters."""
     P = V * CAMERA_PARAMS
     wr = w[:, None] * r
     U = np.zeros((V, CAMERA_PARAMS, V, CAMERA_PARAMS))
@@ -147,7 +149,7 @@ def _normal_equations(Jc, Jp, r, w, obs: Observations, V: int, N: int):
     np.add.at(bp, obs.point, np.einsum("mi,mia->ma", wr, Jp))
     W = np.zeros((V, CAMERA_PARAMS, N, 3))
     np.add.at(W, (obs.cam, slice(None), obs.point), np.einsum("m,mia,mib->mab", w, Jc, Jp))
-    # np.add.at with a slice in the middle puts the advanced-index axis first: (M, 8, 3) rows
+    # np.add.at with a slice in the middle puts the advanced-index axis first: (M, 9, 3) rows
     return U.reshape(P, P), W.reshape(P, N, 3), Vp, bc.ravel(), bp
 
 
@@ -159,7 +161,7 @@ def _schur(U, W, Vp, damping: float = 0.0):
 
 
 def _gauge(C: np.ndarray) -> np.ndarray:
-    """(V*10, 7) the camera-parameter directions of an infinitesimal similarity of the world:
+    """(V*9, 7) the camera-parameter directions of an infinitesimal similarity of the world:
     rotation by omega (w -> w - omega, C -> C + omega x C), translation, scale (C -> C (1 + s))."""
     V = len(C)
     basis = np.zeros((V * CAMERA_PARAMS, 7))
@@ -182,7 +184,7 @@ def _hold(S: np.ndarray, index: np.ndarray) -> None:
 
 
 def camera_covariance(S: np.ndarray, C: np.ndarray) -> np.ndarray:
-    """(V*10, V*10) covariance of the camera parameters from the (whitened) Schur complement S,
+    """(V*9, V*9) covariance of the camera parameters from the (whitened) Schur complement S,
     gauge fixed: the inverse on the complement of the similarity directions (``_gauge``)."""
     Q, _ = np.linalg.qr(_gauge(C), mode="complete")
     Qf = Q[:, 7:]
@@ -190,7 +192,7 @@ def camera_covariance(S: np.ndarray, C: np.ndarray) -> np.ndarray:
 
 
 def _priors_terms(x_cams, base: CameraState, priors, prior_sd) -> tuple[np.ndarray, np.ndarray]:
-    """Prior residuals on single parameters, (V, 10) each (0 where none), and their derivative in
+    """Prior residuals on single parameters, (V, 9) each (0 where none), and their derivative in
     that parameter: (f - f0) / sd for the focal priors (in g = log f), (c - centre) / sd for the
     principal point (``PRINCIPAL_POINT_SD_REL`` of the image diagonal, about the image centre)."""
     r = np.zeros_like(x_cams)
