@@ -9,7 +9,8 @@ for the step's views, the same loss (0.8 L1 + 0.2 D-SSIM, ``stg_loss_device``, u
 a fused Adam; nothing read back. fixer4d's step is ``Trainer.train`` on the same scene,
 resolution, Gaussians and views per step, in steady state (statistics gathered, no densification
 or opacity reset among the timed steps), twice: with its default loss and with the bare loop's
-(``moving_loss_weight=0``). The result is seconds per step of each and their ratios.
+(``moving_loss_weight=0``). The result is seconds per step of each and their ratios, and on CUDA
+the synchronizations per step of each (``count_syncs``).
 
 The Gaussians: ``--model`` (e.g. a run's model_stage1.ply, so the splats are a trained model's),
 else the scene's ground-truth depth (synthetic scenes), capped at ``--gaussians``. On a machine
@@ -27,6 +28,10 @@ import fixer4d  # noqa: F401  (sets the OpenMP wait policy before torch is impor
 # Steps before the timed ones: gsplat's kernels load, the allocator settles, fixer4d estimates
 # its moving masks on its first step.
 WARMUP_STEPS = 20
+# Steps run after the timed ones under torch.cuda.set_sync_debug_mode("warn"), which warns at
+# every call that makes the host wait for the GPU (gsplat's own included): two of fixer4d's
+# 10-step reads, so the count per step includes them.
+SYNC_STEPS = 20
 # Learning rates of the bare loop: 3DGS's defaults (they do not change the time of a step).
 BARE_LR = {"means": 1.6e-4, "quats": 1e-3, "log_scales": 5e-3, "opacity_logits": 5e-2, "colors": 2.5e-3}
 
@@ -65,8 +70,28 @@ def synchronize(device) -> None:
         torch.cuda.synchronize(device)
 
 
-def time_fixer4d(scene, model, config, steps: int) -> float:
-    """Seconds per step of ``Trainer.train`` over ``steps`` steps after WARMUP_STEPS."""
+def count_syncs(device, run) -> float | None:
+    """Host waits per step of ``run(SYNC_STEPS)`` on CUDA (None elsewhere): the warnings of
+    torch's sync debug mode, one per synchronizing call."""
+    import warnings
+
+    import torch
+
+    if device.type != "cuda":
+        return None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        torch.cuda.set_sync_debug_mode("warn")
+        try:
+            run(SYNC_STEPS)
+        finally:
+            torch.cuda.set_sync_debug_mode("default")
+    return sum("synchroniz" in str(w.message) for w in caught) / SYNC_STEPS
+
+
+def time_fixer4d(scene, model, config, steps: int) -> tuple[float, float | None]:
+    """(seconds per step of ``Trainer.train`` over ``steps`` steps after WARMUP_STEPS, host waits
+    per step)."""
     from fixer4d.train.trainer import Trainer
 
     trainer = Trainer(model, scene, config)
@@ -75,11 +100,13 @@ def time_fixer4d(scene, model, config, steps: int) -> float:
     tic = time.perf_counter()
     trainer.train(steps)
     synchronize(trainer.device)
-    return (time.perf_counter() - tic) / steps
+    seconds = (time.perf_counter() - tic) / steps
+    return seconds, count_syncs(trainer.device, trainer.train)
 
 
-def time_bare(scene, model, device, views_per_step: int, steps: int) -> float:
-    """Seconds per step of the bare loop (module docstring) over ``steps`` steps after WARMUP_STEPS."""
+def time_bare(scene, model, device, views_per_step: int, steps: int) -> tuple[float, float | None]:
+    """(seconds per step of the bare loop (module docstring) over ``steps`` steps after
+    WARMUP_STEPS, host waits per step)."""
     import numpy as np
     import torch
 
@@ -109,14 +136,17 @@ def time_bare(scene, model, device, views_per_step: int, steps: int) -> float:
         optimizer.step()
         optimizer.zero_grad(set_to_none=True)
 
-    for _ in range(WARMUP_STEPS):
-        step()
+    def run(n: int) -> None:
+        for _ in range(n):
+            step()
+
+    run(WARMUP_STEPS)
     synchronize(device)
     tic = time.perf_counter()
-    for _ in range(steps):
-        step()
+    run(steps)
     synchronize(device)
-    return (time.perf_counter() - tic) / steps
+    seconds = (time.perf_counter() - tic) / steps
+    return seconds, count_syncs(device, run)
 
 
 def _gsplat_views(cameras, device, background):
@@ -130,8 +160,10 @@ def _gsplat_views(cameras, device, background):
     width, height = cameras[0].width, cameras[0].height
 
     def rasterize(p, views):
+        # stacked rows, not viewmats[views]: a host index list would be copied to the GPU each step
         rgb, _, _ = rasterization(p["means"], p["quats"], p["log_scales"].exp(), torch.sigmoid(p["opacity_logits"]),
-                                  p["colors"], viewmats[views], Ks[views], width, height, packed=False,
+                                  p["colors"], torch.stack([viewmats[v] for v in views]),
+                                  torch.stack([Ks[v] for v in views]), width, height, packed=False,
                                   backgrounds=background[None].expand(len(views), 3))
         return rgb
 
@@ -176,15 +208,15 @@ def main(argv: list[str] | None = None) -> int:
     device = training_device(args.device or "auto", "auto")
     frames = None if args.frames is None else tuple(int(x) for x in args.frames.split(":"))
     scene = load_scene(args.scene, scale=args.scale, frame_range=frames)
-    total = WARMUP_STEPS + args.steps
-    rows = {}
+    total = WARMUP_STEPS + args.steps + SYNC_STEPS
+    rows, syncs = {}, {}
     for name, overrides in (("fixer4d", {}), ("fixer4d_same_loss", {"moving_loss_weight": 0.0})):
         config = steady_config(total, args.gaussians, device.type, **overrides)
         model = load_model(scene, args.model, args.gaussians, config)
-        rows[name] = time_fixer4d(scene, model, config, args.steps)
+        rows[name], syncs[name] = time_fixer4d(scene, model, config, args.steps)
     config = steady_config(total, args.gaussians, device.type)
     model = load_model(scene, args.model, args.gaussians, config)
-    rows["bare"] = time_bare(scene, model, device, config.views_per_step, args.steps)
+    rows["bare"], syncs["bare"] = time_bare(scene, model, device, config.views_per_step, args.steps)
     camera = scene.cameras[scene.train_ids[0]]
     result = {"scene": args.scene, "scale": args.scale, "width": camera.width, "height": camera.height,
               "frames": scene.num_frames, "gaussians": model.num_gaussians, "views_per_step": config.views_per_step,
@@ -193,10 +225,11 @@ def main(argv: list[str] | None = None) -> int:
               "s_per_step": {k: round(v, 6) for k, v in rows.items()},
               "ratio_to_bare": round(rows["fixer4d_same_loss"] / rows["bare"], 3),
               "ratio_default_loss_to_bare": round(rows["fixer4d"] / rows["bare"], 3),
+              "cuda_syncs_per_step": syncs, "sync_steps": SYNC_STEPS,
               "machine": machine_info(), "command": " ".join(["python", "benchmarks/gpu_step.py", *(argv or sys.argv[1:])])}
     write_json(args.out, result)
     print(f"{device}: fixer4d {rows['fixer4d'] * 1e3:.2f} ms/step ({rows['fixer4d_same_loss'] * 1e3:.2f} with the bare "
-          f"loop's loss), bare gsplat loop {rows['bare'] * 1e3:.2f} ms/step: ratio {result['ratio_to_bare']}", flush=True)
+          f"loop's loss), bare loop {rows['bare'] * 1e3:.2f} ms/step: ratio {result['ratio_to_bare']}", flush=True)
     return 0
 
 

@@ -56,6 +56,7 @@ def test_the_step_benchmark_times_fixer4d_and_the_bare_loop_on_the_cpu(benchmark
     times = result["s_per_step"]
     assert set(times) == {"fixer4d", "fixer4d_same_loss", "bare"} and all(t > 0 for t in times.values())
     assert result["ratio_to_bare"] == round(times["fixer4d_same_loss"] / times["bare"], 3)
+    assert result["cuda_syncs_per_step"] == dict.fromkeys(times)  # counted on CUDA only
 
 
 def test_the_step_benchmark_refuses_zero_steps(benchmark_script, tmp_path):
