@@ -172,21 +172,23 @@ def run_window(args: argparse.Namespace) -> int:
 
 def open_start_source(args: argparse.Namespace, source: str | None) -> tuple[ViewerSource, Any, Path, Exception | None]:
     """What the window opens with: (ViewerSource, initial GaussianArrays or None, session folder,
-    the error that kept ``source`` from opening or None). No source: the chooser's empty source."""
+    None). No source: the chooser's empty source. A source that does not open raises
+    SourceError, or with --errors-in-window gives the chooser's source and the error as the
+    fourth item."""
     if source is None:  # the desktop entry: open the window with the chooser
         return ViewerSource(label="nothing open: File > Open"), None, config_dir() / "start", None
     try:
         src, gaussians, session_dir = open_source(source, scale=args.scale, iterations=args.iterations,
                                                   init=args.init, init_frames=args.init_frames)
-        if not args.screenshot:  # a scripted screenshot is not the user opening something
-            remember_recent(config_dir(), source if src.training is not None and is_builtin_name(source)
-                            else str(Path(source).expanduser().resolve()))
     except Exception as exc:
         report_startup_error(source, exc, args.verbose)
         if not args.errors_in_window:
             raise SourceError(f"cannot open {source}: {one_line_message(exc)}") from exc
         # started without a terminal: say it in the window
         return ViewerSource(label=f"could not open {source}"), None, config_dir() / "start", exc
+    if not args.screenshot:  # a scripted screenshot is not the user opening something
+        remember_recent(config_dir(), source if src.training is not None and is_builtin_name(source)
+                        else str(Path(source).expanduser().resolve()))
     if src.notice:
         print(f"fixer4d-view: {src.notice}", file=sys.stderr)
     return src, gaussians, session_dir, None

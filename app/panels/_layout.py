@@ -65,11 +65,11 @@ def recover(saved) -> None:
     that interrupted the block is reported to the user, so imgui's own "Missing End()" lines
     for the unwinding would only repeat it on stderr every frame."""
     io = imgui.get_io()
-    logging, io.config_error_recovery_enable_debug_log = io.config_error_recovery_enable_debug_log, False
+    was_logging, io.config_error_recovery_enable_debug_log = io.config_error_recovery_enable_debug_log, False
     try:
         imgui.internal.error_recovery_try_to_recover_state(saved)
     finally:
-        io.config_error_recovery_enable_debug_log = logging
+        io.config_error_recovery_enable_debug_log = was_logging
 
 
 @contextmanager
