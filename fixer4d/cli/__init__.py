@@ -11,6 +11,7 @@ import argparse
 import importlib
 import sys
 
+from fixer4d import numerics
 from fixer4d.errors import Fixer4DError, InputError, Terminated
 
 # verb -> (module, one-line help)
@@ -40,6 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="fixer4d", description="Four synchronized cameras -> spacetime Gaussians, with the unseen views repaired "
                                     "(4DGS-Fixer). `fixer4d VERB --help` for each verb.")
     parser.add_argument("--version", action="version", version=_version())
+    parser.add_argument("--numerics", choices=("portable", "host"), default=None,
+                        help="portable (default): the same digits on any x86-64 CPU; host: each library's fastest "
+                             "code paths for this CPU (digits depend on it; the same as FIXER4D_NUMERICS=host)")
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     for verb, (module, help_text) in VERBS.items():
         p = sub.add_parser(verb, help=help_text, description=help_text)
@@ -71,6 +75,10 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "_missing", None):
         print(f"fixer4d {args.verb}: not available in this build ({args._missing})", file=sys.stderr)
         return 2
+    if args.numerics is not None and args.numerics != numerics.mode():
+        _restart_with_numerics(args.numerics, argv)
+    if numerics.mode() != "portable":
+        print(f"fixer4d: {numerics.describe()}", file=sys.stderr)
     from fixer4d.signals import install_sigterm
 
     install_sigterm()
@@ -92,6 +100,17 @@ def main(argv: list[str] | None = None) -> int:
         if inner is None:
             raise
         return _interrupted(args.verb, inner)
+
+
+def _restart_with_numerics(mode: str, argv: list[str]) -> None:
+    """Run this command again in a fresh process under numerics ``mode``: the libraries read their
+    code-path pins once, when they load (``fixer4d.numerics``), so a running process cannot switch."""
+    import os
+
+    os.environ[numerics.ENV_MODE] = mode
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execv(sys.executable, [sys.executable, "-m", "fixer4d.cli", *argv])
 
 
 def _interrupted(verb: str, exc: KeyboardInterrupt) -> int:

@@ -101,3 +101,14 @@ def test_a_tiny_pipeline_gives_the_same_model_and_report_on_two_emulated_hosts(t
     assert outputs[0][3] and outputs[1][3]
     assert outputs[0][0] == outputs[1][0] and outputs[0][1] == outputs[1][1]
     assert outputs[0][2] == outputs[1][2]
+
+
+def test_the_command_line_switches_numerics_in_a_fresh_process(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != numerics.ENV_MODE}
+    done = subprocess.run([sys.executable, "-m", "fixer4d.cli", "--numerics", "host", "eval", str(tmp_path / "none")],
+                          env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2  # the verb ran (and refused the missing folder) ...
+    assert "numerics: host" in done.stderr  # ... in a process started in host mode, which says so
+    quiet = subprocess.run([sys.executable, "-m", "fixer4d.cli", "eval", str(tmp_path / "none")], env=env,
+                           capture_output=True, text=True, timeout=300)
+    assert quiet.returncode == 2 and "numerics" not in quiet.stderr
