@@ -78,3 +78,17 @@ def test_the_bench_runs_each_set_once_and_summarizes(tmp_path, monkeypatch):
 def test_a_set_whose_data_is_absent_says_so(tmp_path):
     assert "absent" in Q.camera_sets(tmp_path / "nowhere")["panoptic"].available()
     assert Q.camera_sets(tmp_path)["demo"].available() is None
+
+
+def test_the_readme_block_is_rewritten_from_the_summary(tmp_path):
+    summary = {"demo": {**Q.summarize_split([_record(0, 25.0, 25.2, 25.1), _record(1, 24.0, 24.21, 24.1)]),
+                        "files": ["demo_seed0.json", "demo_seed1.json"]}}
+    page = tmp_path / "README.md"
+    page.write_text(f"# x\n\n{Q.BEGIN}\nold\n{Q.END}\n\nafter\n")
+    Q.write_block(page, summary)
+    text = page.read_text()
+    assert "old" not in text and text.endswith("\n\nafter\n") and Q.markdown(summary) in text
+    bare = tmp_path / "bare.md"
+    bare.write_text("no markers\n")
+    with pytest.raises(SystemExit, match="no"):
+        Q.write_block(bare, summary)
