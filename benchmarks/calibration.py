@@ -2,21 +2,25 @@
 and Panoptic's, and calibration from synthetic ChArUco board videos.
 
     python benchmarks/calibration.py [--demo DIR] [--panoptic-videos DIR] [--only demo|panoptic|board]
+                                     [--matcher sift|xfeat] [--timestamps T] [--max-features N]
 
 demo: `fixer4d make-scene demo --format n3dv` (written to a temporary folder unless --demo names
 one), reduced to its four train videos: no poses_bounds.npy, no scene.json. Panoptic: the four
 videos of ../shared/data/panoptic_basketball_videos; the true rig (train_meta.json) is read for
-scoring only. For each capture it records
+scoring only. For each capture, twice: the focals estimated, and a focal given for every camera
+(--focal: the demo's true one; Panoptic's 466 px, true for two of its four cameras), it records
 
-* the gate's verdict of `fixer4d calibrate` (self-calibration, focal estimated), its message and
-  its wall time;
-* the ungated self-calibration's error against the truth (what a run would have used without the
-  gate): rotation (degrees), centre (share of the rig radius), focal (relative), after a
-  similarity alignment, both the one of fixer4d.init.poses.compare_poses (rotation from the
-  centres) and one whose rotation comes from the cameras' orientations (sound when the centres
-  are nearly coplanar, as on the demo's 2x2 grid);
-* the same with the focal length given (--focal, the lens a user knows), on the demo;
-* the relative rotations between cameras (no alignment at all).
+* `fixer4d calibrate`'s verdict (the gate), its message and its wall time;
+* the ungated self-calibration (what a run would have used without the gate): each camera's
+  focal, rotation and centre standard errors and the prior's verdict (``checks.cameras``), and its
+  error against the truth: rotation (degrees), centre (share of the rig radius), focal
+  (relative), after a similarity alignment, both the one of fixer4d.init.poses.compare_poses
+  (rotation from the centres) and one whose rotation comes from the cameras' orientations (sound
+  when the centres are nearly coplanar, as on the demo's 2x2 grid); the relative rotations
+  between cameras (no alignment at all); the matches per pair.
+
+`--matcher xfeat` (with `--timestamps`, `--max-features`) calibrates Panoptic with XFeat +
+LighterGlue instead of SIFT.
 
 Board (``board``): exact board videos (fixer4d.calib.board_render: a ChArUco board at 30 poses
 tilted up to 40 degrees, mild blur and noise) of
@@ -29,7 +33,8 @@ Each through `fixer4d calibrate` (its wall time), scored like the self-calibrati
 principal point, the metric scale (the alignment's scale: 1 = metres recovered) and the lens
 (largest displacement error over the central 70 % of the image).
 
-Writes benchmarks/results/calibration_demo.json, calibration_panoptic.json, calibration_board.json.
+Writes benchmarks/results/calibration_demo.json, calibration_panoptic.json (calibration_panoptic_xfeat.json
+with --matcher xfeat), calibration_board.json.
 """
 from __future__ import annotations
 
@@ -52,7 +57,9 @@ from fixer4d.calib.board import BoardSpec  # noqa: E402
 from fixer4d.calib.board_render import board_poses, write_board_capture  # noqa: E402
 from fixer4d.calib.gate import problems  # noqa: E402
 from fixer4d.calib.rig import RigCamera, distort_points, read_rig_json  # noqa: E402
-from fixer4d.calib.sfm import SfMConfig, calibrate_sfm  # noqa: E402
+from fixer4d.calib.matchers import MATCHERS  # noqa: E402
+from fixer4d.calib.priors import parse_focal_priors  # noqa: E402
+from fixer4d.calib.sfm import SFM_MAX_FEATURES, SFM_TIMESTAMPS, SfMConfig, calibrate_sfm  # noqa: E402
 from fixer4d.errors import InputError  # noqa: E402
 from fixer4d.geometry.camera import Camera, rig_extent  # noqa: E402
 from fixer4d.init.poses import compare_poses  # noqa: E402
@@ -98,24 +105,35 @@ def score(rig, gt: list[Camera]) -> dict:
             "checks": {k: v for k, v in rig.checks.items() if k != "gate"}, "pairs": rig.pairs}
 
 
-def evaluate_capture(capture: Path, gt: list[Camera], focal: float | None = None) -> dict:
-    """The gate's verdict through the command line, then the ungated rig's errors."""
-    t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-m", "fixer4d.cli", "calibrate", str(capture), "--out", f"{tmp}/rig.json", "--quiet"]
-        proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
-    out = {"command": " ".join(["fixer4d"] + cmd[3:-3] + ["--out", "rig.json"]), "gate_exit_code": proc.returncode,
-           "gate_seconds": round(time.perf_counter() - t0, 1),
-           "gate_message": (proc.stderr.strip().splitlines() or [""])[-1] if proc.returncode else "accepted"}
+def evaluate_capture(capture: Path, gt: list[Camera], focal: list[str] | None = None,
+                     sfm: tuple[str, ...] = ()) -> dict:
+    """The gate's verdict through the command line, then the ungated rig's errors; ``focal``: the
+    --focal arguments of a second case (a focal the user gives); ``sfm``: more calibrate arguments
+    (e.g. --matcher xfeat)."""
     files = CaptureFiles(capture)
-    rig = calibrate_sfm(files, SfMConfig(), progress=False)
-    out["self_calibration"] = score(rig, gt)
-    out["self_calibration"]["gate_problems"] = problems(rig, files.names)
-    if focal is not None:
-        rig = calibrate_sfm(files, SfMConfig(focal=focal), progress=False)
-        out["focal_given"] = {"focal_px": focal, **score(rig, gt),
-                              "gate_problems": problems(rig, files.names, focal_given=True)}
+    names = [c.name for c in gt]
+    config = sfm_config(sfm)
+    out = {"self_calibration": _case(capture, files, gt, config, [], sfm)}
+    if focal:
+        config.focal = parse_focal_priors(focal, names)
+        out["focal_given"] = _case(capture, files, gt, config, focal, sfm)
     return out
+
+
+def sfm_config(sfm: tuple[str, ...]) -> SfMConfig:
+    """The SfMConfig the command line builds from ``sfm`` (--matcher, --timestamps, --max-features)."""
+    args = dict(zip(sfm[::2], sfm[1::2]))
+    return SfMConfig(matcher=args.get("--matcher", "sift"), timestamps=int(args.get("--timestamps", SFM_TIMESTAMPS)),
+                     max_features=int(args.get("--max-features", SFM_MAX_FEATURES)))
+
+
+def _case(capture: Path, files, gt: list[Camera], config: SfMConfig, focal: list[str], sfm: tuple[str, ...]) -> dict:
+    """`fixer4d calibrate` (its exit code, wall time and message) and the rig it judged, ungated, scored."""
+    extra = [*sfm, *(a for f in focal for a in ("--focal", f))]
+    with tempfile.TemporaryDirectory() as tmp:
+        gate = _calibrate_cli(capture, Path(tmp) / "rig.json", *extra)
+    rig = calibrate_sfm(files, config, progress=False)
+    return {**gate, **score(rig, gt), "gate_problems": problems(rig, files.names)}
 
 
 def demo_capture(folder: Path | None, tmp: Path) -> tuple[Path, list[Camera]]:
@@ -139,7 +157,7 @@ def demo_capture(folder: Path | None, tmp: Path) -> tuple[Path, list[Camera]]:
 def demo(folder: Path | None) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         capture, gt = demo_capture(folder, Path(tmp))
-        return {"capture": "demo, 4 train videos only", **evaluate_capture(capture, gt, focal=gt[0].fx)}
+        return {"capture": "demo, 4 train videos only", **evaluate_capture(capture, gt, focal=[str(gt[0].fx)])}
 
 
 # The converging rig of tests/calib/test_board.py and its board: 0.84 x 0.6 m, 1.5 m from the cameras.
@@ -228,11 +246,13 @@ def board(folder: Path | None) -> dict:
     return result
 
 
-def panoptic(videos: Path) -> dict:
+def panoptic(videos: Path, sfm: tuple[str, ...]) -> dict:
+    """The four Panoptic videos against their given rig; the focal case is `--focal 466`, the
+    focal of two of the four cameras given for all (the other two are 515 and 524 px)."""
     meta = json.loads((PANOPTIC / "panoptic_basketball" / "train_meta.json").read_text())
     gt = [Camera(np.array(k), np.linalg.inv(np.array(w)), int(meta["w"]), int(meta["h"]), f"cam{int(c):02d}")
           for k, w, c in zip(meta["k"][0], meta["w2c"][0], meta["cam_id"][0])]
-    return {"capture": str(videos), **evaluate_capture(videos, sorted(gt, key=lambda c: c.name))}
+    return {"capture": str(videos), **evaluate_capture(videos, sorted(gt, key=lambda c: c.name), ["466"], sfm)}
 
 
 def main() -> int:
@@ -240,7 +260,13 @@ def main() -> int:
     parser.add_argument("--demo", type=Path, default=None, help="an existing `make-scene demo --format n3dv` folder")
     parser.add_argument("--panoptic-videos", type=Path, default=PANOPTIC / "panoptic_basketball_videos")
     parser.add_argument("--only", choices=["demo", "panoptic", "board"], default=None)
+    parser.add_argument("--matcher", choices=MATCHERS, default="sift",
+                        help="the self-calibration's matcher; xfeat writes calibration_panoptic_xfeat.json")
+    parser.add_argument("--timestamps", type=int, default=None)
+    parser.add_argument("--max-features", type=int, default=None)
     args = parser.parse_args()
+    sfm = ("--matcher", args.matcher, *(("--timestamps", str(args.timestamps)) if args.timestamps else ()),
+           *(("--max-features", str(args.max_features)) if args.max_features else ()))
     if args.only in (None, "demo"):
         result = demo(args.demo)
         atomic.write_json(RESULTS / "calibration_demo.json", result)
@@ -254,10 +280,11 @@ def main() -> int:
             print(f"{args.panoptic_videos}: absent, Panoptic skipped")
             return 0
         try:
-            result = panoptic(args.panoptic_videos)
+            result = panoptic(args.panoptic_videos, sfm)
         except InputError as exc:
             result = {"error": str(exc)}
-        atomic.write_json(RESULTS / "calibration_panoptic.json", result)
+        suffix = "" if args.matcher == "sift" else f"_{args.matcher}"
+        atomic.write_json(RESULTS / f"calibration_panoptic{suffix}.json", {"arguments": list(sfm), **result})
         print(json.dumps(result, indent=1, default=str)[:3000])
     return 0
 
