@@ -7,7 +7,7 @@
 #   benchmarks/gpu_check.sh --prepare   # here, once: the wheels and the data it carries into .gpu_carry/
 #   benchmarks/gpu_check.sh --dry-run   # anywhere: every stage's command and budget, nothing run
 #   benchmarks/gpu_check.sh             # on the device machine (the device tool's `run`):
-#       command: benchmarks/gpu_check.sh    carry: [".gpu_carry"]    timeout_s: 480
+#       command: benchmarks/gpu_check.sh    carry: [".gpu_carry"]    timeout_s: 450
 #
 # The device machine has torch, numpy, numba, scipy, OpenCV, ninja and nvcc but not gsplat or
 # plyfile, and reaches no network: both travel as wheels (gsplat's wheel holds its CUDA sources;
@@ -28,16 +28,16 @@ LPIPS_SRC=${LPIPS_SRC:-$ROOT/.venv/share/fixer4d/lpips/alexnet.ckpt}
 PY=${PYTHON:-python3}
 OUT=${OUT:-/tmp/gpu_check_out}
 RUNS=${GPU_CHECK_RUNS:-/tmp/gpu_check_runs}
-LOGS=${GPU_CHECK_LOGS:-/tmp/gpu_check_logs}
-SITE=${GPU_CHECK_SITE:-/tmp/site}  # where the carried wheels are installed  # their tails go into the result file: $OUT brings back 8 files
+LOGS=${GPU_CHECK_LOGS:-/tmp/gpu_check_logs}  # their tails go into the result file: $OUT brings back 8 files
+SITE=${GPU_CHECK_SITE:-/tmp/site}  # where the carried wheels are installed
 
-# Budgets in seconds, 420 in all: with the machine's start (about a minute) and the transfers the
+# Budgets in seconds, 390 in all: with the machine's start (about a minute) and the transfers the
 # check stays under 8 minutes of device time, so a second try fits in a session's 15.
 BUDGET_INSTALL=20     # pip from the carried wheels
 BUDGET_BUILD=110      # gsplat's CUDA extension: ~75 s on 16 cores, once per machine
-BUDGET_TESTS=70       # the CUDA tests (19 passed in the last session) and the sync count
-BUDGET_DEMO=90        # `fixer4d run demo`, all stages (issue 44's target: 60 s)
-BUDGET_PANOPTIC=90    # the Panoptic split at 640x360, all frames: as many stages as fit
+BUDGET_TESTS=60       # the CUDA tests (19 passed in the last session) and the sync count
+BUDGET_DEMO=80        # `fixer4d run demo`, all stages (issue 44's target: 60 s)
+BUDGET_PANOPTIC=80    # the Panoptic split at 640x360, all frames: as many stages as fit
 BUDGET_STEP=40        # fixer4d's step and the bare loop, 200 timed steps each, three loops
 
 usage() {
