@@ -673,8 +673,8 @@ class _DeviceFrames:
         """The pixel weights 1 + ``w`` x mask of every view and frame from the bit-packed moving
         masks (V, T, H, ceil(W/8)), as ``Trainer._pixel_weight`` computes one of them."""
         self.weights = []
-        for view, frame in enumerate(self.frames):
-            m = np.unpackbits(packed[view], axis=-1, count=frame.shape[2]).astype(np.float32)
+        for view, frames in enumerate(self.frames):
+            m = np.unpackbits(packed[view], axis=-1, count=frames.shape[2]).astype(np.float32)
             self.weights.append(torch.from_numpy(1.0 + w * m).to(self.device))
 
 
