@@ -43,6 +43,20 @@ def test_reproduces_the_runs_stage1_row_and_leaves_the_run_alone(variants, tiny_
     assert {p: p.stat().st_mtime_ns for p in run_dir.rglob("*")} == before
 
 
+def test_tail_averages_leave_the_last_iterate_as_it_was(variants, tiny_run, tmp_path):
+    """--average-from scores the mean of the iterates after a step beside the last iterate, whose
+    figures stay those of plain training (the averages are scored on a copy of the state)."""
+    run_dir, report = tiny_run
+    out = tmp_path / "averaged.json"
+    assert variants.main([str(run_dir), "--average-from", "20", "--average-from", "30", "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    row = next(r for r in report["rows"] if r["method"] == "STGS w/ MVS")
+    assert doc["psnr"] == pytest.approx(row["psnr"], abs=1e-6)
+    assert doc["averaged"]["20"]["iterates"] == 2 and doc["averaged"]["30"]["iterates"] == 1
+    assert doc["averaged"]["30"]["psnr"] == pytest.approx(doc["psnr"], abs=1e-6)  # one iterate: the last one
+    assert np.isfinite(doc["averaged"]["20"]["psnr"])
+
+
 def test_a_run_without_dense_init_is_refused(variants, tmp_path, capsys):
     assert variants.main([str(tmp_path)]) == 2
     assert "no decomposed dense init" in capsys.readouterr().err
