@@ -121,3 +121,13 @@ def test_a_known_focal_gives_the_grid_its_rotations_and_the_gate_names_its_centr
     centres = [n for n, f in figures.items() if f["centre_sd_rel"] > MAX_CENTRE_SD_REL]
     assert centres and all(figures[n]["focal_sd_px"] < MAX_FOCAL_SD_REL * figures[n]["focal_px"] for n in centres)
     assert [p.split(" ")[1] for p in problems(rig, files.names)] == centres  # exactly those cameras are named
+
+
+def test_calibrate_prints_each_cameras_standard_errors_and_the_priors_verdict():
+    from fixer4d.cli.calibrate import _uncertainty
+
+    line = _uncertainty({**_figures(focal_sd=2.1), "frames_focal_px": 515.0, "frames_focal_sd_px": 3.0,
+                         "prior": {"focal_px": 466.0, "sd_px": 4.7, "verdict": "overruled by the frames"}})
+    assert line == ("; standard errors focal 2.1 px, rotation 0.10 deg, centre 0.4 % of the rig radius; focal prior "
+                    "466.0 +- 4.7 px overruled by the frames (frames alone: 515.0 +- 3.0 px)")
+    assert _uncertainty(None) == ""  # a rig from a board or a file has no such figures
