@@ -76,7 +76,7 @@ class GaussianArrays:
     def from_model(cls, model: Any) -> "GaussianArrays":
         """Copy the raw parameters of a ``SpacetimeGaussians`` (any device) to numpy.
 
-        Effects the model's config switches off have no Parameter; they are filled with their
+        Model terms the model's config switches off have no Parameter; they are filled with their
         neutral values (zero motion/omega, a temporal scale so wide that the temporal factor is
         1) so that the GL shader agrees with ``model.at``.
         """

@@ -7,7 +7,7 @@ through mailboxes so the UI thread never blocks on them (docs/design.md §16).
   few steps (and at most every PUBLISH_MIN_S) and a loss record every step, pauses/resumes.
   The trainer never waits for the UI: the UI reads what was published when it draws.
 - ``live_stage1_trainer``: live training through the pipeline's stage functions (the same
-  init, config, schedule, caps and effects as ``fixer4d run``'s stage 1).
+  init, config, schedule, caps and model terms as ``fixer4d run``'s stage 1).
 - ``RestoreQueue``: renders the request for (trajectory, frame) on a worker thread with an
   injected render function, then submits it to ``fixer4d.restore.jobs.RestoreJobs``; finished
   clips land in the cache through the jobs' own writer.
@@ -208,7 +208,7 @@ def live_stage1_trainer(scene: Any, iterations: int | None, method: str, init_fr
                         report: Callable[[str], None] = lambda text: None) -> Any:
     """Live training through the pipeline's own stage functions (``fixer4d.pipeline.stages``):
     the run defaults of ``fixer4d run`` (stage-1 settings, the 3DGS schedule scaled to the
-    iterations, init-point and Gaussian caps, effects by evidence), ``method`` init clouds of
+    iterations, init-point and Gaussian caps, model terms by evidence), ``method`` init clouds of
     about ``init_frames`` evenly spaced frames, and the Trainer ``stages.stage1_trainer`` builds.
     The init is written into a temporary run folder removed before returning.
     ``report(text)`` is called at each setup step. Returns the ``Trainer``."""
@@ -230,7 +230,7 @@ def live_stage1_trainer(scene: Any, iterations: int | None, method: str, init_fr
         ctx = stages.StageContext(run=RunFolder(tmp, config), scene=scene, progress=False)
         report(f"init: {method} point clouds of every {stride}th frame (of {scene.num_frames})")
         init = stages.init_stage(ctx, method)
-        report(f"model: init -> Gaussians (cap {config.training.max_gaussians}), effects {config.effects.mode}")
+        report(f"model: init -> Gaussians (cap {config.training.max_gaussians}), model terms {config.model_terms.mode}")
         trainer, _ = stages.stage1_trainer(ctx, init, run_dir=None)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

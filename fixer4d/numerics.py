@@ -68,13 +68,31 @@ def mode() -> str:
     return value
 
 
+# The environment's own values of the pinned variables, kept while the pins stand in for them, so
+# that a child process in host mode (``fixer4d --numerics host``) gets them back: JSON {name: value
+# or null for unset}.
+ENV_SAVED = "FIXER4D_NUMERICS_SAVED"
+
+
 def apply() -> list[str]:
     """In portable mode, set every pin of ``PORTABLE_ENV`` (overriding the environment: a host's own
-    choice, e.g. an OPENBLAS_CORETYPE of its CPU, is what portable mode must not follow). Returns
-    the names of the libraries already imported, for which it comes too late (empty when in time
-    or in host mode)."""
+    choice, e.g. an OPENBLAS_CORETYPE of its CPU, is what portable mode must not follow); in host
+    mode, undo the pins a portable parent process left in the environment. Returns the names of
+    the libraries already imported, for which it comes too late (empty when in time)."""
+    import json
+
+    saved = os.environ.get(ENV_SAVED)
     if mode() != "portable":
+        if saved is not None:
+            for key, value in json.loads(saved).items():
+                if value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
+            del os.environ[ENV_SAVED]
         return []
+    if saved is None:
+        os.environ[ENV_SAVED] = json.dumps({k: os.environ.get(k) for k in PORTABLE_ENV})
     os.environ.update(PORTABLE_ENV)
     return [name for name in _PIN_READERS if name in sys.modules]
 
@@ -136,4 +154,4 @@ def describe() -> str:
             f"was imported before fixer4d; import fixer4d first")
 
 
-__all__ = ["ENV_MODE", "MODES", "PORTABLE_ENV", "mode", "apply", "status", "describe"]
+__all__ = ["ENV_MODE", "ENV_SAVED", "MODES", "PORTABLE_ENV", "mode", "apply", "status", "describe"]

@@ -44,9 +44,9 @@ DEFAULT_SWEEP: list[dict[str, Any]] = [
     {"name": "restorer-learned-2x", "restorer.kind": "learned", "restorer.learned.steps": 2.0,
      "restorer.learned.loo_iterations": 2.0},
     {"name": "sparse-init", "init.method": "sparse"},
-    # the effects axis: decided by evidence (the base), every effect on every Gaussian, static only
-    {"name": "effects-all", "effects.mode": "all"},
-    {"name": "effects-static", "effects.mode": "static"},
+    # the model-terms axis: decided by evidence (the base), every term on every Gaussian, static only
+    {"name": "model-terms-all", "model_terms.mode": "all"},
+    {"name": "model-terms-static", "model_terms.mode": "static"},
     {"name": "res-0.5", "scene.scale": 0.5},
     {"name": "iters-0.5x", "training.iterations": 0.5},
     {"name": "iters-2x", "training.iterations": 2.0},

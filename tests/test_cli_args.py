@@ -49,3 +49,16 @@ def test_bench_all_names_files_like_each_benchmark(monkeypatch, tmp_path, capsys
     assert outs[bench_cli.BENCHES["train-step"]] == f"{tmp_path}/train_step.json"
     assert main(["bench", "all", "--help"]) == 0
     assert "one after the other" in capsys.readouterr().out
+
+
+def test_the_former_effects_flag_is_read_as_model_terms_with_a_note(capsys):
+    import json
+
+    assert main(["run", "tiny", "--effects", "static", "--print-config"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["config"]["model_terms"]["mode"] == "static"
+    assert err.strip().splitlines()[-1] == "fixer4d run: --effects is now called --model-terms; read as --model-terms"
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    shown = capsys.readouterr().out
+    assert "--model-terms" in shown and "--effects" not in shown

@@ -49,13 +49,13 @@ def depth_clouds(scene, stride: int = INIT_STRIDE, frames: list[int] | None = No
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    if args.effects:
-        return _effects_main(args)
+    if args.model_terms:
+        return _terms_main(args)
     return _iteration_main(args)
 
 
 def _parser() -> argparse.ArgumentParser:
-    """The command line of ``fixer4d bench iteration`` (plain timing, or --effects)."""
+    """The command line of ``fixer4d bench iteration`` (plain timing, or --model-terms)."""
     parser = argparse.ArgumentParser(prog="fixer4d bench iteration", description=__doc__.splitlines()[0])
     parser.add_argument("--scene", default="demo")
     parser.add_argument("--scale", type=float, default=1.0, help="image scale of the scene")
@@ -64,12 +64,13 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--backend", default="auto")
     parser.add_argument("--max-points", type=int, default=None, help="init point cap (default: TrainingConfig's)")
     parser.add_argument("--out", default="benchmarks/results/iteration.json")
-    parser.add_argument("--effects", action="store_true",
-                        help="instead: seconds per iteration with effects auto vs all vs the per-frame init "
-                             "(decomposed MVS init of every --init-stride-th frame; see effects_comparison)")
-    parser.add_argument("--init", default=None, help="with --effects: a decomposed init folder to reuse "
+    parser.add_argument("--model-terms", action="store_true",
+                        help="instead: seconds per iteration with model terms auto vs all vs the per-frame init "
+                             "(decomposed MVS init of every --init-stride-th frame; see terms_comparison)")
+    parser.add_argument("--effects", action="store_true", dest="model_terms", help=argparse.SUPPRESS)  # former name
+    parser.add_argument("--init", default=None, help="with --model-terms: a decomposed init folder to reuse "
                                                      "(default: computed into a temporary folder)")
-    parser.add_argument("--init-stride", type=int, default=4, help="with --effects: init frame stride (the pipeline's)")
+    parser.add_argument("--init-stride", type=int, default=4, help="with --model-terms: init frame stride (the pipeline's)")
     parser.add_argument("--frames", default=None, metavar="A:B",
                         help="the clip, half-open (the run's frame_range, e.g. 0:30 for the README's Panoptic "
                              "command; an --init's times are clip times)")
@@ -143,24 +144,24 @@ def _iteration_main(args) -> int:
     return 0
 
 
-# Rows of the effects comparison: name -> (use the decomposed init?, effects mode).
-EFFECT_ROWS = {"per_frame_all": (False, None), "decomposed_all": (True, "all"), "decomposed_auto": (True, "auto")}
+# Rows of the model-terms comparison: name -> (use the decomposed init?, model-terms mode).
+TERM_ROWS = {"per_frame_all": (False, None), "decomposed_all": (True, "all"), "decomposed_auto": (True, "auto")}
 
 
-def effects_comparison(scene, init, cfg, iterations: int, warmup: int) -> dict:
+def terms_comparison(scene, init, cfg, iterations: int, warmup: int) -> dict:
     """Seconds per stage-1 iteration of the same scene and init at equal settings (``cfg``),
-    with every effect on vs effects by evidence, measured in one process and interleaved
+    with every term on vs terms by evidence, measured in one process and interleaved
     step by step (so a load change on a shared machine hits every row alike).
 
-    init: a DecomposedInit. Rows (EFFECT_ROWS): the per-frame clouds (static cloud repeated in
-    every init frame, every Gaussian dynamic with the default effects: the path before the
+    init: a DecomposedInit. Rows (TERM_ROWS): the per-frame clouds (static cloud repeated in
+    every init frame, every Gaussian dynamic with the default terms: the path before the
     decomposition), the decomposed init with mode all, and with mode auto. Densification is
     off inside the timed loop (it would change N). Returns {row: {seconds_per_iteration,
     num_gaussians, num_dynamic, config, split_seconds}} plus ratios against auto.
     """
     import time
 
-    from fixer4d.model.effects import EffectsConfig
+    from fixer4d.model.terms import ModelTermsConfig
     from fixer4d.train.model_init import model_from_init
     from fixer4d.train.trainer import Trainer
 
@@ -168,10 +169,10 @@ def effects_comparison(scene, init, cfg, iterations: int, warmup: int) -> dict:
         for c in scene.train_ids:
             scene.frame(f, c)
     trainers = {}
-    for name, (decomposed, mode) in EFFECT_ROWS.items():
+    for name, (decomposed, mode) in TERM_ROWS.items():
         src = init if decomposed else init.frame_clouds()
-        eff = EffectsConfig(mode=mode, revise=False) if mode else None
-        model, _ = model_from_init(src, scene, cfg, eff)
+        terms = ModelTermsConfig(mode=mode, revise=False) if mode else None
+        model, _ = model_from_init(src, scene, cfg, terms)
         trainers[name] = Trainer(model, scene, cfg)
     for _ in range(warmup):
         for t in trainers.values():
@@ -201,7 +202,7 @@ def _clip(frames: str | None) -> tuple[int, int] | None:
     return None if frames is None else tuple(parse_frame_range(frames))
 
 
-def _effects_main(args) -> int:
+def _terms_main(args) -> int:
     import os
     import tempfile
 
@@ -228,7 +229,7 @@ def _effects_main(args) -> int:
     result = {"benchmark": "iteration-effects", "scene": scene.name, "frame_range": clip, "init_frames": frames,
               "iterations": args.iterations, "warmup": args.warmup, "init_max_points": cfg.init_max_points,
               "torch_threads": torch.get_num_threads(), "load_average": list(os.getloadavg()),
-              **effects_comparison(scene, init, cfg, args.iterations, args.warmup)}
+              **terms_comparison(scene, init, cfg, args.iterations, args.warmup)}
     result["load_average_after"] = list(os.getloadavg())
     for name, r in result["rows"].items():
         print(f"{name:<18}{r['seconds_per_iteration']:>9.4f} s/it  {r['num_gaussians']:>7} Gaussians "

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from typing import Any
 
 
@@ -15,6 +16,19 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
                              "see --print-config for every key")
     parser.add_argument("--print-config", action="store_true",
                         help="print the resolved config (every key, validated) and exit without running")
+
+
+class FormerFlag(argparse.Action):
+    """A flag under its former name (hidden from --help): its value goes where the current flag's
+    does, with a one-line note on stderr naming the current flag."""
+
+    def __init__(self, option_strings, dest, current: str, **kwargs) -> None:
+        super().__init__(option_strings, dest, help=argparse.SUPPRESS, **kwargs)
+        self.current = current
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        print(f"{parser.prog}: {option_string} is now called {self.current}; read as {self.current}", file=sys.stderr)
+        setattr(namespace, self.dest, values)
 
 
 def add_keep_checkpoints_argument(parser: argparse.ArgumentParser) -> None:

@@ -4,9 +4,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fixer4d.cli.config_args import (add_config_arguments, add_keep_checkpoints_argument, add_paper_stage2_argument,
-                                     frame_range_override, maybe_print_config, paper_stage2_overrides,
-                                     resolve_from_args)
+from fixer4d.cli.config_args import (FormerFlag, add_config_arguments, add_keep_checkpoints_argument,
+                                     add_paper_stage2_argument, frame_range_override, maybe_print_config,
+                                     paper_stage2_overrides, resolve_from_args)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,9 +22,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--init", choices=["mvs", "sparse"], default=None, help="initialization of the main model")
     parser.add_argument("--restorer", choices=["learned", "warp", "cogvideo"], default=None,
                         help="stage-2 restorer (learned: trained per scene on its own train cameras)")
-    parser.add_argument("--effects", choices=["auto", "all", "static"], default=None,
-                        help="spacetime effects: decided by evidence (auto, default), all, or static only; force "
-                             "one with --set effects.motion_degree=N (sh_degree, rotation_velocity, temporal_opacity)")
+    parser.add_argument("--model-terms", choices=["auto", "all", "static"], default=None,
+                        help="the model's optional terms (motion, view dependence, rotation velocity, temporal "
+                             "opacity, camera response): decided by evidence (auto, default), all, or static only; "
+                             "force one with --set model_terms.motion_degree=N (sh_degree, rotation_velocity, "
+                             "temporal_opacity, camera_response)")
+    parser.add_argument("--effects", action=FormerFlag, current="--model-terms", dest="model_terms",
+                        choices=["auto", "all", "static"])
     parser.add_argument("--no-baseline", action="store_true", help="skip the STGS w/ COLMAP baseline row")
     add_paper_stage2_argument(parser)
     parser.add_argument("--eval-stride", type=int, default=None, help="evaluate every S-th frame")
@@ -59,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
              "training.iterations": args.iterations, "stage2.rounds": args.rounds,
              "stage2.refresh_every": args.refresh_every, "stage2.lambda_gen": args.lambda_gen,
              "init.method": args.init, "eval.stride": args.eval_stride, "restorer.kind": args.restorer,
-             "effects.mode": args.effects,
+             "model_terms.mode": args.model_terms,
              "baseline_sparse": False if args.no_baseline else None,
              "segments.frames": args.segment_frames, "executor.kind": args.executor,
              "executor.ray_address": args.ray_address,

@@ -11,7 +11,7 @@
                reprojection residual is within MOTION_FIT_TOL_PX), velocity / acceleration / jerk
                seeds and a local rigid fit (angular velocity) over the point's neighbours
     evidence = per static point, the colour spread across the train views (exposure-corrected):
-               the view-dependent residual that decides the SH degree (fixer4d.model.effects)
+               the view-dependent residual that decides the SH degree (fixer4d.model.terms)
 
 Cost: the static plane sweep runs once for the clip; the per-frame sweeps cover only the moving
 regions' boxes (15% of the demo's pixels, 34% of Panoptic's), so a clip costs about one

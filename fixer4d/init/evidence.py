@@ -1,4 +1,4 @@
-"""Colour evidence from the static points the train views share (fixer4d.model.effects decides
+"""Colour evidence from the static points the train views share (fixer4d.model.terms decides
 from it): per point, how much its colour changes across the views that see it with each camera's
 exposure removed (the SH degree); per view, that exposure itself (the camera response,
 fixer4d.model.camera_response.view_gains)."""

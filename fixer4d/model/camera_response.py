@@ -1,4 +1,4 @@
-"""Per-train-camera colour response: the effect "the cameras do not agree on colour".
+"""Per-train-camera colour response: the model term for "the cameras do not agree on colour".
 
 Real rigs expose and white-balance each camera on its own; the same surface then has another
 colour in every train view, and a model that must reproduce all four splits the difference with
@@ -12,7 +12,7 @@ the rig's mean colour (what a held-out camera of the same rig is closest to on a
 camera is singled out as the reference. Renders at other cameras (held-out, pseudo-views, the
 viewer, exports) are the model's own colours, without any response.
 
-On or off is an evidence decision (``decide``), like the other effects (fixer4d.model.effects):
+On or off is an evidence decision (``decide``), like the other model terms (fixer4d.model.terms):
 per-view gains measured on static points that several train views see (``view_gains``) must
 differ from one another beyond what the measurement's own noise explains.
 """

@@ -4,7 +4,7 @@ PLY: binary little-endian, one ``vertex`` element with the STGS lite field names
 x, y, z, trbf_center, trbf_scale, motion_0..8, omega_0..3, f_dc_0..2, [f_rest_*], opacity,
 scale_0..2, rot_0..3, a uint8 ``dynamic`` field and, when the model has frozen rows (another
 segment's shared static Gaussians), a uint8 ``frozen`` field. Every STGS field is always written, so other
-STGS tools load any fixer4d model: effects the model does not have are written as their neutral
+STGS tools load any fixer4d model: terms the model does not have are written as their neutral
 values (zero motion/omega, t_center 0 and a temporal log-scale of ``NEUTRAL_TRBF_SCALE``). The
 model config travels in a ``comment fixer4d {...}`` header line; a PLY without it is another
 tool's and is read by ``fixer4d.model.formats.foreign`` (STGS lite, 3DGS, or a refusal naming its

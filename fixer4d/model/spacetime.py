@@ -1,4 +1,4 @@
-"""Spacetime Gaussians, STGS "lite" parameterization with switchable effects (docs/design.md §9).
+"""Spacetime Gaussians, STGS "lite" parameterization with switchable model terms (docs/design.md §9).
 
 At time t, with dt = t - t_center (per Gaussian):
 
@@ -8,7 +8,7 @@ At time t, with dt = t - t_center (per Gaussian):
     scale      = exp(log_scales)                         (time-independent)
     colour     = max(0.5 + SH(dir) . coeffs, 0)          (degree 0 = RGB, no view dependence; sh.py)
 
-An effect that is switched off in the ``ModelConfig`` has no Parameter at all, so the optimizer
+A term that is switched off in the ``ModelConfig`` has no Parameter at all, so the optimizer
 and ``at(t)`` pay nothing for it. Per Gaussian, the bool buffer ``dynamic`` marks which
 Gaussians use the time terms: ``at(t)`` evaluates them only on the dynamic index set and
 scatters the results, so its cost grows with the dynamic count, not the total.
@@ -56,7 +56,7 @@ _ALL_PARAMS = ("means", "log_scales", "quats", "opacity_logits", "colors", "sh_r
 
 @dataclass
 class ModelConfig:
-    """Which spacetime effects a model has (one per scene; docs/design.md §9).
+    """Which optional terms a model has (one per scene; docs/design.md §9).
 
     motion_degree: 0..3, polynomial degree of the mean's motion (0 = no motion Parameter).
     rotation_velocity: angular velocity omega (q + omega dt).
@@ -347,7 +347,7 @@ class SpacetimeGaussians(nn.Module):
 
         camera_center: (3,) world position used for view-dependent colour (sh_degree > 0); when
         None, or sh_degree == 0, colours are the view-independent DC term.
-        Static Gaussians (``dynamic`` False) and a config without time effects skip every time
+        Static Gaussians (``dynamic`` False) and a config without time terms skip every time
         term: their means/quats are the Parameters themselves and their opacity is sigmoid(o).
         """
         t = _checked_time(t)

@@ -3,7 +3,7 @@
     RunConfig
       scene         SceneConfig        which scene, scale, frame range
       init          InitConfig         (init/run.py) method mvs|sparse, plane sweep, fusion, ...
-      effects       EffectsConfig      (model/effects.py) auto|all|static + forced switches
+      model_terms   ModelTermsConfig   (model/terms.py) the model's optional terms: auto|all|static + forced switches
       training      TrainingConfig     (train/config.py) what every training of the run shares
       stage2        Stage2Config       (train/config.py) what stage 2 (restoration-guided refinement) adds
       trajectories  TrajectoryConfig   the novel trajectories restored in stage 2
@@ -18,7 +18,8 @@ A config is built from the defaults, then an optional config file (a ``config.js
 run or a hand-written partial one), then ``--set`` overrides (dotted keys). ``resolve`` does all
 three and the validation; the resolved tree is what ``config.json`` stores, with
 ``FORMAT_VERSION``. A section under its former name (``RENAMED_SECTIONS``: a config.json of an
-older run, an old config file, ``--set stage1.iterations=...``) still loads, with a one-line note.
+older run, an old config file, ``--set stage1.iterations=...`` or ``--set effects.mode=...``) still
+loads, with a one-line note.
 """
 from __future__ import annotations
 
@@ -30,7 +31,7 @@ from typing import Any
 
 from fixer4d.errors import InputError
 from fixer4d.init.run import InitConfig
-from fixer4d.model.effects import EffectsConfig
+from fixer4d.model.terms import ModelTermsConfig
 from fixer4d.pipeline import config_tree
 from fixer4d.pipeline.executors import ExecutorConfig
 from fixer4d.pipeline.segments import SegmentConfig
@@ -42,13 +43,14 @@ log = logging.getLogger("fixer4d.pipeline")
 
 # Version of the run-folder layout and config.json schema. 1: the first landing (config.json
 # {"scene", "pipeline"} or reconstruct's {"scene", "init", "stage1"}); 2: {"format_version",
-# "config": RunConfig} plus per-stage keys in stages.json; 3: section "stage1" renamed "training".
-FORMAT_VERSION = 3
+# "config": RunConfig} plus per-stage keys in stages.json; 3: section "stage1" renamed "training";
+# 4: section "effects" renamed "model_terms".
+FORMAT_VERSION = 4
 
 # Config sections renamed since they were written into run folders and config files: former name
 # -> name. The stage keys hash the sections' contents, not their names, so a renamed section
 # leaves every finished stage of an older run reusable.
-RENAMED_SECTIONS = {"stage1": "training"}
+RENAMED_SECTIONS = {"stage1": "training", "effects": "model_terms"}
 
 # The paper's stage 2 (`--paper-stage2`): every pseudo-view pixel supervised by the restored
 # frame with the restorer's confidence as weight, densified from every render, stage 2 run
@@ -138,7 +140,7 @@ class RunConfig:
 
     scene: SceneConfig = field(default_factory=SceneConfig)
     init: InitConfig = field(default_factory=InitConfig)
-    effects: EffectsConfig = field(default_factory=EffectsConfig)
+    model_terms: ModelTermsConfig = field(default_factory=ModelTermsConfig)
     training: TrainingConfig = field(default_factory=TrainingConfig)
     stage2: Stage2Config = field(default_factory=Stage2Config)
     trajectories: TrajectoryConfig = field(default_factory=TrajectoryConfig)

@@ -49,8 +49,9 @@ def init_key(config: RunConfig, method: str) -> str:
 
 def stage1_key(config: RunConfig, method: str) -> str:
     d = config.to_dict()
-    return stage_key("stage1", init_key(config, method), training_settings(d["training"]), config.seed, d["effects"],
-                     *shared_static_key(config))
+    # the sections' contents are hashed, not their names: "model_terms" (formerly "effects") keys as before
+    return stage_key("stage1", init_key(config, method), training_settings(d["training"]), config.seed,
+                     d["model_terms"], *shared_static_key(config))
 
 
 def shared_static_key(config: RunConfig) -> tuple[str, ...]:

@@ -64,7 +64,7 @@ def restorer_line(summary: dict[str, Any]) -> str:
 
 
 def camera_response_line(model: dict[str, Any]) -> str:
-    """The report's sentence on the per-camera colour response (``model`` = effects_report)."""
+    """The report's sentence on the per-camera colour response (``model`` = terms_report)."""
     reason = (model.get("reasons") or {}).get("camera_response")
     trained = model.get("camera_response")
     if trained is None:

@@ -135,9 +135,9 @@ class _Report:
                "numerics": numerics.status(), **self.checks,
                # where this run's trainings ran: a stage trained on another device has another key
                "training_device": device_kind(self.ctx.config.training.device, self.ctx.config.training.backend)}
-        effects = self.ctx.path / S.EFFECTS_NAME
-        if effects.is_file():  # the main model's effects and why
-            out["model"] = json.loads(effects.read_text())
+        terms = S.terms_path(self.ctx.path)
+        if terms.is_file():  # the main model's terms and why
+            out["model"] = json.loads(terms.read_text())
         return out
 
     def seconds(self, *stages: str) -> dict[str, float]:
@@ -250,15 +250,15 @@ def segment_config(config: RunConfig, start: int, stop: int, shared: tuple[Path,
     import dataclasses
 
     offset = 0 if config.scene.frame_range is None else config.scene.frame_range[0]
-    effects = config.effects
+    terms = config.model_terms
     segments = dataclasses.replace(config.segments, frames=None, static_from=None)
     if shared is not None:
         # the shared rows carry the first segment's view dependence: every segment keeps its SH degree
         segments = dataclasses.replace(segments, static_from=str(shared[0]))
-        effects = dataclasses.replace(effects, sh_degree=shared[1])
+        terms = dataclasses.replace(terms, sh_degree=shared[1])
     # the segments already run in parallel on the executor: inside one, restore jobs run locally
     return dataclasses.replace(config, scene=dataclasses.replace(config.scene, frame_range=(offset + start, offset + stop)),
-                               segments=segments, effects=effects,
+                               segments=segments, model_terms=terms,
                                executor=dataclasses.replace(config.executor, kind="local"))
 
 
@@ -353,7 +353,7 @@ def _share_static(config: RunConfig, run_dir: Path, ranges, dirs: list[str], job
     shared_dir = Path(run_dir) / "segments" / SHARED_DIR
     summary = export_shared_static(Path(dirs[0]), shared_dir)
     if summary is None:
-        log.warning("the first segment has no static Gaussians (effects %s): nothing to share", config.effects.mode)
+        log.warning("the first segment has no static Gaussians (model terms %s): nothing to share", config.model_terms.mode)
         return None
     atomic.write_json(shared_dir / "summary.json", summary)
     for k in range(1, len(jobs)):

@@ -136,11 +136,11 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
     cfg1 = dataclasses.replace(config.training, progress=progress)
     if "stage1" not in parts.seconds:
         init = DecomposedInit.load(init_dir) if has_decomposed(init_dir) else load_frame_clouds(init_dir)
-        model, effects_decision = model_from_init(init, views, cfg1, config.effects)
+        model, terms_decision = model_from_init(init, views, cfg1, config.model_terms)
         response = (CameraResponse(len(views.train_ids))
-                    if effects_decision is not None and effects_decision.camera_response else None)
+                    if terms_decision is not None and terms_decision.camera_response else None)
         trainer = Trainer(model, views, cfg1, run_dir=out_dir / "stage1",
-                          effects=config.effects if effects_decision is not None else None, camera_response=response)
+                          terms=config.model_terms if terms_decision is not None else None, camera_response=response)
         model, seconds = _train(trainer, progress)
         save_ply(model, out_dir / FOLD_MODEL)
         atomic.write_json(out_dir / FOLD_RESPONSE, None if trainer.response is None else trainer.response.to_json())

@@ -64,7 +64,7 @@ def static_rows(model: SpacetimeGaussians) -> SpacetimeGaussians:
 def export_shared_static(segment_dir: Path, out_dir: Path) -> dict[str, int] | None:
     """The first segment's static rows -> ``out_dir``/{stage1,final}.ply (final only when that
     segment ran stage 2). Returns {"stage1": n, "final": m, "sh_degree": d}, or None when its
-    model has no static Gaussians (effects "all" makes every Gaussian dynamic): nothing to share."""
+    model has no static Gaussians (model terms "all" make every Gaussian dynamic): nothing to share."""
     from fixer4d.model.io import load_ply, save_ply
 
     segment_dir, out_dir = Path(segment_dir), Path(out_dir)

@@ -41,9 +41,20 @@ from fixer4d.pipeline.stage_cache import StageCache
 
 log = logging.getLogger("fixer4d.pipeline")
 
-# The stage-1 model's effects and why (Gaussians static/dynamic, degrees, switches, revisions),
+# The stage-1 model's terms and why (Gaussians static/dynamic, degrees, switches, revisions),
 # beside the model; the report's "model" section.
-EFFECTS_NAME = "model_effects.json"
+TERMS_NAME = "model_terms.json"
+# The same file as run folders made before the terms were called so name it: read when
+# TERMS_NAME is absent (``terms_path``), never written.
+FORMER_TERMS_NAME = "model_effects.json"
+
+
+def terms_path(run_dir: Path) -> Path:
+    """The model-terms file of ``run_dir``: TERMS_NAME, else the former name where only that
+    exists (a run folder, or a stage cache entry, from before the rename)."""
+    path = Path(run_dir) / TERMS_NAME
+    former = Path(run_dir) / FORMER_TERMS_NAME
+    return former if not path.is_file() and former.is_file() else path
 
 
 class StageFailed(InputError):
@@ -133,7 +144,7 @@ def init_stage(ctx: StageContext, method: str):
 
 def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
     """Stage 1 (STGS on the observed views) from ``clouds`` -> ``model_path``; resumes mid-stage."""
-    from fixer4d.model.effects import effects_report
+    from fixer4d.model.terms import terms_report
     from fixer4d.model.io import load_ply, save_ply
 
     key = stage1_key(ctx.config, method)
@@ -150,28 +161,28 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
     trainer.train()
     model = trainer.host_model()
     save_ply(model, model_path)
-    report = effects_report(model, decision, trainer.revisions)
+    report = terms_report(model, decision, trainer.revisions)
     if trainer.response is not None:
         report["camera_response"] = trainer.response.to_json()
-    atomic.write_json(model_path.parent / EFFECTS_NAME, report)
+    atomic.write_json(model_path.parent / TERMS_NAME, report)
     ctx.run.records.finish(name, key, time.perf_counter() - t0 + prior)
     _finished(ctx, model_path.parent, 1)
     if ctx.cache is not None:
-        ctx.cache.store(key, [model_path, model_path.parent / EFFECTS_NAME], ctx.run.records.seconds(name))
+        ctx.cache.store(key, [model_path, model_path.parent / TERMS_NAME], ctx.run.records.seconds(name))
     return model
 
 
 def stage1_trainer(ctx: StageContext, init, run_dir: Path | None):
-    """(Trainer, effects decision) exactly as ``stage1`` builds them: the model from ``init`` (a
-    decomposed init -> effects decided by evidence under ``config.effects``; per-frame clouds ->
-    every effect on), the run's TrainingConfig with its scaled schedule, effect revisions during
+    """(Trainer, model-terms decision) exactly as ``stage1`` builds them: the model from ``init`` (a
+    decomposed init -> terms decided by evidence under ``config.model_terms``; per-frame clouds ->
+    every term on), the run's TrainingConfig with its scaled schedule, term revisions during
     training. For callers that step the trainer themselves too (the viewer's live training).
     run_dir: where checkpoints go (None: none)."""
     from fixer4d.train.model_init import model_from_init
     from fixer4d.train.trainer import Trainer
 
     cfg = ctx.training_config()
-    model, decision = model_from_init(init, ctx.train_scene, cfg, ctx.config.effects)
+    model, decision = model_from_init(init, ctx.train_scene, cfg, ctx.config.model_terms)
     if ctx.config.segments.static_from is not None:
         from fixer4d.pipeline.shared_static import add_shared_static, load_shared
 
@@ -188,18 +199,18 @@ def stage1_trainer(ctx: StageContext, init, run_dir: Path | None):
 
         response = CameraResponse(len(ctx.train_scene.train_ids))
     trainer = Trainer(model, ctx.train_scene, cfg, run_dir=run_dir,
-                      effects=ctx.config.effects if decision is not None else None, camera_response=response)
+                      terms=ctx.config.model_terms if decision is not None else None, camera_response=response)
     return trainer, decision
 
 
 def stage1_response(ctx: StageContext):
-    """The camera response stage 1 trained (RUN/model_effects.json), to continue from in stage 2
+    """The camera response stage 1 trained (RUN/model_terms.json), to continue from in stage 2
     and the matched control; None when the scene's cameras agree on colour."""
     import json
 
     from fixer4d.model.camera_response import CameraResponse
 
-    path = ctx.path / EFFECTS_NAME
+    path = terms_path(ctx.path)
     saved = json.loads(path.read_text()).get("camera_response") if path.is_file() else None
     return None if saved is None else CameraResponse.from_json(saved)
 

@@ -14,7 +14,7 @@ import torch
 
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera, rig_extent
-from fixer4d.model.effects import EffectsConfig, EffectsDecision
+from fixer4d.model.terms import ModelTermsConfig, TermsDecision
 from fixer4d.model.initial_scales import knn_scales
 from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians
 from fixer4d.scene.base import MultiViewVideo
@@ -107,26 +107,26 @@ def _fallback_points(scene: MultiViewVideo, rng: np.random.Generator) -> tuple[n
 
 
 def model_from_init(init: Any, scene: MultiViewVideo, config: TrainingConfig,
-                    effects: EffectsConfig | None = None) -> tuple[SpacetimeGaussians, EffectsDecision | None]:
-    """The model of an init and the effect decision behind it.
+                    terms: ModelTermsConfig | None = None) -> tuple[SpacetimeGaussians, TermsDecision | None]:
+    """The model of an init and the model-terms decision behind it.
 
-    init: a DecomposedInit (fixer4d.init.decompose) -> effects decided by evidence
-    (fixer4d.model.effects.decide_effects; ``effects`` picks auto | all | static and forced
-    switches), or per-frame clouds -> ``model_from_clouds`` with the default effects on every
+    init: a DecomposedInit (fixer4d.init.decompose) -> terms decided by evidence
+    (fixer4d.model.terms.decide_terms; ``terms`` picks auto | all | static and forced
+    switches), or per-frame clouds -> ``model_from_clouds`` with the default terms on every
     Gaussian (decision None; e.g. the sparse baseline). A decomposed init with fewer than
     MIN_INIT_POINTS points takes the per-frame path too (random points, decision None).
     """
-    from fixer4d.model.effects import decide_effects, model_from_decomposed
+    from fixer4d.model.terms import decide_terms, model_from_decomposed
 
     if isinstance(init, (list, tuple)):
         return model_from_clouds(init, scene, config), None
     if init.num_static + init.num_dynamic < MIN_INIT_POINTS:
-        # nothing to decide effects from (e.g. a textureless capture): the per-frame path, whose
+        # nothing to decide the terms from (e.g. a textureless capture): the per-frame path, whose
         # degenerate init is topped up with random points like any other
-        log.warning("the decomposed init has %d point(s): training from random points with every effect on",
+        log.warning("the decomposed init has %d point(s): training from random points with every term on",
                     init.num_static + init.num_dynamic)
         return model_from_clouds(init.frame_clouds(), scene, config), None
-    decision = decide_effects(init, effects)
+    decision = decide_terms(init, terms)
     model = model_from_decomposed(init, decision, opacity=config.init_opacity, max_points=config.init_max_points,
                                   seed=config.seed)
     return model, decision

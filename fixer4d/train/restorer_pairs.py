@@ -96,7 +96,7 @@ def pair_request(model, views: TrainOnlyView, target: int, frame: int, backend: 
 
 def _init_model(init: Any, views: TrainOnlyView, cfg: TrainingConfig):
     """The leave-one-out model from the run's init: per-frame clouds, or a decomposed init
-    (static + moving parts, fixer4d.init.decompose) built with the default effects."""
+    (static + moving parts, fixer4d.init.decompose) built with the default model terms."""
     if isinstance(init, (list, tuple)):
         return model_from_clouds(list(init), views, cfg)
     return model_from_init(init, views, cfg)[0]

@@ -36,7 +36,7 @@ class StageSchedule:
     the model is densified at (1-based) steps from < s < until.
     opacity_reset_every: steps between opacity resets (while densifying), None = none; the size
     prunes apply only after the first reset, so there are none either without resets.
-    revises_effects: whether an auto-mode effects decision is revised on the density schedule.
+    revises_terms: whether an auto-mode model-terms decision is revised on the density schedule.
     lambda_gen, pseudo_batch: weight of the pseudo-view loss and cached frames per step; the
     stage draws pseudo-views when both are > 0.
     refresh_every, rounds: the restoration cache is refreshed at step 0 and every
@@ -53,7 +53,7 @@ class StageSchedule:
     densify_from: int
     densify_until: int
     opacity_reset_every: int | None
-    revises_effects: bool
+    revises_terms: bool
     lambda_gen: float = 0.0
     pseudo_batch: int = 0
     refresh_every: int = 1
@@ -66,7 +66,7 @@ class StageSchedule:
         return cls(stage=1, iterations=config.iterations, seed=config.seed, lr_means_init=config.lr_means_init,
                    lr_means_final=config.lr_means_final, densify_from=config.densify_from,
                    densify_until=config.densify_until, opacity_reset_every=config.opacity_reset_every,
-                   revises_effects=True)
+                   revises_terms=True)
 
     @classmethod
     def stage2(cls, config: TrainingConfig, stage2: Stage2Config) -> "StageSchedule":
@@ -77,7 +77,7 @@ class StageSchedule:
         until = int(stage2.densify_until_fraction * n)
         return cls(stage=2, iterations=n, seed=stage2.seed, lr_means_init=stage2.lr_means_init,
                    lr_means_final=stage2.lr_means_final, densify_from=min(config.densify_every, until),
-                   densify_until=until, opacity_reset_every=None, revises_effects=False,
+                   densify_until=until, opacity_reset_every=None, revises_terms=False,
                    lambda_gen=stage2.lambda_gen, pseudo_batch=stage2.batch_pseudo,
                    refresh_every=stage2.refresh_every, rounds=stage2.rounds,
                    densify_stats=stage2.densify_stats)

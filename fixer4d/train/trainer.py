@@ -41,8 +41,8 @@ from fixer4d.errors import InputError, NumericalError
 from fixer4d.geometry.camera import Camera
 from fixer4d.model.camera_response import RESPONSE_LR, RESPONSE_REG, CameraResponse
 from fixer4d.model.densify import DensifyStats, densify_and_prune, make_adam, reset_parameter
-from fixer4d.model.effect_revisions import TemporalStats, revise_effects
-from fixer4d.model.effects import EffectsConfig
+from fixer4d.model.term_revisions import TemporalStats, revise_terms
+from fixer4d.model.terms import ModelTermsConfig
 from fixer4d.model.snapshot import Snapshot
 from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians
 from fixer4d.psnr import psnr_from_mse
@@ -97,7 +97,7 @@ class Trainer:
     cache: the restoration cache (``entries(round)``, ``latest_round()``).
     refresh_cache: ``refresh_cache(model, round)`` re-renders and restores the trajectories into
       cache round ``round`` with the current model; None = use the cache as it is.
-    effects: the effects config whose auto decisions stage 1 revises (None: no revisions).
+    terms: the model-terms config whose auto decisions stage 1 revises (None: no revisions).
     camera_response: a CameraResponse over the train views, trained with the model: each train
       view's render passes through it before its loss (None: the cameras agree on colour).
 
@@ -110,7 +110,7 @@ class Trainer:
     def __init__(self, model: SpacetimeGaussians, scene: MultiViewVideo, config: TrainingConfig, *,
                  run_dir: str | Path | None = None, stage2: Stage2Config | None = None,
                  cache: PseudoCache | None = None, refresh_cache: RefreshFn | None = None,
-                 effects: EffectsConfig | None = None, camera_response: CameraResponse | None = None) -> None:
+                 terms: ModelTermsConfig | None = None, camera_response: CameraResponse | None = None) -> None:
         if len(scene.train_ids) < 1:
             raise InputError(f"{scene.name}: no train cameras to optimize on")
         if stage2 is not None and cache is None:
@@ -147,9 +147,9 @@ class Trainer:
         self.response_optimizer = (None if camera_response is None else
                                    torch.optim.Adam(camera_response.parameters(), lr=RESPONSE_LR))
         self.stats = DensifyStats.zeros(model.num_gaussians, self.device)
-        # effects revised on the density schedule (auto mode, stage 1): demote / split
-        self.revise = (self.schedule.revises_effects and effects is not None and effects.mode == "auto"
-                       and effects.revise)
+        # model terms revised on the density schedule (auto mode, stage 1): demote / split
+        self.revise = (self.schedule.revises_terms and terms is not None and terms.mode == "auto"
+                       and terms.revise)
         self.temporal_stats = TemporalStats.zeros(model.num_gaussians if self.revise else 0, device=self.device)
         self.revisions: dict[str, int] = {"demoted": 0, "split_dynamic": 0}
         self.history: list[dict[str, float]] = []
@@ -375,7 +375,7 @@ class Trainer:
                       t: float, timing: dict[str, float]) -> None:
         """Add the screen-space gradients of this step's renders ``outputs`` (at time ``t``), and
         the precomputed ``grads`` (gradient, camera, drawn), to the densification (and
-        effect-revision) statistics while the schedule densifies."""
+        term-revision) statistics while the schedule densifies."""
         tic = time.perf_counter()
         if self.schedule.gathers_stats(self.step_count):
             views = [(out.means2d.grad, cam, drawn) for out, cam, drawn in outputs] + list(grads)
@@ -455,7 +455,7 @@ class Trainer:
             # trustworthy than the real views that shaped the model)
             size_prunes = self.schedule.size_prunes_apply(s)
             if self.revise:
-                counts.update(self._revise_effects())
+                counts.update(self._revise_terms())
             counts.update(densify_and_prune(
                 self.model, self.optimizer, self.stats, extent=self.extent,
                 grad_threshold=cfg.densify_grad_threshold, percent_dense=cfg.percent_dense,
@@ -475,12 +475,12 @@ class Trainer:
             counts["opacity_reset"] = 1
         return counts
 
-    def _revise_effects(self) -> dict[str, int]:
-        """Demote / split effects (``fixer4d.model.effect_revisions.revise_effects``); the split rows get
+    def _revise_terms(self) -> dict[str, int]:
+        """Demote / split model terms (``fixer4d.model.term_revisions.revise_terms``); the split rows get
         empty densification statistics. Returns the counts of this round."""
         cfg = self.config
-        rev = revise_effects(self.model, self.optimizer, self.temporal_stats,
-                             grad_threshold=cfg.densify_grad_threshold, max_gaussians=cfg.max_gaussians)
+        rev = revise_terms(self.model, self.optimizer, self.temporal_stats,
+                           grad_threshold=cfg.densify_grad_threshold, max_gaussians=cfg.max_gaussians)
         for k, v in rev.items():
             self.revisions[k] += v
         if rev["split_dynamic"]:  # the new rows have no statistics yet

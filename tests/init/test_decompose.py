@@ -118,22 +118,22 @@ def test_decomposed_init_writes_its_files_and_report(tiny_run):
     assert dec.dyn_coeffs.shape == (dec.num_dynamic, 3, 3) and np.all(np.isfinite(dec.dyn_coeffs))
 
 
-def test_moving_object_scene_picks_dynamic_effects(tiny_run):
-    from fixer4d.model.effects import decide_effects
+def test_moving_object_scene_picks_dynamic_terms(tiny_run):
+    from fixer4d.model.terms import decide_terms
 
     _, out, _, _ = tiny_run
-    dec = decide_effects(D.DecomposedInit.load(out))
+    dec = decide_terms(D.DecomposedInit.load(out))
     assert dec.model_config.temporal_opacity and dec.model_config.motion_degree >= 1
     assert int(dec.dynamic_keep.sum()) >= 50
 
 
-def test_static_scene_picks_no_dynamic_effects(tmp_path):
-    from fixer4d.model.effects import decide_effects
+def test_static_scene_picks_no_dynamic_terms(tmp_path):
+    from fixer4d.model.terms import decide_terms
     from fixer4d.scene import load_scene
 
     scene = load_scene("static_matte", scale=0.4)
     run_init(scene, "mvs", tmp_path, frames=[0, 5, 9], config=_config(), progress=False)
-    dec = decide_effects(D.DecomposedInit.load(tmp_path))
+    dec = decide_terms(D.DecomposedInit.load(tmp_path))
     cfg = dec.model_config
     assert not cfg.has_time_terms and cfg.sh_degree == 0
     assert int(dec.dynamic_keep.sum()) == 0
@@ -141,8 +141,8 @@ def test_static_scene_picks_no_dynamic_effects(tmp_path):
 
 @pytest.fixture(scope="module")
 def spec_decisions(tmp_path_factory):
-    """Effects decided on the two specs that call for different effects (4 init frames, 64 planes)."""
-    from fixer4d.model.effects import decide_effects
+    """Model terms decided on the two specs that call for different terms (4 init frames, 64 planes)."""
+    from fixer4d.model.terms import decide_terms
     from fixer4d.scene import load_scene
 
     out = {}
@@ -152,11 +152,11 @@ def spec_decisions(tmp_path_factory):
         cfg.mvs.planes = 64
         folder = tmp_path_factory.mktemp(name)
         run_init(scene, "mvs", folder, frames=list(range(0, scene.num_frames, 3)), config=cfg, progress=False)
-        out[name] = decide_effects(D.DecomposedInit.load(folder))
+        out[name] = decide_terms(D.DecomposedInit.load(folder))
     return out
 
 
-def test_specs_pick_different_effects(spec_decisions):
+def test_specs_pick_different_terms(spec_decisions):
     slow, fast = spec_decisions["slow_rigid"].model_config, spec_decisions["fast_thin"].model_config
     # measured: slow_rigid (1, no rotation, temporal, SH 0); fast_thin (1, rotation, temporal, SH 0)
     assert slow.temporal_opacity and fast.temporal_opacity

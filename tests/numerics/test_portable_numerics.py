@@ -34,7 +34,7 @@ def _avx512_host() -> bool:
 
 
 def _env(mode: str, host: dict[str, str]) -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if k not in numerics.PORTABLE_ENV}
+    env = {k: v for k, v in os.environ.items() if k not in numerics.PORTABLE_ENV and k != numerics.ENV_SAVED}
     return {**env, **host, numerics.ENV_MODE: mode}
 
 
@@ -101,6 +101,20 @@ def test_a_tiny_pipeline_gives_the_same_model_and_report_on_two_emulated_hosts(t
     assert outputs[0][3] and outputs[1][3]
     assert outputs[0][0] == outputs[1][0] and outputs[0][1] == outputs[1][1]
     assert outputs[0][2] == outputs[1][2]
+
+
+def test_a_host_mode_child_of_a_portable_process_gets_the_environment_back(monkeypatch):
+    monkeypatch.delenv(numerics.ENV_SAVED, raising=False)
+    monkeypatch.setenv("OPENBLAS_CORETYPE", "SkylakeX")
+    monkeypatch.delenv("ATEN_CPU_CAPABILITY", raising=False)
+    monkeypatch.setenv(numerics.ENV_MODE, "portable")
+    numerics.apply()
+    assert os.environ["OPENBLAS_CORETYPE"] == "Haswell" and os.environ["ATEN_CPU_CAPABILITY"] == "avx2"
+    child = dict(os.environ)
+    child[numerics.ENV_MODE] = "host"
+    code = "import os, json, fixer4d; print(json.dumps([os.environ.get(k) for k in ('OPENBLAS_CORETYPE', 'ATEN_CPU_CAPABILITY')]))"
+    done = subprocess.run([sys.executable, "-c", code], env=child, capture_output=True, text=True, timeout=300)
+    assert json.loads(done.stdout.strip().splitlines()[-1]) == ["SkylakeX", None]
 
 
 def test_the_command_line_switches_numerics_in_a_fresh_process(tmp_path):

@@ -195,6 +195,54 @@ def test_a_run_folder_written_before_the_rename_resumes_under_the_same_keys(tmp_
     assert rewritten["format_version"] == FORMAT_VERSION and "training" in rewritten["config"]
 
 
+def test_an_effects_section_and_set_key_still_load_as_model_terms_with_a_note(tmp_path, caplog):
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps({"effects": {"mode": "static", "sh_degree": 0}}))
+    with caplog.at_level("WARNING", logger="fixer4d.pipeline"):
+        c = resolve("tiny", config_file=old)
+    assert (c.model_terms.mode, c.model_terms.sh_degree) == ("static", 0)
+    assert _notes(caplog) == [f"--config {old}: config section 'effects' is now called 'model_terms' "
+                              "(read as 'model_terms')"]
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="fixer4d.pipeline"):
+        c = resolve("tiny", overrides={"effects.mode": "all"})
+    assert c.model_terms.mode == "all"
+    assert _notes(caplog) == ["--set effects.mode: config section 'effects' is now called 'model_terms'; "
+                              "read as model_terms.mode"]
+    with pytest.raises(InputError, match="'effects' and 'model_terms' are the same section"):
+        resolve("tiny", config_file={"effects": {"mode": "all"}, "model_terms": {"mode": "auto"}})
+
+
+def test_a_run_folder_with_an_effects_section_resumes_under_the_same_keys(tmp_path, caplog):
+    """A run folder made before the model terms were called so: config.json with "effects" (and
+    "stage1"), model_effects.json beside the stage-1 model. It resumes under the keys it was made
+    with (a key hashes a section's contents, not its name) and its terms file is still read."""
+    from fixer4d.pipeline import stages
+    from fixer4d.pipeline.keys import stage1_key, stage2_key
+    from fixer4d.pipeline.run_folder import RunFolder
+
+    config = resolve("tiny", overrides={"training.iterations": 12, "model_terms.mode": "static"})
+    run = RunFolder.create(tmp_path / "run", config).path
+    stored = json.loads((run / "config.json").read_text())
+    stored["format_version"] = 2
+    former = {"training": "stage1", "model_terms": "effects"}
+    stored["config"] = {former.get(k, k): v for k, v in stored["config"].items()}
+    (run / "config.json").write_text(json.dumps(stored))
+    with caplog.at_level("WARNING", logger="fixer4d.pipeline"):
+        folder = RunFolder.create(run, config)  # the same configuration: resumes, nothing refused
+    assert len(_notes(caplog)) == 2 and folder.config == config
+    assert (stage1_key(folder.config, "mvs"), stage2_key(folder.config)) == (stage1_key(config, "mvs"), stage2_key(config))
+    rewritten = json.loads((run / "config.json").read_text())
+    assert rewritten["format_version"] == FORMAT_VERSION and "model_terms" in rewritten["config"]
+    assert "effects" not in rewritten["config"]
+
+    assert stages.terms_path(run) == run / "model_terms.json"  # neither file: the current name
+    (run / "model_effects.json").write_text(json.dumps({"mode": "static"}))
+    assert stages.terms_path(run) == run / "model_effects.json"  # only the former one: read it
+    (run / "model_terms.json").write_text(json.dumps({"mode": "auto"}))
+    assert stages.terms_path(run) == run / "model_terms.json"  # both: the current one wins
+
+
 def test_stage1config_is_a_deprecated_name_of_trainingconfig():
     import fixer4d.train.config as train_config
 

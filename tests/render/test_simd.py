@@ -1,6 +1,7 @@
-"""simd.prefer_512_bit_vectors: numba's float32 loops go 16 wide on AVX-512 hosts, and the
-switches that turn it off work. Each case runs in a fresh interpreter (numba reads its CPU
-features once per process)."""
+"""simd.prefer_512_bit_vectors: in host numerics (``FIXER4D_NUMERICS=host``) numba's float32
+loops go 16 wide on AVX-512 hosts, and the switches that turn it off work; in portable numerics
+(the default) they stay 8 wide on every host. Each case runs in a fresh interpreter (numba reads
+its CPU features once per process)."""
 from __future__ import annotations
 
 import json
@@ -37,7 +38,11 @@ print(json.dumps({"features": os.environ.get("NUMBA_CPU_FEATURES"), "zmm": "zmm"
 
 
 def _probe(**env) -> dict:
-    base = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CPU_FEATURES", "FIXER4D_NUMBA_AVX512")}
+    from fixer4d import numerics
+
+    base = {k: v for k, v in os.environ.items()
+            if k not in ("FIXER4D_NUMBA_AVX512", numerics.ENV_SAVED, *numerics.PORTABLE_ENV)}
+    env.setdefault(numerics.ENV_MODE, "host")
     out = subprocess.run([sys.executable, "-c", PROBE], env={**base, **env}, capture_output=True, text=True,
                          check=True, cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))))
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -61,3 +66,10 @@ def test_switch_off():
     assert res["features"] is None and res["zmm"] == plain["zmm"]
     if not HOST_AVX512:
         assert not res["zmm"]
+
+
+def test_portable_numerics_keep_8_lanes_on_every_host():
+    from fixer4d import numerics
+
+    res = _probe(**{numerics.ENV_MODE: "portable"})
+    assert res["features"] == numerics.NUMBA_FEATURES and not res["zmm"]

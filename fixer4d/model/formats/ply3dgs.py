@@ -105,7 +105,7 @@ def is_3dgs(names: set[str]) -> bool:
 
 
 def read_3dgs(vertex: np.ndarray, path: Path) -> SpacetimeGaussians:
-    """A static model (no time effects) from the ``vertex`` rows of a 3DGS PLY."""
+    """A static model (no time terms) from the ``vertex`` rows of a 3DGS PLY."""
     from fixer4d.errors import InputError
 
     names = set(vertex.dtype.names or ())

@@ -19,7 +19,7 @@ colour, which fixer4d stores as an SH DC coefficient: RGB c becomes (c - 0.5) / 
 clamps a colour below 0 to 0; STGS does not, so only negative RGB values (not produced by
 training towards images in [0, 1]) render differently. Every Gaussian is dynamic.
 
-Fields the file lacks get fixer4d's no-effect defaults: no motion_* fields -> no motion, no
+Fields the file lacks get fixer4d's neutral defaults: no motion_* fields -> no motion, no
 omega_* -> no angular velocity, no trbf_scale -> constant opacity, no trbf_center -> t_center 0.
 STGS's full model stores 9 feature channels (f_dc_0..8) decoded by an MLP saved beside the PLY;
 fixer4d cannot render those and refuses the file.
@@ -49,7 +49,7 @@ def is_reference(names: set[str]) -> bool:
 
 
 def config_for(names: set[str]) -> ModelConfig:
-    """The effects an STGS PLY's fields carry (absent fields: the effect is off)."""
+    """The model terms an STGS PLY's fields carry (absent fields: the term is off)."""
     motion_degree = max((d for d in range(1, MAX_MOTION_DEGREE + 1)
                          if all(f"motion_{i}" in names for i in range(3 * d))), default=0)
     return ModelConfig(motion_degree=motion_degree, rotation_velocity=all(f"omega_{i}" in names for i in range(4)),

@@ -1,4 +1,4 @@
-"""Stage 1 with effects decided by evidence: the model from a decomposed init trains, the
+"""Stage 1 with model terms decided by evidence: the model from a decomposed init trains, the
 revisions (demote / split) run on the density schedule and survive a resume exactly."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from fixer4d.init.decompose import DecomposedInit
-from fixer4d.model.effects import EffectsConfig
+from fixer4d.model.terms import ModelTermsConfig
 from fixer4d.train.model_init import model_from_init
 from fixer4d.train.trainer import Trainer
 
@@ -43,11 +43,11 @@ def _config(make_config):
 
 def test_auto_model_trains_and_records_revisions(small_scene, small_decomposed, make_config):
     cfg = _config(make_config)
-    model, decision = model_from_init(small_decomposed, small_scene, cfg, EffectsConfig())
+    model, decision = model_from_init(small_decomposed, small_scene, cfg, ModelTermsConfig())
     assert decision is not None and decision.model_config.temporal_opacity
     n_dyn = model.num_dynamic
     assert 0 < n_dyn < model.num_gaussians
-    trainer = Trainer(model, small_scene, cfg, effects=EffectsConfig())
+    trainer = Trainer(model, small_scene, cfg, terms=ModelTermsConfig())
     assert trainer.revise
     while trainer.step_count < trainer.total_iterations:
         rec = trainer.step()
@@ -62,18 +62,18 @@ def test_auto_model_trains_and_records_revisions(small_scene, small_decomposed, 
 
 def test_revisions_are_off_outside_auto(small_scene, small_decomposed, make_config):
     cfg = _config(make_config)
-    for eff in (EffectsConfig(mode="all"), EffectsConfig(revise=False), None):
-        model, _ = model_from_init(small_decomposed, small_scene, cfg, eff)
-        assert not Trainer(model, small_scene, cfg, effects=eff).revise
+    for terms in (ModelTermsConfig(mode="all"), ModelTermsConfig(revise=False), None):
+        model, _ = model_from_init(small_decomposed, small_scene, cfg, terms)
+        assert not Trainer(model, small_scene, cfg, terms=terms).revise
 
 
 def test_resume_with_revisions_equals_uninterrupted(small_scene, small_decomposed, make_config, tmp_path):
     cfg = _config(make_config)
-    eff = EffectsConfig()
+    terms = ModelTermsConfig()
 
     def fresh(run_dir):
-        return Trainer(model_from_init(small_decomposed, small_scene, cfg, eff)[0], small_scene, cfg,
-                       run_dir=run_dir, effects=eff)
+        return Trainer(model_from_init(small_decomposed, small_scene, cfg, terms)[0], small_scene, cfg,
+                       run_dir=run_dir, terms=terms)
 
     straight = fresh(tmp_path / "a")
     straight.train()

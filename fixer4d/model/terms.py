@@ -1,6 +1,8 @@
-"""Which spacetime effects a scene and each Gaussian get, decided by evidence and recorded.
+"""The model terms: which optional terms of the spacetime model (motion, view dependence,
+rotation velocity, temporal opacity, camera response) a scene and each Gaussian get, decided by
+evidence and recorded.
 
-``effects = auto | all | static`` (EffectsConfig), with forced overrides (motion_degree,
+``model_terms.mode = auto | all | static`` (ModelTermsConfig), with forced overrides (motion_degree,
 sh_degree, rotation_velocity, temporal_opacity; None = decided):
 
 - auto: from the decomposed init (fixer4d.init.decompose.DecomposedInit)
@@ -20,11 +22,11 @@ sh_degree, rotation_velocity, temporal_opacity; None = decided):
 - every mode: camera response (an affine colour map per train camera, trained beside the
   Gaussians; fixer4d.model.camera_response) when the train cameras' colour gains, measured on
   the static points several of them see, differ beyond 2 % and beyond their noise.
-- all: every effect on every Gaussian (cubic motion, rotation velocity, temporal opacity, SH 1;
+- all: every term on every Gaussian (cubic motion, rotation velocity, temporal opacity, SH 1;
   the static cloud becomes clip-long dynamic Gaussians): the reference for speed and accuracy.
 - static: no time terms at all, the static cloud only.
 
-During stage 1 (``revise``) the decision is revised per Gaussian: fixer4d/model/effect_revisions.py.
+During stage 1 (``revise``) the decision is revised per Gaussian: fixer4d/model/term_revisions.py.
 
 Decisions are deterministic (no randomness; ties broken by fixed order).
 """
@@ -88,7 +90,7 @@ DYNAMIC_CAP_SHARE = 0.5
 
 
 @dataclass
-class EffectsConfig:
+class ModelTermsConfig:
     """mode: auto | all | static. Forced overrides (None = decided by ``mode``): motion_degree
     0..3, sh_degree 0..3, rotation_velocity, temporal_opacity; camera_response (None = decided by
     the cameras' measured colour gains in every mode, fixer4d.model.camera_response). revise:
@@ -104,9 +106,9 @@ class EffectsConfig:
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
-            raise InputError(f"effects mode {self.mode!r}; choose one of {list(MODES)}")
+            raise InputError(f"model_terms mode {self.mode!r}; choose one of {list(MODES)}")
         if self.motion_degree is not None and not 0 <= int(self.motion_degree) <= MAX_MOTION_DEGREE:
-            raise InputError(f"effects motion_degree must be in 0..{MAX_MOTION_DEGREE} or None, got {self.motion_degree}")
+            raise InputError(f"model_terms motion_degree must be in 0..{MAX_MOTION_DEGREE} or None, got {self.motion_degree}")
 
     @property
     def forced(self) -> dict[str, Any]:
@@ -119,7 +121,7 @@ class EffectsConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any] | str | None) -> "EffectsConfig":
+    def from_dict(cls, d: dict[str, Any] | str | None) -> "ModelTermsConfig":
         if d is None:
             return cls()
         if isinstance(d, str):
@@ -128,8 +130,8 @@ class EffectsConfig:
 
 
 @dataclass
-class EffectsDecision:
-    """The decided effects of one scene.
+class TermsDecision:
+    """The decided model terms of one scene.
 
     model_config: the scene's switches. dynamic_keep: (M,) which moving points become dynamic
     Gaussians. point_degree: (M,) per-point motion degree used for seeding (<= the scene's).
@@ -156,7 +158,7 @@ def _lifetime(init) -> float:
 
 @dataclass
 class _Switches:
-    """The scene's switches and the per-point choices while ``decide_effects`` settles them."""
+    """The scene's switches and the per-point choices while ``decide_terms`` settles them."""
 
     motion: int
     rotation: bool
@@ -168,9 +170,9 @@ class _Switches:
     static_dynamic: bool = False
 
 
-def decide_effects(init, config: EffectsConfig | None = None) -> EffectsDecision:
-    """Decide the effects of a scene from its DecomposedInit (module docstring). Deterministic."""
-    config = config or EffectsConfig()
+def decide_terms(init, config: ModelTermsConfig | None = None) -> TermsDecision:
+    """Decide the model terms of a scene from its DecomposedInit (module docstring). Deterministic."""
+    config = config or ModelTermsConfig()
     M = init.num_dynamic
     ev: dict[str, Any] = {"static_points": init.num_static, "moving_points": M}
     reasons: dict[str, str] = {}
@@ -196,9 +198,9 @@ def decide_effects(init, config: EffectsConfig | None = None) -> EffectsDecision
         if M and config.mode != "static":
             reasons["dynamic"] = "the model has no time terms: moving points are left out (they would be ghosts)"
     response = _camera_response(init, config.camera_response, ev, reasons)
-    return EffectsDecision(mode=config.mode, model_config=cfg, dynamic_keep=sw.keep, point_degree=sw.point_degree,
-                           rotates=sw.rotates & sw.keep, static_dynamic=sw.static_dynamic and cfg.has_time_terms,
-                           reasons=reasons, evidence=ev, forced=forced, camera_response=response)
+    return TermsDecision(mode=config.mode, model_config=cfg, dynamic_keep=sw.keep, point_degree=sw.point_degree,
+                         rotates=sw.rotates & sw.keep, static_dynamic=sw.static_dynamic and cfg.has_time_terms,
+                         reasons=reasons, evidence=ev, forced=forced, camera_response=response)
 
 
 def _camera_response(init, forced: bool | None, ev: dict[str, Any], reasons: dict[str, str]) -> bool:
@@ -281,7 +283,7 @@ def _rotation(init, keep: np.ndarray, degree: np.ndarray, moving: bool, ev: dict
 
 
 def _apply_mode(sw: _Switches, mode: str, degree: np.ndarray, M: int, reasons: dict[str, str]) -> None:
-    """Mode "all": every effect on every Gaussian; "static": no time terms; "auto": as decided.
+    """Mode "all": every term on every Gaussian; "static": no time terms; "auto": as decided.
     degree: (M,) the moving points' track degrees."""
     if mode == "all":
         sw.motion, sw.rotation, sw.temporal, sw.sh = MAX_MOTION_DEGREE, True, True, SH_MAX_SUPPORTED
@@ -290,7 +292,7 @@ def _apply_mode(sw: _Switches, mode: str, degree: np.ndarray, M: int, reasons: d
         sw.rotates = degree >= 1
         sw.static_dynamic = True
         for k in ("motion_degree", "rotation_velocity", "temporal_opacity", "sh_degree"):
-            reasons[k] = "mode 'all': every effect on every Gaussian"
+            reasons[k] = "mode 'all': every term on every Gaussian"
     elif mode == "static":
         sw.motion, sw.rotation, sw.temporal = 0, False, False
         sw.keep = np.zeros(M, bool)
@@ -313,9 +315,9 @@ def _apply_forced(sw: _Switches, forced: dict[str, Any], reasons: dict[str, str]
         reasons[k] = f"forced to {v} by the config ({reasons.get(k, '')})"
 
 
-def model_from_decomposed(init, decision: EffectsDecision, *, opacity: float, max_points: int,
+def model_from_decomposed(init, decision: TermsDecision, *, opacity: float, max_points: int,
                           seed: int = 0) -> SpacetimeGaussians:
-    """Gaussians from a DecomposedInit and its EffectsDecision.
+    """Gaussians from a DecomposedInit and its TermsDecision.
 
     Static cloud -> static Gaussians (no time terms; clip-long dynamic ones in mode "all"),
     scales from 3-NN distances within the static cloud. Kept moving points -> dynamic Gaussians
@@ -370,8 +372,8 @@ def model_from_decomposed(init, decision: EffectsDecision, *, opacity: float, ma
     return model
 
 
-def effects_report(model: SpacetimeGaussians, decision: EffectsDecision | None,
-                   revisions: dict[str, int] | None = None) -> dict[str, Any]:
+def terms_report(model: SpacetimeGaussians, decision: TermsDecision | None,
+                 revisions: dict[str, int] | None = None) -> dict[str, Any]:
     """The ``model`` section of a run's report: Gaussians static/dynamic, the chosen degrees
     and switches, why, and the training revisions (demoted / split counts)."""
     cfg = model.config
@@ -385,7 +387,7 @@ def effects_report(model: SpacetimeGaussians, decision: EffectsDecision | None,
         out["frozen"] = model.num_frozen
     if decision is None:
         out.update(mode=None, reasons={"all": "per-frame clouds without decomposition: every Gaussian dynamic, "
-                                              "the default effects"})
+                                              "the default terms"})
     else:
         out.update(mode=decision.mode, reasons=dict(decision.reasons), evidence=_jsonable(decision.evidence),
                    forced=dict(decision.forced),

@@ -1,5 +1,5 @@
-"""Revisions of the effects during stage 1 (``EffectsConfig.revise``; the decision itself:
-fixer4d/model/effects.py).
+"""Revisions of the model terms during stage 1 (``ModelTermsConfig.revise``; the decision itself:
+fixer4d/model/terms.py).
 
 A dynamic Gaussian whose motion over the clip stays within DEMOTE_MOTION_SCALES of its own size
 and whose temporal opacity varies by less than DEMOTE_OPACITY_VARIATION is demoted to static; a
@@ -112,8 +112,8 @@ def promote_candidates(model: SpacetimeGaussians, stats: TemporalStats, grad_thr
 
 
 @torch.no_grad()
-def revise_effects(model: SpacetimeGaussians, optimizer, stats: TemporalStats, *, grad_threshold: float,
-                   max_gaussians: int) -> dict[str, int]:
+def revise_terms(model: SpacetimeGaussians, optimizer, stats: TemporalStats, *, grad_threshold: float,
+                 max_gaussians: int) -> dict[str, int]:
     """One revision step (module docstring): demote, then split hot static Gaussians into a
     time-local dynamic copy (within the ``max_gaussians`` budget, hottest first). Needs a model
     with temporal opacity to split; returns {"demoted": n, "split_dynamic": m}."""

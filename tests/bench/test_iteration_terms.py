@@ -1,4 +1,4 @@
-"""`fixer4d bench iteration --effects`: the three models it compares, and the clip it opens."""
+"""`fixer4d bench iteration --model-terms`: the three models it compares, and the clip it opens."""
 from __future__ import annotations
 
 import json
@@ -7,8 +7,8 @@ from fixer4d.bench.iteration import main
 from fixer4d.init.decompose import DecomposedInit
 
 
-def test_effects_rows_compare_the_init_at_its_own_size(tmp_path):
-    out = tmp_path / "effects.json"
+def test_terms_rows_compare_the_init_at_its_own_size(tmp_path):
+    out = tmp_path / "terms.json"
     init_dir = tmp_path / "init"
     from fixer4d.init import run_init
     from fixer4d.scene import load_scene
@@ -16,7 +16,7 @@ def test_effects_rows_compare_the_init_at_its_own_size(tmp_path):
     scene = load_scene("tiny", frame_range=(1, 4))
     run_init(scene, "mvs", init_dir, frames=[0, 1, 2], progress=False)
     init = DecomposedInit.load(init_dir)
-    assert main(["--effects", "--scene", "tiny", "--frames", "1:4", "--init-stride", "1", "--init", str(init_dir),
+    assert main(["--model-terms", "--scene", "tiny", "--frames", "1:4", "--init-stride", "1", "--init", str(init_dir),
                  "--max-points", "1000000", "--iterations", "1", "--warmup", "0", "--out", str(out)]) == 0
     result = json.loads(out.read_text())
     assert result["frame_range"] == [1, 4] and result["init_frames"] == [0, 1, 2]
@@ -32,9 +32,9 @@ def test_effects_rows_compare_the_init_at_its_own_size(tmp_path):
     assert set(result["speedup_auto_vs"]) == set(rows) and result["speedup_auto_vs"]["decomposed_auto"] == 1.0
 
 
-def test_effects_rows_at_a_binding_cap_hold_the_cap(tmp_path):
-    out = tmp_path / "effects.json"
-    assert main(["--effects", "--scene", "tiny", "--frames", "1:4", "--init-stride", "1", "--max-points", "500",
+def test_terms_rows_at_a_binding_cap_hold_the_cap(tmp_path):
+    out = tmp_path / "terms.json"
+    assert main(["--model-terms", "--scene", "tiny", "--frames", "1:4", "--init-stride", "1", "--max-points", "500",
                  "--iterations", "1", "--warmup", "0", "--out", str(out)]) == 0
     rows = json.loads(out.read_text())["rows"]
     assert {r["num_gaussians"] for r in rows.values()} == {500}

@@ -1,4 +1,4 @@
-"""Effects decided by evidence (fixer4d.model.effects) on hand-made decomposed inits."""
+"""Model terms decided by evidence (fixer4d.model.terms) on hand-made decomposed inits."""
 from __future__ import annotations
 
 import math
@@ -9,8 +9,8 @@ import torch
 
 from fixer4d.errors import InputError
 from fixer4d.init.decompose import DecomposedInit
-from fixer4d.model import effect_revisions as revisions
-from fixer4d.model import effects as E
+from fixer4d.model import term_revisions as revisions
+from fixer4d.model import terms as E
 from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians
 
 
@@ -43,8 +43,8 @@ def _init(n_static: int = 400, n_dyn: int = 0, degree: int = 1, rotating: float 
         dyn_rot_gain=gain.astype(np.float32), scene_scale=5.0)
 
 
-def test_static_scene_picks_no_dynamic_effect():
-    dec = E.decide_effects(_init(n_dyn=0))
+def test_static_scene_picks_no_dynamic_term():
+    dec = E.decide_terms(_init(n_dyn=0))
     cfg = dec.model_config
     assert (cfg.motion_degree, cfg.rotation_velocity, cfg.temporal_opacity, cfg.sh_degree) == (0, False, False, 0)
     assert not cfg.has_time_terms
@@ -54,7 +54,7 @@ def test_static_scene_picks_no_dynamic_effect():
 
 def test_moving_scene_picks_motion_and_temporal_opacity():
     init = _init(n_dyn=400, degree=2, rotating=0.3)
-    dec = E.decide_effects(init)
+    dec = E.decide_terms(init)
     cfg = dec.model_config
     assert cfg.motion_degree == 2 and cfg.temporal_opacity and cfg.rotation_velocity
     model = E.model_from_decomposed(init, dec, opacity=0.1, max_points=10_000)
@@ -70,28 +70,28 @@ def test_moving_scene_picks_motion_and_temporal_opacity():
 
 
 def test_linear_tracks_give_degree_one_without_rotation():
-    dec = E.decide_effects(_init(n_dyn=400, degree=1))
+    dec = E.decide_terms(_init(n_dyn=400, degree=1))
     assert dec.model_config.motion_degree == 1
     assert not dec.model_config.rotation_velocity
     assert "rotation_velocity" in dec.reasons and "motion_degree" in dec.reasons
 
 
 def test_view_dependent_static_points_switch_sh_on():
-    assert E.decide_effects(_init(view_std=0.2)).model_config.sh_degree == E.SH_MAX_SUPPORTED
-    assert E.decide_effects(_init(view_std=0.01)).model_config.sh_degree == 0
+    assert E.decide_terms(_init(view_std=0.2)).model_config.sh_degree == E.SH_MAX_SUPPORTED
+    assert E.decide_terms(_init(view_std=0.01)).model_config.sh_degree == 0
 
 
 def test_still_points_next_to_static_ones_are_duplicates():
     init = _init(n_dyn=200, degree=0)
     init.dyn_points = init.static_points[:200].copy()  # background caught by the dilated mask
-    dec = E.decide_effects(init)
+    dec = E.decide_terms(init)
     assert int(dec.dynamic_keep.sum()) == 0 and dec.evidence["duplicates_of_static"] == 200
     assert not dec.model_config.has_time_terms
 
 
 def test_decisions_are_deterministic():
-    a = E.decide_effects(_init(n_dyn=400, degree=2, rotating=0.3, seed=3))
-    b = E.decide_effects(_init(n_dyn=400, degree=2, rotating=0.3, seed=3))
+    a = E.decide_terms(_init(n_dyn=400, degree=2, rotating=0.3, seed=3))
+    b = E.decide_terms(_init(n_dyn=400, degree=2, rotating=0.3, seed=3))
     assert a.model_config == b.model_config and a.reasons == b.reasons
     assert np.array_equal(a.dynamic_keep, b.dynamic_keep) and np.array_equal(a.rotates, b.rotates)
     ma = E.model_from_decomposed(_init(n_dyn=400, seed=3), a, opacity=0.1, max_points=500, seed=7)
@@ -102,33 +102,33 @@ def test_decisions_are_deterministic():
 
 def test_forced_settings_override_the_evidence():
     init = _init(n_dyn=400, degree=2, rotating=0.3)
-    forced = E.EffectsConfig(motion_degree=1, sh_degree=2, rotation_velocity=False, temporal_opacity=True)
-    dec = E.decide_effects(init, forced)
+    forced = E.ModelTermsConfig(motion_degree=1, sh_degree=2, rotation_velocity=False, temporal_opacity=True)
+    dec = E.decide_terms(init, forced)
     assert dec.model_config == ModelConfig(motion_degree=1, rotation_velocity=False, temporal_opacity=True, sh_degree=2)
     assert set(dec.forced) == {"motion_degree", "sh_degree", "rotation_velocity", "temporal_opacity"}
     assert all("forced" in dec.reasons[k] for k in dec.forced)
     # forcing motion on a static scene gives time terms but still no dynamic Gaussian to use them
-    dec = E.decide_effects(_init(n_dyn=0), E.EffectsConfig(motion_degree=3))
+    dec = E.decide_terms(_init(n_dyn=0), E.ModelTermsConfig(motion_degree=3))
     assert dec.model_config.motion_degree == 3 and int(dec.dynamic_keep.sum()) == 0
 
 
 def test_modes_all_and_static():
     init = _init(n_dyn=400, degree=1)
-    dec = E.decide_effects(init, E.EffectsConfig(mode="all"))
+    dec = E.decide_terms(init, E.ModelTermsConfig(mode="all"))
     assert dec.model_config == ModelConfig(3, True, True, E.SH_MAX_SUPPORTED)
     model = E.model_from_decomposed(init, dec, opacity=0.1, max_points=10_000)
     assert model.num_dynamic == model.num_gaussians == 800
-    dec = E.decide_effects(init, E.EffectsConfig(mode="static"))
+    dec = E.decide_terms(init, E.ModelTermsConfig(mode="static"))
     assert not dec.model_config.has_time_terms
     model = E.model_from_decomposed(init, dec, opacity=0.1, max_points=10_000)
     assert model.num_dynamic == 0 and model.num_gaussians == 400
-    with pytest.raises(InputError, match="effects mode"):
-        E.EffectsConfig(mode="some")
+    with pytest.raises(InputError, match="model_terms mode"):
+        E.ModelTermsConfig(mode="some")
 
 
 def test_static_gaussians_skip_every_time_term():
     init = _init(n_dyn=400, degree=2, rotating=0.3)
-    model = E.model_from_decomposed(init, E.decide_effects(init), opacity=0.1, max_points=10_000)
+    model = E.model_from_decomposed(init, E.decide_terms(init), opacity=0.1, max_points=10_000)
     static = ~model.dynamic
     with torch.no_grad():  # give the static rows time parameters that would move them if used
         model.motion[static] = 5.0
@@ -143,15 +143,15 @@ def test_static_gaussians_skip_every_time_term():
 
 def test_point_cap_keeps_moving_points_first():
     init = _init(n_static=400, n_dyn=100, degree=1)
-    model = E.model_from_decomposed(init, E.decide_effects(init), opacity=0.1, max_points=300)
+    model = E.model_from_decomposed(init, E.decide_terms(init), opacity=0.1, max_points=300)
     assert model.num_gaussians == 300 and model.num_dynamic == 100
 
 
 def test_report_section_says_what_and_why():
     init = _init(n_dyn=400, degree=2, rotating=0.3)
-    dec = E.decide_effects(init)
+    dec = E.decide_terms(init)
     model = E.model_from_decomposed(init, dec, opacity=0.1, max_points=10_000)
-    rep = E.effects_report(model, dec, {"demoted": 3, "split_dynamic": 1})
+    rep = E.terms_report(model, dec, {"demoted": 3, "split_dynamic": 1})
     import json
 
     json.dumps(rep)
@@ -174,7 +174,7 @@ def test_demotion_of_gaussians_that_neither_move_nor_fade():
         model.motion[1] = torch.tensor([1.0, 0.0, 0.0])  # moves 0.5 >> 0.05 (half its size)
         model.t_log_scale[2] = math.log(0.1)  # time-local
     assert revisions.demote_candidates(model).tolist() == [True, False, False]
-    counts = revisions.revise_effects(model, None, revisions.TemporalStats.zeros(3), grad_threshold=2e-4, max_gaussians=100)
+    counts = revisions.revise_terms(model, None, revisions.TemporalStats.zeros(3), grad_threshold=2e-4, max_gaussians=100)
     assert counts == {"demoted": 1, "split_dynamic": 0}
     assert model.dynamic.tolist() == [False, True, True]
 
@@ -192,7 +192,7 @@ def test_static_gaussian_with_a_time_local_residual_is_split():
         for _ in range(4):
             stats.update(grad * (1.0 if t == 0.6 else 0.0) + torch.tensor([[0.0, 0.0], [1e-2, 0.0], [0, 0], [0, 0]]),
                          torch.ones(4), 100, 100, t)
-    counts = revisions.revise_effects(model, None, stats, grad_threshold=2e-4, max_gaussians=100)
+    counts = revisions.revise_terms(model, None, stats, grad_threshold=2e-4, max_gaussians=100)
     assert counts["split_dynamic"] == 1
     assert model.num_gaussians == 5 and model.dynamic.tolist() == [False, False, True, True, True]
     assert float(model.t_center.detach()[4]) == pytest.approx(2.5 / revisions.TEMPORAL_BINS)
@@ -200,5 +200,5 @@ def test_static_gaussian_with_a_time_local_residual_is_split():
     # no budget left: nothing is split
     full = _dyn_model(4)
     full.set_dynamic(torch.tensor([False, False, True, True]))
-    counts = revisions.revise_effects(full, None, stats, grad_threshold=2e-4, max_gaussians=4)
+    counts = revisions.revise_terms(full, None, stats, grad_threshold=2e-4, max_gaussians=4)
     assert counts["split_dynamic"] == 0 and full.num_gaussians == 4
