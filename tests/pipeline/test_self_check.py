@@ -85,7 +85,7 @@ def test_a_killed_check_resumes_to_the_same_decision(tmp_path, monkeypatch):
     class Killed(Exception):
         pass
 
-    step = Trainer.step
+    step = Trainer._step
     kill_at = {"stage 1": 25, "refine": 5}  # the fold's stage 1 after its checkpoint at 20, then stage 2
 
     def killing_step(self):
@@ -95,7 +95,7 @@ def test_a_killed_check_resumes_to_the_same_decision(tmp_path, monkeypatch):
             raise Killed(part)
         return step(self)
 
-    monkeypatch.setattr(Trainer, "step", killing_step)
+    monkeypatch.setattr(Trainer, "_step", killing_step)
     out = tmp_path / "killed"
     for part in ("stage 1", "refine"):
         try:
@@ -226,6 +226,7 @@ def test_the_measured_margin_asks_for_more_than_the_frames_spread():
     steady = {"skip": [20.0] * 4, "continue": [20.0] * 4, "refine": [20.3] * 4}
     assert decide({k: v[0] for k, v in steady.items()}, 0.1, margin="measured", frames=steady) == "refine"
     g = gains(frames)
-    assert g["refine"]["gain_db"] == 0.3 and abs(g["refine"]["se_db"] - 0.3) < 1e-9 and g["continue"]["se_db"] == 0.0
+    assert abs(g["refine"]["gain_db"] - 0.3) < 1e-9 and abs(g["refine"]["se_db"] - 0.3) < 1e-9
+    assert g["continue"]["se_db"] == 0.0
     # without per-frame figures (a fold from before they were kept) the measured rule is the fixed one
     assert decide(psnr, 0.1, margin="measured") == "refine"
