@@ -117,7 +117,7 @@ def test_restorer_with_the_prior_through_the_config(fake_wheel, monkeypatch):
     monkeypatch.setattr("fixer4d.restore.factory._restorer_of_kind", lambda config, weights_dir: inner)
     restorer = build_restorer(RestoreConfig.from_dict({"sr_prior": {"enabled": True}}))
     assert isinstance(restorer, SRPriorRestorer) and restorer.name == "fixed+sr_prior"
-    assert restorer.settings()["sr_prior"]["model"] == "realesrgan-x4plus"
+    assert restorer.settings()["sr_prior"]["model"] == "realesr-animevideov3-x2"
     out = restorer.restore(tiny_request())
     assert restorer.skipped is None
     assert np.array_equal(out.rgb[:, :9], inner.result.rgb[:, :9])
