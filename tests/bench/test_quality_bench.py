@@ -92,3 +92,10 @@ def test_the_readme_block_is_rewritten_from_the_summary(tmp_path):
     bare.write_text("no markers\n")
     with pytest.raises(SystemExit, match="no"):
         Q.write_block(bare, summary)
+
+
+def test_the_readme_table_is_generated_from_the_committed_result_files():
+    readme = (Q.REPO_ROOT / "README.md").read_text()
+    committed = Q.summarize(Q.DEFAULT_OUT)
+    assert committed, "no committed quality-bench result files"
+    assert Q.block(committed) in readme, "README's QUALITY block is stale: fixer4d bench quality --summary-only --readme README.md"
