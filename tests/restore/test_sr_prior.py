@@ -110,6 +110,16 @@ def test_the_wheel_is_called_as_its_api_expects(fake_wheel, model, index, scale)
     assert fake_wheel.instances[0].inputs == [("RGB", (round(25 / scale), round(18 / scale)))] * 2
 
 
+def test_a_loaded_prior_pickles_for_remote_workers(fake_wheel):
+    import pickle
+
+    restorer = SRPriorRestorer(FixedRestorer(_result(np.zeros((1, 12, 16), np.float32))), SRPriorConfig(enabled=True))
+    restorer.prior.sharpen(np.zeros((12, 16, 3), np.float32))
+    again = pickle.loads(pickle.dumps(restorer))
+    assert again.config == restorer.config and again.prior._model is None
+    np.testing.assert_allclose(again.restore(tiny_request()).rgb, FAKE_LEVEL / 255.0, atol=1e-6)
+
+
 def test_restorer_with_the_prior_through_the_config(fake_wheel, monkeypatch):
     conf = np.zeros((3, 18, 24), np.float32)
     conf[:, :9] = 1.0
