@@ -93,7 +93,7 @@ def _rows(record: dict[str, Any]) -> dict[str, dict[str, Any]]:
 def summarize_split(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """The summary of one camera split over its seeds' result files: per row and metric the
     ``interval``, and per pair of ``PAIRS`` and metric the interval of the per-seed differences
-    (seeds missing either row dropped)."""
+    (seeds missing either row dropped); ``failed``: the rows that failed in every seed."""
     per_seed = [_rows(r) for r in records]
     methods = [m for m in dict.fromkeys(k for rows in per_seed for k in rows)]
     rows = {m: {k: interval([rows[m].get(k) for rows in per_seed if m in rows]) for k in METRICS} for m in methods}
@@ -105,7 +105,10 @@ def summarize_split(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
         paired[label] = {k: interval([(r[a].get(k) - r[b].get(k)) if r[a].get(k) is not None and r[b].get(k) is not None
                                       else None for r in both]) for k in METRICS}
     decisions = [((r.get("self_check") or {}).get("decision") or "off") for r in records]
-    return {"seeds": [r.get("seed") for r in records], "rows": rows, "paired": paired, "self_check": decisions}
+    failed = sorted({r["method"] for rec in records for r in rec.get("rows", []) if r.get("status") == "failed"}
+                    - set(rows))
+    return {"seeds": [r.get("seed") for r in records], "rows": rows, "failed": failed, "paired": paired,
+            "self_check": decisions}
 
 
 # ---------------------------------------------------------------- records
@@ -228,7 +231,7 @@ def markdown(summary: dict[str, Any], link_prefix: str = "benchmarks/results/qua
         s = summary[split]
         label = f"*{split}*" if split.endswith("_val") else split
         seeds = ", ".join(str(x) for x in s["seeds"])
-        cells = [_fmt(s["rows"].get(r, {}).get("psnr")) for r in TABLE_ROWS]
+        cells = ["failed" if r in s.get("failed", ()) else _fmt(s["rows"].get(r, {}).get("psnr")) for r in TABLE_ROWS]
         paired = [_fmt(s["paired"].get(k, {}).get("psnr"), signed=True) for k in ("Full - STGS w/ MVS", "Full - matched")]
         checks = "/".join(sorted(set(s["self_check"])))
         lines.append(f"| [{label}]({link_prefix}{s['files'][0]}) ({seeds}) | " + " | ".join(cells + paired + [checks])

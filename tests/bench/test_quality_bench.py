@@ -36,7 +36,8 @@ def test_paired_differences_are_steadier_than_the_rows():
     assert s["rows"]["STGS w/ MVS"]["psnr"]["ci95"] > 2.0
     diff = s["paired"]["Full - STGS w/ MVS"]["psnr"]
     assert diff["mean"] == pytest.approx(0.2, abs=1e-9) and diff["ci95"] < 0.05
-    assert "STGS w/ COLMAP" not in s["rows"]  # a failed row has no figure to average
+    assert "STGS w/ COLMAP" not in s["rows"] and s["failed"] == ["STGS w/ COLMAP"]  # no figure to average
+    assert "| failed |" in Q.markdown({"demo": {**s, "files": ["demo_seed0.json"]}})
     assert s["self_check"] == ["skip", "skip", "refine"]
 
 
