@@ -55,7 +55,8 @@ def test_the_step_benchmark_times_fixer4d_and_the_bare_loop_on_the_cpu(benchmark
     assert result["device"] == "cpu" and result["gaussians"] == 300 and (result["width"], result["height"]) == (32, 24)
     times = result["s_per_step"]
     assert set(times) == {"fixer4d", "fixer4d_same_loss", "bare"} and all(t > 0 for t in times.values())
-    assert result["ratio_to_bare"] == round(times["fixer4d_same_loss"] / times["bare"], 3)
+    # the file's times are rounded to the microsecond, its ratio is of the unrounded ones
+    assert result["ratio_to_bare"] == pytest.approx(times["fixer4d_same_loss"] / times["bare"], rel=1e-2)
     assert result["cuda_syncs_per_step"] == dict.fromkeys(times)  # counted on CUDA only
 
 
