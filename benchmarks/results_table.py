@@ -13,9 +13,7 @@ A figure in a published table is one of these files' numbers, never typed by han
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -55,26 +53,9 @@ COLUMNS = (("STGS w/ COLMAP", "psnr"), ("STGS w/ MVS", "psnr"), ("STGS w/ MVS (m
 
 
 def record(run: Path, name: str, command: str, note: str | None) -> Path:
-    report = json.loads((run / "report.json").read_text())
-    # a run scored on other cameras (RUN/heldout/<folder>/) keeps its config in the run's folder
-    run_dir = run if (run / "config.json").is_file() else Path(report["run"])
-    config = json.loads((run_dir / "config.json").read_text())
-    # and its seconds per stage: those of the run that trained the scored models
-    stage_seconds = report.get("stage_seconds")
-    if not stage_seconds and (run_dir / "report.json").is_file():
-        stage_seconds = json.loads((run_dir / "report.json").read_text()).get("stage_seconds")
-    from fixer4d.bench.machine import cpu_topology
-    from fixer4d.pipeline.run_folder import source_commit
+    from fixer4d.bench.quality import record_run
 
-    cpu = cpu_topology()
-    # the code that ran (the run folder's own stamp) wins over the checkout at record time
-    out = {"name": name, "command": command, "note": note, "commit": config.get("source_commit") or source_commit(),
-           "date": datetime.date.today().isoformat(),
-           "machine": {"cores": os.cpu_count(), "cpu": cpu["cpu"], "cpu_family_model": [cpu.get("cpu_family"),
-                                                                                          cpu.get("model")],
-                       "load_average_at_record": list(os.getloadavg())},
-           "rows": report["rows"], "self_check": report.get("self_check"), "stage_seconds": stage_seconds,
-           "scene": report.get("scene"), "heldout_from": report.get("heldout_from"), "config": config}
+    out = record_run(run, name, command, note=note)
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / f"{name}.json"
     path.write_text(json.dumps(out, indent=1) + "\n")

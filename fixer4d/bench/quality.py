@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from fixer4d.stats import interval, student_t_quantile
+from fixer4d.stats import interval
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DATA_ROOT = REPO_ROOT.parent / "shared" / "data"
@@ -113,22 +113,15 @@ def summarize_split(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
 
 # ---------------------------------------------------------------- records
 
-def _git_commit() -> str | None:
-    try:
-        out = subprocess.run(["git", "-C", str(REPO_ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
-                             text=True, timeout=10)
-        dirty = subprocess.run(["git", "-C", str(REPO_ROOT), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10)
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return None if out.returncode else out.stdout.strip() + ("+changes" if dirty.stdout.strip() else "")
-
-
-def record_run(report_dir: Path, name: str, command: str, seed: int | None = None) -> dict[str, Any]:
+def record_run(report_dir: Path, name: str, command: str, seed: int | None = None,
+               note: str | None = None) -> dict[str, Any]:
     """A result record of the report in ``report_dir`` (a run folder, or a RUN/heldout/<folder>
     scored by ``fixer4d eval --cameras-from``): its rows and self-check, the run's config and
-    stage seconds, the command, seed, commit, date, CPU, load and numerics mode."""
+    stage seconds (those of the run that trained the scored models), the command, seed, note,
+    commit (the run folder's own stamp wins over the checkout at record time), date, CPU, load and
+    numerics mode."""
     from fixer4d.bench.machine import cpu_topology
+    from fixer4d.pipeline.run_folder import source_commit
 
     report = json.loads((report_dir / "report.json").read_text())
     run_dir = report_dir if (report_dir / "config.json").is_file() else Path(report["run"])
@@ -138,14 +131,15 @@ def record_run(report_dir: Path, name: str, command: str, seed: int | None = Non
         stage_seconds = json.loads((run_dir / "report.json").read_text()).get("stage_seconds")
     run_report = json.loads((run_dir / "report.json").read_text()) if (run_dir / "report.json").is_file() else report
     cpu = cpu_topology()
-    return {"name": name, "command": command, "seed": seed,
-            "commit": config.get("source_commit") or _git_commit(), "date": datetime.date.today().isoformat(),
+    return {"name": name, "command": command, "seed": seed, "note": note,
+            "commit": config.get("source_commit") or source_commit(), "date": datetime.date.today().isoformat(),
             "machine": {"cores": os.cpu_count(), "cpu": cpu["cpu"],
                         "cpu_family_model": [cpu.get("cpu_family"), cpu.get("model")],
                         "load_average_at_record": list(os.getloadavg())},
             "numerics": run_report.get("numerics") or report.get("numerics"),
             "rows": report["rows"], "self_check": report.get("self_check") or run_report.get("self_check"),
-            "stage_seconds": stage_seconds, "scene": report.get("scene"), "config": config}
+            "stage_seconds": stage_seconds, "scene": report.get("scene"), "heldout_from": report.get("heldout_from"),
+            "config": config}
 
 
 # ---------------------------------------------------------------- the bench

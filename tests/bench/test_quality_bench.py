@@ -8,17 +8,18 @@ from pathlib import Path
 
 import pytest
 
+from fixer4d import stats
 from fixer4d.bench import quality as Q
 
 
 def test_t_quantiles_and_intervals():
     for df, t in ((1, 12.7062), (2, 4.3027), (4, 2.7764), (30, 2.0423)):
-        assert Q.student_t_quantile(0.975, df) == pytest.approx(t, abs=1e-3)
-    iv = Q.interval([25.34, 24.57, 24.97, None])
+        assert stats.student_t_quantile(0.975, df) == pytest.approx(t, abs=1e-3)
+    iv = stats.interval([25.34, 24.57, 24.97, None])
     assert iv["n"] == 3 and iv["mean"] == pytest.approx(24.96)
     assert iv["sd"] == pytest.approx(0.3851, abs=1e-4)
     assert iv["ci95"] == pytest.approx(4.3027 * 0.3851 / math.sqrt(3), abs=1e-3)
-    assert Q.interval([1.0])["ci95"] is None and Q.interval([])["mean"] is None
+    assert stats.interval([1.0])["ci95"] is None and stats.interval([])["mean"] is None
 
 
 def _record(seed: int, mvs: float, full: float, matched: float, decision: str = "skip") -> dict:
