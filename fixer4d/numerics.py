@@ -61,11 +61,20 @@ _PIN_READERS = ("torch", "numpy", "numba", "cv2")
 
 
 def mode() -> str:
-    """The numerics mode asked for by ``FIXER4D_NUMERICS`` (default ``portable``)."""
+    """The numerics mode asked for by ``FIXER4D_NUMERICS`` (default ``portable``); ValueError for
+    any other value (the command line refuses it; ``in_effect`` falls back to portable)."""
     value = os.environ.get(ENV_MODE, "portable").strip().lower() or "portable"
     if value not in MODES:
         raise ValueError(f"{ENV_MODE}={value!r}: choose one of {', '.join(MODES)}")
     return value
+
+
+def in_effect() -> str:
+    """The mode this process runs in: ``mode()``, or portable where the asked value is not a mode."""
+    try:
+        return mode()
+    except ValueError:
+        return "portable"
 
 
 # The environment's own values of the pinned variables, kept while the pins stand in for them, so
@@ -82,7 +91,7 @@ def apply() -> list[str]:
     import json
 
     saved = os.environ.get(ENV_SAVED)
-    if mode() != "portable":
+    if in_effect() != "portable":
         if saved is not None:
             for key, value in json.loads(saved).items():
                 if value is None:
@@ -109,7 +118,7 @@ def status() -> dict[str, Any]:
     """What the libraries loaded so far actually use: ``{"mode", "portable": bool, ...}``.
     ``portable`` is True only when every loaded library follows its pin; a library not loaded yet
     is reported as None and will follow its pin when it loads."""
-    out: dict[str, Any] = {"mode": mode()}
+    out: dict[str, Any] = {"mode": in_effect()}
     checks: list[bool] = []
     if "torch" in sys.modules:
         import torch
@@ -154,4 +163,4 @@ def describe() -> str:
             f"was imported before fixer4d; import fixer4d first")
 
 
-__all__ = ["ENV_MODE", "ENV_SAVED", "MODES", "PORTABLE_ENV", "mode", "apply", "status", "describe"]
+__all__ = ["ENV_MODE", "ENV_SAVED", "MODES", "PORTABLE_ENV", "mode", "in_effect", "apply", "status", "describe"]

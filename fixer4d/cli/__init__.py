@@ -75,9 +75,14 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "_missing", None):
         print(f"fixer4d {args.verb}: not available in this build ({args._missing})", file=sys.stderr)
         return 2
-    if args.numerics is not None and args.numerics != numerics.mode():
+    if args.numerics is not None and args.numerics != numerics.in_effect():
         _restart_with_numerics(args.numerics, argv)
-    if numerics.mode() != "portable":
+    try:
+        numerics.mode()
+    except ValueError as exc:
+        print(f"fixer4d: error: {exc} (or unset it)", file=sys.stderr)
+        return 2
+    if numerics.in_effect() != "portable":
         print(f"fixer4d: {numerics.describe()}", file=sys.stderr)
     from fixer4d.signals import install_sigterm
 

@@ -72,10 +72,15 @@ def test_status_reports_a_library_loaded_before_the_pins():
         assert status["portable"] is False and status["numpy_avx512"]
 
 
-def test_an_unknown_mode_is_refused(monkeypatch):
+def test_an_unknown_mode_is_refused(monkeypatch, tmp_path):
     monkeypatch.setenv(numerics.ENV_MODE, "fast")
     with pytest.raises(ValueError, match="portable, host"):
         numerics.mode()
+    assert numerics.in_effect() == "portable" and numerics.status()["mode"] == "portable"
+    env = {**os.environ, numerics.ENV_MODE: "fast"}
+    done = subprocess.run([sys.executable, "-m", "fixer4d.cli", "eval", str(tmp_path)], env=env, capture_output=True,
+                          text=True, timeout=300)  # importing fixer4d works; the command refuses the value
+    assert done.returncode == 2 and "FIXER4D_NUMERICS='fast': choose one of portable, host" in done.stderr
 
 
 def test_a_tiny_pipeline_gives_the_same_model_and_report_on_two_emulated_hosts(tmp_path):
