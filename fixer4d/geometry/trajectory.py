@@ -77,7 +77,8 @@ class Trajectory:
     cameras (None for a custom or imported path); amplitude: the arc amplitude A in world units
     (0 for a straight pair path); arc_index: which diagonal arc (None for a pair path); seed: the
     seed A was drawn with (None when A was given); times: optional (F,) per-frame render times
-    in [0, 1) (None = render every frame at the clip time chosen by the caller).
+    in [0, 1) (None = render every frame at the clip time chosen by the caller); view_index: which
+    pick of ``geometry.view_candidates`` the path reaches (None for a pair path or arc).
     """
 
     name: str
@@ -88,6 +89,7 @@ class Trajectory:
     arc_index: int | None = None
     seed: int | None = None
     times: np.ndarray | None = field(default=None)
+    view_index: int | None = None
 
     def __post_init__(self) -> None:
         self.alphas = np.asarray(self.alphas, dtype=np.float64).reshape(-1)
@@ -112,6 +114,8 @@ class Trajectory:
         }
         if self.times is not None:
             d["times"] = self.times.tolist()
+        if self.view_index is not None:
+            d["view_index"] = int(self.view_index)
         return d
 
     @classmethod
@@ -129,7 +133,8 @@ class Trajectory:
                        pair=tuple(d["pair"]) if d.get("pair") is not None else None,
                        amplitude=float(d.get("amplitude", 0.0)),
                        arc_index=None if d.get("arc_index") is None else int(d["arc_index"]),
-                       seed=None if d.get("seed") is None else int(d["seed"]), times=d.get("times"))
+                       seed=None if d.get("seed") is None else int(d["seed"]), times=d.get("times"),
+                       view_index=None if d.get("view_index") is None else int(d["view_index"]))
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, InputError):
                 raise

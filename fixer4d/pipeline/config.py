@@ -88,12 +88,34 @@ class TrajectoryConfig:
     arcs: bool = True                # add the arcs on the two diagonal pairs
     seed: int = 0
     time_stride: int = 5             # restore clips every `time_stride` frames of the video
+    # pseudo-views where the model is undetermined (pipeline.undetermined_views): this many extra
+    # cameras per cache round, picked from an orbit pool around the rig by how much of their view
+    # the train cameras leave unobserved, each reached by a path from its nearest train camera.
+    # 0 = off: the pair paths and arcs only (docs/decisions/undetermined-views.md)
+    undetermined_views: int = 0
+    # the pool's elevations: the rig's own and this many degrees above and below it (a ring of
+    # cameras leaves the views from above and below its plane to no camera)
+    undetermined_elevation_deg: float = 20.0
+    # the pool's radii in train-camera distances to the centre: theirs and this one (the viewer
+    # starts 1.15x behind the rig; a viewer pulls back further to see the whole scene)
+    undetermined_radius: float = 1.3
+    # picks at least this far apart, seen from the centre: the visibility rule's full-observation
+    # angle (restore.visibility, 25 degrees), so two picks do not look at the same surfaces
+    undetermined_separation_deg: float = 25.0
 
     def __post_init__(self) -> None:
         if self.frames < 2:
             raise InputError(f"frames must be >= 2 (a clip needs both ends), got {self.frames}")
         if self.time_stride < 1:
             raise InputError(f"time_stride must be >= 1, got {self.time_stride}")
+        if self.undetermined_views < 0:
+            raise InputError(f"undetermined_views must be >= 0 (0 = off), got {self.undetermined_views}")
+        if not 0.0 <= self.undetermined_elevation_deg < 90.0:
+            raise InputError(f"undetermined_elevation_deg must be in [0, 90), got {self.undetermined_elevation_deg}")
+        if not self.undetermined_radius > 0:
+            raise InputError(f"undetermined_radius must be > 0, got {self.undetermined_radius}")
+        if not 0.0 <= self.undetermined_separation_deg <= 180.0:
+            raise InputError(f"undetermined_separation_deg must be in [0, 180], got {self.undetermined_separation_deg}")
 
 
 @dataclass

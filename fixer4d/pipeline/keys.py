@@ -13,7 +13,7 @@ from fixer4d.train.checkpoints import result_settings
 from fixer4d.train.device import device_kind
 
 __all__ = ["init_key", "stage1_key", "restorer_key", "stage2_key", "matched_key", "self_check_key",
-           "SELF_CHECK_DECISION_SETTINGS", "training_settings",
+           "SELF_CHECK_DECISION_SETTINGS", "training_settings", "trajectory_settings",
            "shared_static_key"]
 
 
@@ -72,7 +72,20 @@ def stage2_key(config: RunConfig) -> str:
     d = config.to_dict()
     fill = ("fill_background_tol", BACKGROUND_DEPTH_TOL) if config.stage2.fill_unobserved else ()
     return stage_key("stage2", stage1_key(config, config.init_method), d["stage2"], restorer_key(config),
-                     d["trajectories"], *fill)
+                     trajectory_settings(d["trajectories"]), *fill)
+
+
+def trajectory_settings(trajectories: dict[str, Any]) -> dict[str, Any]:
+    """The trajectories section as it enters the keys: the undetermined views' settings only while
+    they are on, so that a run with them off keeps the keys (and finished stages) it had before
+    they existed."""
+    if trajectories.get("undetermined_views", 0):
+        return trajectories
+    return {k: v for k, v in trajectories.items() if not k.startswith(UNDETERMINED_PREFIX)}
+
+
+# TrajectoryConfig fields of the undetermined views (pipeline.undetermined_views)
+UNDETERMINED_PREFIX = "undetermined_"
 
 
 def restorer_key(config: RunConfig) -> str:

@@ -2,7 +2,7 @@
 stage-2 cache refresh and the "restoration" evaluation rows. Restorers never render: the request
 built here carries every render they need (docs/design.md §11).
 
-Clips are named by scene camera ids everywhere (``RestoreCache.key(frame, cam_i, cam_j, arc)``).
+Clips are named by scene camera ids everywhere (``RestoreCache.key(frame, cam_i, cam_j, arc, view)``).
 """
 from __future__ import annotations
 
@@ -81,7 +81,9 @@ def _restore_job(job):
 
 def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, progress: bool = True,
                           backend: str = "auto", executor=None, restorer=None) -> Callable[[Any, int], None]:
-    """The stage-2 cache refresh: render every trajectory at every restored timestamp with the
+    """The stage-2 cache refresh: render every trajectory (the pair paths and arcs, and with
+    ``trajectories.undetermined_views`` the paths to the views the current model leaves most
+    undetermined, ``pipeline.undetermined_views``) at every restored timestamp with the
     current model, restore the clips (on ``executor``: local by default, Ray when configured),
     write them to RUN/cache/round_<r> (with ``stage2.pseudo_target = "gated"``, each restored frame
     blended into its render by confidence x unobserved weight first). Complete entries of a round are reused (a resumed run does
@@ -103,23 +105,27 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
     def refresh(model, round_index: int) -> None:
         from tqdm.auto import tqdm
 
-        todo = [(f, tr, ids) for f in frames for tr, ids in trajectories
-                if not cache.has(round_index, cache.key(f, ids[0], ids[1], tr.arc_index))]
+        from fixer4d.pipeline.undetermined_views import scoring_times, undetermined_trajectories, unobserved_weight_fn
+
+        clips = list(trajectories)
+        if config.trajectories.undetermined_views:  # picked anew each round, where the current model is undetermined
+            weight = unobserved_weight_fn(model, scene.train_cameras, config.stage2.visibility, backend)
+            clips += undetermined_trajectories(scene, config.trajectories, weight, scoring_times(scene, frames))
+        todo = [(f, tr, ids) for f in frames for tr, ids in clips
+                if not cache.has(round_index, clip_key(cache, f, tr, ids))]
         bar = tqdm(total=len(todo), desc=f"restore round {round_index}", unit="clip", disable=not progress,
                    leave=False)
         for start in range(0, len(todo), RESTORE_BATCH):
             batch = todo[start:start + RESTORE_BATCH]
             requests = [make_request(model, scene, tr.cameras, f, ids, backend=backend,
-                                     trajectory={"name": tr.name, "pair": list(ids), "amplitude": float(tr.amplitude),
-                                                 "arc_index": tr.arc_index},
-                                     visibility=config.stage2.visibility)
+                                     trajectory=clip_meta(tr, ids), visibility=config.stage2.visibility)
                         for f, tr, ids in batch]
             results = executor.map(_restore_job, [(restorer, req) for req in requests])
             if gated:  # the pseudo-target: restored where unobserved and trusted, the fallback elsewhere
                 results = [gate_restoration(req, res, config.stage2.visibility, config.stage2.fill_unobserved)
                            for req, res in zip(requests, results)]
             for (f, tr, ids), req, res in zip(batch, requests, results):
-                cache.write(round_index, cache.key(f, ids[0], ids[1], tr.arc_index), req, res,
+                cache.write(round_index, clip_key(cache, f, tr, ids), req, res,
                             {"restorer": restorer.name, "restorer_settings": restorer.settings(),
                              "restorer_kind": config.restorer.kind, "model_gaussians": int(model.num_gaussians),
                              "pseudo_target": config.stage2.pseudo_target})
@@ -127,6 +133,21 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
         bar.close()
 
     return refresh
+
+
+def clip_key(cache, frame: int, trajectory, ids: tuple[int, int]) -> str:
+    """The cache entry of ``trajectory``'s clip at ``frame`` (references ``ids``, scene camera ids)."""
+    return cache.key(frame, ids[0], ids[1], trajectory.arc_index, trajectory.view_index)
+
+
+def clip_meta(trajectory, ids: tuple[int, int]) -> dict[str, Any]:
+    """The request's trajectory metadata (kept in the cache entry); ``view_index`` only on the
+    path to an undetermined view, so the pair paths' entries read as before."""
+    meta = {"name": trajectory.name, "pair": list(ids), "amplitude": float(trajectory.amplitude),
+            "arc_index": trajectory.arc_index}
+    if trajectory.view_index is not None:
+        meta["view_index"] = int(trajectory.view_index)
+    return meta
 
 
 def gate_restoration(request, result, visibility: VisibilityConfig, fill: bool):

@@ -2,7 +2,7 @@
 
 Layout under the run folder (docs/design.md §11)::
 
-    cache/round_<r>/t<frame:04d>_<i>-<j>[_arc<k>]/
+    cache/round_<r>/t<frame:04d>_<i>-<j>[_arc<k> | _view<k>]/
         frame_0000.png ...   restored frames, 8-bit RGB
         confidence.npz       confidence (F, H, W) float16, frame_confidence (F,) float32
         meta.json            model step, restorer name + settings, trajectory (name, pair,
@@ -149,9 +149,12 @@ class RestoreCache:
 
     # ---- naming ------------------------------------------------------------------------
     @staticmethod
-    def key(frame: int, i: int, j: int, arc: int | None = None) -> str:
-        """Entry name of the clip at frame ``frame`` on the trajectory of pair (i, j) [arc k]."""
+    def key(frame: int, i: int, j: int, arc: int | None = None, view: int | None = None) -> str:
+        """Entry name of the clip at frame ``frame`` on the trajectory of pair (i, j) [arc k], or
+        on the path to undetermined view ``view`` whose references are (i, j)."""
         base = f"t{int(frame):04d}_{int(i)}-{int(j)}"
+        if view is not None:
+            return f"{base}_view{int(view)}"
         return base if arc is None else f"{base}_arc{int(arc)}"
 
     def round_dir(self, round: int) -> Path:
