@@ -342,11 +342,14 @@ class SpacetimeGaussians(nn.Module):
         return cached[1]
 
     # ---- evaluation -------------------------------------------------------------------
-    def at(self, t: float | torch.Tensor, camera_center: np.ndarray | None = None) -> Snapshot:
+    def at(self, t: float | torch.Tensor, camera_center: np.ndarray | None = None, *,
+           base_opacities: torch.Tensor | None = None) -> Snapshot:
         """The differentiable static Snapshot at clip time t.
 
         camera_center: (3,) world position used for view-dependent colour (sh_degree > 0); when
         None, or sh_degree == 0, colours are the view-independent DC term.
+        base_opacities: (N,) opacities before the time terms, in place of sigmoid(o) (a training
+        step's decayed opacities, ``train.opacity_decay``).
         Static Gaussians (``dynamic`` False) and a config without time terms skip every time
         term: their means/quats are the Parameters themselves and their opacity is sigmoid(o).
         """
@@ -354,7 +357,7 @@ class SpacetimeGaussians(nn.Module):
         if camera_center is not None:
             camera_center = _checked_center(camera_center)
         means, quats = self.means, self.quats
-        opacities = torch.sigmoid(self.opacity_logits)
+        opacities = torch.sigmoid(self.opacity_logits) if base_opacities is None else base_opacities
         if self.config.has_time_terms:
             idx = self._dynamic_index()
             if idx.numel() > 0:

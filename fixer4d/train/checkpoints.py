@@ -31,10 +31,14 @@ RESULT_NEUTRAL = ("progress", "checkpoint_every", "keep_checkpoints")
 
 
 def result_settings(config: dict[str, Any]) -> dict[str, Any]:
-    """A TrainingConfig's settings that decide its result: all but the result-neutral ones and the
-    requested ``device``, which decides nothing until resolved: the device a training runs on
-    (``device_kind``) is recorded beside them instead."""
-    return {k: v for k, v in config.items() if k not in RESULT_NEUTRAL and k != "device"}
+    """A TrainingConfig's settings that decide its result: all but the result-neutral ones, the
+    opacity decay's when it is off, and the requested ``device``, which decides nothing until
+    resolved: the device a training runs on (``device_kind``) is recorded beside them instead."""
+    out = {k: v for k, v in config.items() if k not in RESULT_NEUTRAL and k != "device"}
+    # an opacity decay that is off leaves the keys of every training from before it existed
+    if not (out.get("opacity_decay") or {}).get("enabled", False):
+        out.pop("opacity_decay", None)
+    return out
 
 
 def training_settings(config: TrainingConfig, stage2: Stage2Config | None) -> dict[str, Any]:

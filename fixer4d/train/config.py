@@ -17,6 +17,7 @@ from typing import Any
 from fixer4d.errors import InputError
 from fixer4d.restore.visibility import VisibilityConfig
 from fixer4d.train.device import DEVICES
+from fixer4d.train.opacity_decay import OpacityDecayConfig
 
 # Stage2Config.pseudo_mask values: where the pseudo-loss acts.
 PSEUDO_MASKS = ("unobserved", "all")
@@ -145,6 +146,8 @@ class TrainingConfig:
     opacity_reset_every: int = 500
     # opacities are clamped to at most this at a reset (3DGS 0.01)
     opacity_reset_value: float = 0.01
+    # learned decay of the visible opacities in place of the resets (train.opacity_decay; off)
+    opacity_decay: OpacityDecayConfig = field(default_factory=OpacityDecayConfig)
 
     # -- bookkeeping ------------------------------------------------------------------------
     checkpoint_every: int = 375
@@ -153,6 +156,8 @@ class TrainingConfig:
 
     def __post_init__(self) -> None:
         self.background = tuple(float(x) for x in self.background)  # type: ignore[assignment]
+        if isinstance(self.opacity_decay, dict):
+            self.opacity_decay = OpacityDecayConfig(**_known(OpacityDecayConfig, self.opacity_decay))
         if self.iterations < 0:
             raise InputError(f"TrainingConfig.iterations must be >= 0, got {self.iterations}")
         if self.device not in DEVICES:
@@ -327,12 +332,13 @@ class Stage2Config:
 def matched_config(training: TrainingConfig, stage2: Stage2Config) -> TrainingConfig:
     """The TrainingConfig of the matched-iterations control: ``training`` continued for stage 2's
     length with stage 2's learning rates, densification window and seed, and no opacity reset
-    (stage 2 without pseudo-views)."""
+    (stage 2 without pseudo-views), and no opacity decay either."""
     n = stage2.total_iterations
     until = int(stage2.densify_until_fraction * n)
     return dataclasses.replace(training, iterations=n, lr_means_init=stage2.lr_means_init,
                                lr_means_final=stage2.lr_means_final, densify_from=min(training.densify_every, until),
-                               densify_until=until, opacity_reset_every=n + 1, seed=stage2.seed)
+                               densify_until=until, opacity_reset_every=n + 1, seed=stage2.seed,
+                               opacity_decay=OpacityDecayConfig())
 
 
 def _known(cls: type, d: dict[str, Any]) -> dict[str, Any]:

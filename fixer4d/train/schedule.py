@@ -36,6 +36,8 @@ class StageSchedule:
     the model is densified at (1-based) steps from < s < until.
     opacity_reset_every: steps between opacity resets (while densifying), None = none; the size
     prunes apply only after the first reset, so there are none either without resets.
+    decay_from: first (0-based) step of the learned opacity decay (``train.opacity_decay``), which
+    replaces the resets; None = no decay.
     revises_terms: whether an auto-mode model-terms decision is revised on the density schedule.
     lambda_gen, pseudo_batch: weight of the pseudo-view loss and cached frames per step; the
     stage draws pseudo-views when both are > 0.
@@ -54,6 +56,7 @@ class StageSchedule:
     densify_until: int
     opacity_reset_every: int | None
     revises_terms: bool
+    decay_from: int | None = None
     lambda_gen: float = 0.0
     pseudo_batch: int = 0
     refresh_every: int = 1
@@ -62,11 +65,15 @@ class StageSchedule:
 
     @classmethod
     def stage1(cls, config: TrainingConfig) -> "StageSchedule":
-        """STGS on the observed views: the TrainingConfig's schedule, opacity resets, no pseudo-views."""
+        """STGS on the observed views: the TrainingConfig's schedule, opacity resets (or the opacity
+        decay in their place, from its ``start`` or the first densification), no pseudo-views."""
+        decay = config.opacity_decay
+        decay_from = (None if not decay.enabled else config.densify_from if decay.start is None else decay.start)
         return cls(stage=1, iterations=config.iterations, seed=config.seed, lr_means_init=config.lr_means_init,
                    lr_means_final=config.lr_means_final, densify_from=config.densify_from,
-                   densify_until=config.densify_until, opacity_reset_every=config.opacity_reset_every,
-                   revises_terms=True)
+                   densify_until=config.densify_until,
+                   opacity_reset_every=None if decay.enabled else config.opacity_reset_every,
+                   revises_terms=True, decay_from=decay_from)
 
     @classmethod
     def stage2(cls, config: TrainingConfig, stage2: Stage2Config) -> "StageSchedule":
@@ -107,6 +114,10 @@ class StageSchedule:
         """Whether opacities are reset after (1-based) ``step``."""
         return (self.opacity_reset_every is not None and step < self.densify_until
                 and step % self.opacity_reset_every == 0)
+
+    def decays(self, step: int) -> bool:
+        """Whether (0-based) ``step`` decays the opacities it renders."""
+        return self.decay_from is not None and step >= self.decay_from
 
     def refresh_round(self, step: int) -> int | None:
         """The cache round refreshed before (0-based) ``step``, or None."""

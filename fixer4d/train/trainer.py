@@ -56,6 +56,7 @@ from fixer4d.train.config import TrainingConfig, Stage2Config
 from fixer4d.train.device import training_device
 from fixer4d.train.losses import masked_l1, masked_l1_device, mean_squared_error, stg_loss, stg_loss_device
 from fixer4d.train.model_init import scene_extent
+from fixer4d.train.opacity_decay import OpacityDecay
 from fixer4d.train.pseudo_targets import PseudoCache, PseudoTargets, RefreshFn
 from fixer4d.train.schedule import StageSchedule
 
@@ -142,6 +143,9 @@ class Trainer:
         # atomics; gsplat's backward adds with atomics whatever torch is told.
         self.step_count = 0
         self.optimizer = self._make_optimizer()
+        # the learned opacity decay in place of the resets (stage 1 with training.opacity_decay)
+        self.decay = (None if self.schedule.decay_from is None else
+                      OpacityDecay(config.opacity_decay, self.device, seed))
         # per-train-camera colour response (None: the cameras agree on colour)
         self.response = None if camera_response is None else camera_response.to(self.device)
         self.response_optimizer = (None if camera_response is None else
@@ -214,7 +218,10 @@ class Trainer:
         views = self.rng.choice(len(self.train_ids), size=k, replace=False)
         t = self.scene.time(frame)
         outputs: list[RenderedView] = []
-        loss_stg, mses = self._observed_loss(frame, t, views, outputs, timing)
+        decaying = self.decay is not None and self.schedule.decays(self.step_count)
+        base = (self.decay.opacities(self.model, t, [self.scene.cameras[self.train_ids[int(v)]] for v in views],
+                                     self.extent) if decaying else None)
+        loss_stg, mses = self._observed_loss(frame, t, views, outputs, timing, base)
 
         # L = mean_v L_STG(view v) + lambda_gen * mean_p L1(pseudo p): both per-view means, as the
         # paper states it. The gradient taken is that of V x L: Adam is invariant to the overall
@@ -246,6 +253,8 @@ class Trainer:
         if self.response_optimizer is not None:
             self.response_optimizer.step()
             self.response_optimizer.zero_grad(set_to_none=True)
+        if decaying:
+            self.decay.step()
         timing["t_optim"] = time.perf_counter() - tic
         self.step_count += 1
 
@@ -286,12 +295,13 @@ class Trainer:
         return dict(self._last)
 
     def _observed_loss(self, frame: int, t: float, views: np.ndarray, outputs: list[RenderedView],
-                       timing: dict[str, float]) -> tuple[torch.Tensor, torch.Tensor]:
+                       timing: dict[str, float], base: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Sum over the train views ``views`` (indices into train_ids) at ``frame`` (time ``t``) of
-        L_STG, and (V,) each view's mean squared error (float64); the renders go to ``outputs``."""
+        L_STG, and (V,) each view's mean squared error (float64); the renders go to ``outputs``.
+        base: (N,) the step's decayed base opacities (None: sigmoid of the logits)."""
         shared = self.model.config.sh_degree == 0  # colours do not depend on the camera
         if shared and self._frames is not None and self._frames.batches:
-            return self._observed_loss_batched(frame, t, views, outputs, timing)
+            return self._observed_loss_batched(frame, t, views, outputs, timing, base)
         loss_stg = torch.zeros((), device=self.device)
         mses = []
         snap = None
@@ -300,7 +310,7 @@ class Trainer:
             cam = self.scene.cameras[cam_id]
             tic = time.perf_counter()
             if snap is None or not shared:
-                snap = self.model.at(t, camera_center=None if shared else cam.center)
+                snap = self.model.at(t, camera_center=None if shared else cam.center, base_opacities=base)
             timing["t_at"] += time.perf_counter() - tic
             out = self._render_view(snap, cam, outputs, timing, view=int(v))
             tic = time.perf_counter()
@@ -316,12 +326,12 @@ class Trainer:
         return loss_stg, torch.stack(mses)
 
     def _observed_loss_batched(self, frame: int, t: float, views: np.ndarray, outputs: list[RenderedView],
-                               timing: dict[str, float]) -> tuple[torch.Tensor, torch.Tensor]:
+                               timing: dict[str, float], base: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
         """``_observed_loss`` on the CUDA path with view-independent colours: one snapshot, the
         views rendered in one gsplat call, one loss over the (V, H, W, 3) batch (V x its mean
         is the per-view sum)."""
         tic = time.perf_counter()
-        snap = self.model.at(t)
+        snap = self.model.at(t, base_opacities=base)
         timing["t_at"] += time.perf_counter() - tic
         index = [int(v) for v in views]
         tic = time.perf_counter()
@@ -445,7 +455,7 @@ class Trainer:
 
     @torch.no_grad()
     def _density_control(self) -> dict[str, int]:
-        """Densify/prune and reset opacities on the schedule (``step_count`` is 1-based here, as 3DGS)."""
+        """Densify/prune and reset opacities (unless they decay) on the schedule (``step_count`` is 1-based here, as 3DGS)."""
         cfg = self.config
         s = self.step_count
         counts: dict[str, int] = {}
@@ -574,6 +584,7 @@ class Trainer:
                 **({} if self.response is None else {
                     "camera_response": {k: v.detach().clone() for k, v in self.response.state_dict().items()},
                     "camera_response_optimizer": self.response_optimizer.state_dict()}),
+                **({} if self.decay is None else {"opacity_decay": self.decay.state_dict()}),
             }
 
     def load_state_dict(self, state: dict[str, Any], source: str = "checkpoint") -> None:
@@ -598,6 +609,8 @@ class Trainer:
             if self.response is not None and "camera_response" in state:
                 self.response.load_state_dict(state["camera_response"])
                 self.response_optimizer.load_state_dict(state["camera_response_optimizer"])
+            if self.decay is not None:
+                self.decay.load_state_dict(state["opacity_decay"])
             if self.pseudo is not None:
                 self.pseudo.forget(int(state["round"]))
 

@@ -111,7 +111,8 @@ def _trainer(small_scene, small_clouds, make_config, response: bool = False, **o
                    camera_response=CameraResponse(len(small_scene.train_ids)) if response else None)
 
 
-@pytest.mark.parametrize("overrides", [{}, {"views_per_step": 3, "moving_loss_weight": 0.0}, {"response": True}])
+@pytest.mark.parametrize("overrides", [{}, {"views_per_step": 3, "moving_loss_weight": 0.0}, {"response": True},
+                                       {"opacity_decay": {"enabled": True, "start": 0}}])
 def test_a_steady_training_step_on_the_cuda_path_syncs_at_most_three_times(small_scene, small_clouds, make_config,
                                                                           monkeypatch, overrides):
     gsplat_stand_in.install(monkeypatch)
