@@ -12,6 +12,7 @@
       segments      SegmentConfig      (pipeline/segments.py) long captures as temporal segments
       executor      ExecutorConfig     (pipeline/executors.py) where segments and restore jobs run
       self_check    SelfCheckConfig    (pipeline/self_check.py) stage 2 checked on a held-back train camera
+      co_fields     CoFieldsConfig     (train/co_fields_config.py) a twin stage-1 field: co-pruning, undetermined weight
       baseline_sparse, init_frame_stride, seed
 
 A config is built from the defaults, then an optional config file (a ``config.json`` of another
@@ -37,6 +38,7 @@ from fixer4d.pipeline.executors import ExecutorConfig
 from fixer4d.pipeline.segments import SegmentConfig
 from fixer4d.pipeline.self_check import SelfCheckConfig
 from fixer4d.restore.config import RestoreConfig
+from fixer4d.train.co_fields_config import CoFieldsConfig
 from fixer4d.train.config import TrainingConfig, Stage2Config
 
 log = logging.getLogger("fixer4d.pipeline")
@@ -171,6 +173,7 @@ class RunConfig:
     segments: SegmentConfig = field(default_factory=SegmentConfig)
     executor: ExecutorConfig = field(default_factory=ExecutorConfig)
     self_check: SelfCheckConfig = field(default_factory=SelfCheckConfig)
+    co_fields: CoFieldsConfig = field(default_factory=CoFieldsConfig)
     baseline_sparse: bool = True     # also train from the sparse init for the "STGS w/ COLMAP" row
     # Point clouds from every `init_frame_stride`-th frame (both inits use the same frames).
     init_frame_stride: int = 4

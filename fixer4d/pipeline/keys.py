@@ -14,7 +14,7 @@ from fixer4d.train.device import device_kind
 
 __all__ = ["init_key", "stage1_key", "restorer_key", "stage2_key", "matched_key", "self_check_key",
            "SELF_CHECK_DECISION_SETTINGS", "training_settings", "trajectory_settings",
-           "shared_static_key"]
+           "shared_static_key", "co_fields_key", "co_fields_weight_key"]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -51,7 +51,22 @@ def stage1_key(config: RunConfig, method: str) -> str:
     d = config.to_dict()
     # the sections' contents are hashed, not their names: "model_terms" (formerly "effects") keys as before
     return stage_key("stage1", init_key(config, method), training_settings(d["training"]), config.seed,
-                     d["model_terms"], *shared_static_key(config))
+                     d["model_terms"], *shared_static_key(config),
+                     *(co_fields_key(config) if method == config.init_method else ()))
+
+
+def co_fields_key(config: RunConfig) -> tuple[Any, ...]:
+    """() with co_fields off, so that every run without a twin field keeps its keys; while on,
+    the settings the main init's stage 1 trains its twin and co-prunes with (the sparse
+    baseline's stage 1 trains alone either way)."""
+    cf = config.co_fields
+    return ("co_fields", cf.stage1_settings()) if cf.enabled else ()
+
+
+def co_fields_weight_key(config: RunConfig) -> tuple[Any, ...]:
+    """() unless co_fields is on; then which per-pixel weight gates the restorations."""
+    cf = config.co_fields
+    return ("co_fields_weight", cf.weight) if cf.enabled else ()
 
 
 def shared_static_key(config: RunConfig) -> tuple[str, ...]:
@@ -72,6 +87,7 @@ def stage2_key(config: RunConfig) -> str:
     d = config.to_dict()
     fill = ("fill_background_tol", BACKGROUND_DEPTH_TOL) if config.stage2.fill_unobserved else ()
     return stage_key("stage2", stage1_key(config, config.init_method), d["stage2"], restorer_key(config),
+                     *co_fields_weight_key(config),
                      trajectory_settings(d["trajectories"]), *fill)
 
 

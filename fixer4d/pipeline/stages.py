@@ -11,6 +11,7 @@ Layout of the outputs in RUN/ (docs/design.md §6 has every file):
 
     init_<method>/            clouds + init_report.json
     model_stage1.ply          stage 1 from the main init ("STGS w/ MVS")
+    model_stage1_twin.ply     its twin field (co_fields.enabled; train/co_fields.py)
     baseline_sparse/          stage 1 from the sparse init ("STGS w/ COLMAP")
     matched/model.ply         stage 1 continued as long as stage 2, without pseudo-views
     cache/round_<r>/          restored trajectory clips (pseudo-targets)
@@ -47,6 +48,8 @@ TERMS_NAME = "model_terms.json"
 # The same file as run folders made before the terms were called so name it: read when
 # TERMS_NAME is absent (``terms_path``), never written.
 FORMER_TERMS_NAME = "model_effects.json"
+# Stage 1's twin field (co_fields.enabled), beside model_stage1.ply.
+TWIN_NAME = "model_stage1_twin.ply"
 
 
 def terms_path(run_dir: Path) -> Path:
@@ -147,18 +150,32 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
     from fixer4d.model.terms import terms_report
     from fixer4d.model.io import load_ply, save_ply
 
+    from fixer4d.train.co_fields import TWIN_DIR
+
     key = stage1_key(ctx.config, method)
-    if ctx.run.records.done(name, key) and model_path.exists():
+    twin = ctx.config.co_fields.enabled and method == ctx.config.init_method
+    outputs = [model_path] + ([model_path.parent / TWIN_NAME] if twin else [])
+    if ctx.run.records.done(name, key) and all(p.exists() for p in outputs):
         return load_ply(model_path)
     if ctx.run.records.begin(name, key):
         _drop_checkpoints(model_path.parent, 1)
+        _drop_checkpoints(model_path.parent / TWIN_DIR, 1)
     if ctx.cache is not None and (seconds := ctx.cache.fetch(key, model_path.parent)) is not None:
         ctx.run.records.finish(name, key, seconds)
         return load_ply(model_path)
     t0 = time.perf_counter()
     trainer, decision = stage1_trainer(ctx, clouds, model_path.parent)
-    prior = trainer.train_seconds if trainer.resume() else 0.0
-    trainer.train()
+    if twin:
+        from fixer4d.train.co_fields import CoFields, twin_trainer
+
+        co = CoFields(trainer, twin_trainer(trainer, ctx.config.model_terms if decision is not None else None,
+                                            model_path.parent), ctx.config.co_fields)
+        prior = co.train_seconds if co.resume() else 0.0
+        co.train()
+        save_ply(co.b.host_model(), outputs[1])
+    else:
+        prior = trainer.train_seconds if trainer.resume() else 0.0
+        trainer.train()
     model = trainer.host_model()
     save_ply(model, model_path)
     report = terms_report(model, decision, trainer.revisions)
@@ -167,8 +184,9 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
     atomic.write_json(model_path.parent / TERMS_NAME, report)
     ctx.run.records.finish(name, key, time.perf_counter() - t0 + prior)
     _finished(ctx, model_path.parent, 1)
+    _finished(ctx, model_path.parent / TWIN_DIR, 1)
     if ctx.cache is not None:
-        ctx.cache.store(key, [model_path, model_path.parent / TERMS_NAME], ctx.run.records.seconds(name))
+        ctx.cache.store(key, outputs + [model_path.parent / TERMS_NAME], ctx.run.records.seconds(name))
     return model
 
 
