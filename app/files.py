@@ -2,7 +2,8 @@
 the viewer's own outputs go (never the working directory).
 
 A run folder (``fixer4d run`` / ``reconstruct`` output, with config.json) holds model versions:
-``model_final.ply``, ``model_stage1.ply`` and the viewer's edits ``model_edit_<k>.ply``. The
+``model_final.ply``, ``model_stage1.ply`` and the viewer's edits ``model_edit_<k>.ply``; a run
+trained with ``co_fields`` also keeps the second stage-1 field, ``model_stage1_twin.ply``. The
 session remembers the version last shown (``AppState.model_version``), so a saved edit is what
 the run reopens with. A bare model file (.ply or .npz) opens without a scene; when it sits in a
 run folder, that run's scene and cache come with it.
@@ -19,6 +20,8 @@ MODEL_SUFFIXES = (".ply", ".npz")
 # Model versions a run opens with when the session names none, in order of preference.
 DEFAULT_VERSIONS = ("model_final.ply", "model_stage1.ply")
 EDIT_PATTERN = re.compile(r"^model_edit_(\d+)\.ply$")
+# co_fields saves the second of two fields trained side by side as <model name>_twin<suffix>.
+TWIN_SUFFIX = "_twin"
 
 
 def is_run_folder(path: Path) -> bool:
@@ -40,6 +43,15 @@ def model_versions(run: Path) -> list[Path]:
     named = [run / n for n in DEFAULT_VERSIONS if (run / n).is_file()]
     others = sorted(p for p in run.iterdir() if p.is_file() and is_model_file(p) and p not in named and p not in edits)
     return named + edits + others
+
+
+def twin_path(model: Path | None) -> Path | None:
+    """The twin field saved beside the model file ``model`` (``<stem>_twin<suffix>``), or None
+    when there is none (or no model file)."""
+    if model is None:
+        return None
+    twin = Path(model).with_name(Path(model).stem + TWIN_SUFFIX + Path(model).suffix)
+    return twin if twin.is_file() else None
 
 
 def next_edit_path(folder: Path) -> Path:

@@ -13,6 +13,9 @@ import numpy as np
 # Accumulated opacity below which the hole map tints a pixel (app.gl.splats.resolve's default
 # hole_alpha, the value shaders/heatmap.frag receives).
 HOLE_ALPHA = 0.5
+# The note of a map computed for a resting view while the view moves.
+STALE = "stale: the view changed; recomputed when it rests"
+UNDETERMINED_TITLE = "undetermined (0 .. 1): the two fields disagree,\nthe train views do not determine the scene here"
 # shaders/colormap.glsl's polynomial fit of turbo, coefficients per channel (x^0..x^5).
 _TURBO = np.array([[0.13572138, 4.61539260, -42.66032258, 132.13108234, -152.94239396, 59.28637943],
                    [0.09140261, 2.19418839, 4.84296658, -14.18503333, 4.27729857, 2.82956604],
@@ -75,9 +78,11 @@ def legend(viewer) -> Legend | None:
         return Legend(f"holes: accumulated opacity (red below {HOLE_ALPHA:g}, stronger = emptier)", 0.0, 1.0,
                       kind="holes")
     if mode == "blur":
-        note = "" if not viewer.blur_stale else "stale: the view changed; recomputed when it rests"
+        note = "" if not viewer.map_stale else STALE
         return Legend("missing detail vs the nearest real view (|Laplacian|, intensity/px^2)", 0.0, viewer.blur_max,
                       note=note)
+    if mode == "undetermined":
+        return Legend(UNDETERMINED_TITLE, 0.0, 1.0, note=_undetermined_note(viewer))
     if mode == "moving":
         return Legend("moving content (init masks) in magenta; masked:", kind="swatch", color=(1.0, 0.2, 0.9),
                       note=viewer.mask_note)
@@ -86,3 +91,16 @@ def legend(viewer) -> Legend | None:
     if st.splat_mode == "temporal_opacity":
         return Legend("temporal opacity factor at this time", 0.0, 1.0)
     return None
+
+
+def _undetermined_note(viewer) -> str:
+    """How to get a twin field (none beside the model), "stale" (the view moved) or the share
+    of the view's pixels the map marks."""
+    from app.undetermined import UNDETERMINED_LEVEL, twin_note
+
+    missing = twin_note(viewer)
+    if missing:
+        return missing
+    if viewer.map_stale:
+        return STALE
+    return f"{100.0 * viewer.undetermined_share:.1f}% of the view undetermined (map >= {UNDETERMINED_LEVEL:g})"

@@ -1,5 +1,6 @@
 """Opening what the viewer shows and building the work it delegates: run folders, model files,
-scenes trained live, restorers for new jobs, torch renders of the shown Gaussians, videos.
+scenes trained live, restorers for new jobs, torch renders of the shown Gaussians and of a
+model's twin field, videos.
 
 ``app_services()`` bundles these as the ``ViewerServices`` that ``app.main`` hands the viewer;
 this module never imports the viewer, its panels or ``app.main``.
@@ -216,19 +217,42 @@ class TorchRenders:
     def __call__(self, key: Any, gaussians: Any, segments: Any, segment: int | None,
                  background: tuple[float, float, float], backend: str) -> GaussiansRenderFn:
         """``fn(camera, t) -> {"rgb", "depth", "alpha"}`` with the torch rasterizer at clip time t
-        (a segmented run: the segment that owns t, at its local time), through
-        ``fixer4d.render.views.render_views``."""
-        from fixer4d.render.views import render_views
-
+        (a segmented run: the segment that owns t, at its local time), through ``model_renders``."""
         model = self.model(key, gaussians, segments, segment)
         if model is None:
             raise InputError("no model loaded: nothing to render")
-        background = tuple(background)
+        return model_renders(model, background, backend)
 
-        def fn(camera: Any, t: float) -> dict[str, np.ndarray]:
-            rgb, depth, alpha = render_views(model, [camera], t, backend, background)
-            return {"rgb": rgb[0], "depth": depth[0], "alpha": alpha[0]}
-        return fn
+
+class TwinRenders:
+    """Torch renders of a model file beside the shown model, the twin field of a run trained
+    with ``co_fields`` (``app.files.twin_path``); the file is loaded once per path."""
+
+    def __init__(self) -> None:
+        self._path: Path | None = None
+        self._model: Any = None
+
+    def __call__(self, path: Path, background: tuple[float, float, float], backend: str) -> GaussiansRenderFn:
+        """``fn(camera, t) -> {"rgb", "depth", "alpha"}`` of the model in ``path`` at clip time t."""
+        from fixer4d.model.io import load_model
+
+        if self._path != Path(path) or self._model is None:
+            self._model, self._path = load_model(path), Path(path)
+        return model_renders(self._model, background, backend)
+
+
+def model_renders(model: Any, background: tuple[float, float, float], backend: str) -> GaussiansRenderFn:
+    """``fn(camera, t) -> {"rgb" (H, W, 3), "depth" (H, W), "alpha" (H, W)}`` float32 renders of
+    ``model`` over ``background`` with the torch rasterizer, through
+    ``fixer4d.render.views.render_views``."""
+    from fixer4d.render.views import render_views
+
+    background = tuple(background)
+
+    def fn(camera: Any, t: float) -> dict[str, np.ndarray]:
+        rgb, depth, alpha = render_views(model, [camera], t, backend, background)
+        return {"rgb": rgb[0], "depth": depth[0], "alpha": alpha[0]}
+    return fn
 
 
 def render_video(render_fn: GaussiansRenderFn, cameras: list, times: list[float], out: Path, *, fps: float = 30.0,
@@ -253,7 +277,8 @@ def render_video(render_fn: GaussiansRenderFn, cameras: list, times: list[float]
 def app_services(**overrides: Any) -> ViewerServices:
     """The services of the desktop app (``overrides``: replace some, e.g. in tests)."""
     services = ViewerServices(open_source=open_source, initial_state=initial_state, render=TorchRenders(),
-                              make_jobs=make_jobs, render_video=render_video, config_dir=config_dir())
+                              render_twin=TwinRenders(), make_jobs=make_jobs, render_video=render_video,
+                              config_dir=config_dir())
     for name, value in overrides.items():
         setattr(services, name, value)
     return services

@@ -25,9 +25,10 @@ COLOR_TEST = (1.0, 0.65, 0.1, 1.0)
 COLOR_TRAJECTORY = (0.3, 0.7, 1.0, 1.0)
 COLOR_SELECTED = (1.0, 0.2, 0.9, 1.0)
 COLOR_PREVIEW = (1.0, 1.0, 1.0, 1.0)
-# Image modes whose picture is not a function of (view, frame) alone: the blur map is computed
-# for one resting view, so playback in that mode does not go through the frame cache.
-UNCACHED_MODES = ("blur",)
+# Image modes tinted by a map computed on the CPU for one resting view (the blur map, the
+# undetermined map): hidden while the view moves, computed again when it rests; their picture is
+# not a function of (view, frame) alone, so playback in them does not go through the frame cache.
+UNCACHED_MODES = ("blur", "undetermined")
 # The status line's words for an image of every splat at full size, exact depth order.
 FULL_DETAIL = "full quality: 100% splats, full scale"
 
@@ -159,11 +160,11 @@ class View3D:
         self._draw_ms += stats.draw_ms
         self.depth_range = self._depth_range(rcam)
         mode = st.debug_mode
-        if mode == "blur" and self.blur_stale:
+        if mode == "undetermined" and self.twin_path() is None:
+            mode = "color"  # no twin field: the legend says how to train one
+        if mode in UNCACHED_MODES and self.map_stale:
             if self.adaptive.final:  # the view rests: recompute for it
-                from app.panels.debug import compute_blur
-
-                compute_blur(self)
+                self._compute_map(mode)
             else:  # moving: no map rather than a wrong one
                 mode = "color"
         if mode == "moving":
@@ -177,17 +178,42 @@ class View3D:
         return tex
 
     def view_signature(self) -> tuple | None:
-        """Pose, intrinsics, time and model of the current full-size view (what a blur map is
-        valid for)."""
+        """Image mode, pose, intrinsics, time, model and background of the current full-size view
+        (what a blur or undetermined map is valid for)."""
         cam = self.display_camera
         if cam is None:
             return None
         st = self.state
-        return (cam.c2w.tobytes(), cam.K.tobytes(), round(st.time, 9), st.gaussians_version)
+        return (st.debug_mode, cam.c2w.tobytes(), cam.K.tobytes(), round(st.time, 9), st.gaussians_version,
+                tuple(st.background))
 
     @property
-    def blur_stale(self) -> bool:
-        return self.blur_key is None or self.blur_key != self.view_signature()
+    def map_stale(self) -> bool:
+        """The scalar map was not computed for the current view and image mode."""
+        return self.scalar_key is None or self.scalar_key != self.view_signature()
+
+    def show_scalar_map(self, values: np.ndarray, key: tuple | None) -> None:
+        """Upload the (H, W) map the blur, undetermined and moving modes tint the image with;
+        ``key``: what it was computed for (``view_signature`` for a view's map)."""
+        self.splats.set_scalar_map(values)
+        self.scalar_version += 1
+        self.scalar_key = key
+
+    def _compute_map(self, mode: str) -> None:
+        if mode == "blur":
+            from app.panels.debug import compute_blur
+
+            compute_blur(self)
+        else:
+            from app.undetermined import compute_undetermined
+
+            compute_undetermined(self)
+
+    def twin_path(self) -> Path | None:
+        """The twin field beside the shown model file (a run trained with ``co_fields``), or None."""
+        from app.files import twin_path
+
+        return twin_path(self.source.model_path)
 
     def masks(self) -> tuple | None:
         """(masks (V,F,H,W) bool, camera ids, frames) from the run's RUN/init_*/masks.npz (the
@@ -213,24 +239,22 @@ class View3D:
         if scene is not None and self.state.view.snapped is not None:
             snap = self.state.view.snapped
             idx = next((i for i, c in enumerate(scene.cameras) if np.allclose(c.c2w, snap.c2w)), None)
-        key = (idx, self.state.frame)
-        if getattr(self, "_mask_key", None) == key:
+        key = ("moving", idx, self.state.frame)
+        if self.scalar_key == key:
             return
-        self._mask_key = key
         names = [] if idx is None else [str(idx), str(scene.cameras[idx].name)]
         v = next((k for k, c in enumerate(ids) if c in names), None)
         if masks is None or v is None or self.state.frame not in frames:
             self.mask_note = ("no masks in this run (RUN/init_*/masks.npz)" if masks is None else
                               f"masks on cameras {', '.join(map(str, ids))}, frames {_frame_list(frames)}")
-            self.splats.set_scalar_map(np.zeros((1, 1), np.float32))
+            self.show_scalar_map(np.zeros((1, 1), np.float32), key)
         else:
             self.mask_note = f"camera {ids[v]}, frame {self.state.frame} (frames {_frame_list(frames)})"
-            self.splats.set_scalar_map(masks[v, frames.index(self.state.frame)].astype(np.float32))
-        self.scalar_version += 1
+            self.show_scalar_map(masks[v, frames.index(self.state.frame)].astype(np.float32), key)
 
     def _draw_legend(self, x0: float, y0: float, w: float, h: float) -> None:
         """The colour bar of the current heatmap over the bottom left of the 3D image, with its
-        numbers and unit; the box grows to hold its longest line."""
+        numbers and unit; the box grows to hold its longest line (title and note may hold several)."""
         from app.legends import legend
 
         lg = legend(self)
@@ -238,18 +262,19 @@ class View3D:
             return
         draw = imgui.get_window_draw_list()
         line = imgui.get_text_line_height()
-        text_w = max(imgui.calc_text_size(lg.title).x, imgui.calc_text_size(lg.note).x if lg.note else 0.0)
-        bw = max(40.0, min(max(320.0, text_w), w - 20.0))
+        title, note = imgui.calc_text_size(lg.title), imgui.calc_text_size(lg.note) if lg.note else imgui.ImVec2(0, 0)
+        bw = max(40.0, min(max(320.0, title.x, note.x), w - 20.0))
         ticks = lg.ticks()
         bx = x0 + 10.0
-        by = y0 + h - 10.0 - 14.0 - (2.2 * line if ticks else 0.6 * line) - (line if lg.note else 0.0)
-        draw.add_rect_filled(imgui.ImVec2(bx - 6, by - line - 6), imgui.ImVec2(bx + bw + 6, y0 + h - 4),
+        by = y0 + h - 10.0 - 14.0 - (2.2 * line if ticks else 0.6 * line) - note.y
+        box = (bx - 6, by - title.y - 6, bx + bw + 6, y0 + h - 4)
+        draw.add_rect_filled(imgui.ImVec2(*box[:2]), imgui.ImVec2(*box[2:]),
                              imgui.get_color_u32(imgui.ImVec4(0.0, 0.0, 0.0, 0.65)), 4.0)
-        draw.push_clip_rect(imgui.ImVec2(bx - 6, by - line - 6), imgui.ImVec2(bx + bw + 6, y0 + h - 4), True)
+        draw.push_clip_rect(imgui.ImVec2(*box[:2]), imgui.ImVec2(*box[2:]), True)
         white = imgui.get_color_u32(imgui.ImVec4(1, 1, 1, 1))
-        draw.add_text(imgui.ImVec2(bx, by - line - 2), white, lg.title)
+        draw.add_text(imgui.ImVec2(bx, by - title.y - 2), white, lg.title)
         self.item_rects["legend_bar"] = (bx, by + 2, bx + bw, by + 14)
-        self.item_rects["legend_box"] = (bx - 6, by - line - 6, bx + bw + 6, y0 + h - 4)
+        self.item_rects["legend_box"] = box
         n = 32
         cols = lg.colors(n)
         for k in range(n):

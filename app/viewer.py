@@ -114,11 +114,12 @@ class Viewer(Viewport, View3D, Document):
         self.render_camera: Camera | None = None  # the camera of the last 3D image (maybe reduced)
         self.display_camera: Camera | None = None  # the full-size view camera (viewport pixels)
         self.depth_range = (0.1, 10.0)  # near, far of the depth colour map (last render)
-        self.scalar_version = 0  # bumped when the blur/mask map changes
+        self.scalar_version = 0  # bumped when the blur/undetermined/mask map changes
+        self.scalar_key: tuple | None = None  # what that map was computed for (View3D.show_scalar_map)
+        self.undetermined_share = 0.0  # share of the view's pixels the undetermined map marks
         self.adaptive = AdaptiveResolution()
         self.last_input = -1e9  # time.monotonic() of the last mouse/keyboard input
         self.heat_scale = 1.0  # speed at the top of the speed heatmap (scene units per clip time)
-        self.blur_key: tuple | None = None  # the view the blur map was computed for
         self.mask_note = ""  # which cameras/frames carry masks, or why the overlay shows nothing
         self._masks: tuple | None = None  # (path, masks, camera ids, frames) of RUN/init_*/masks.npz
         self.frame_ms = 0.0

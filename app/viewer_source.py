@@ -69,6 +69,7 @@ class ViewerServices:
     open_source: Callable[[str], tuple] = _missing("a source opener")
     initial_state: Callable[[ViewerSource, Any], Any] = _missing("a state factory")
     render: Callable[..., GaussiansRenderFn] = _missing("a renderer")
+    render_twin: Callable[..., GaussiansRenderFn] = _missing("a twin renderer")
     make_jobs: Callable[[str, Any, Path | None], Any] = _missing("a restorer factory")
     render_video: Callable[..., Path] = _missing("a video writer")
     config_dir: Path = Path.home() / ".config" / "fixer4d" / "view"

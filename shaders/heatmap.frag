@@ -1,11 +1,11 @@
 #version 330 core
 // Resolve the accumulated splat targets into a displayable image, optionally as a debug map:
 // 0 colour over the background, 1 hole map (low accumulated alpha in red over the colour),
-// 2 expected depth (turbo, near..far), 3 an uploaded scalar map (e.g. blur) in turbo over grey,
+// 2 expected depth (turbo, near..far), 3 an uploaded scalar map (blur, undetermined) in turbo over grey,
 // 4 accumulated alpha as grey, 5 an uploaded mask (moving content) tinted magenta over the colour.
 uniform sampler2D u_color;   // premultiplied rgb, accumulated alpha
 uniform sampler2D u_depth;   // alpha-weighted depth in r, alpha in a
-uniform sampler2D u_scalar;  // R32F, mode 3 only
+uniform sampler2D u_scalar;  // R32F, modes 3 and 5
 uniform vec3 u_background;
 uniform int u_mode;
 uniform float u_hole_alpha;  // accumulated alpha below which a pixel counts as a hole

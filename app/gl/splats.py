@@ -55,8 +55,9 @@ def sh_degree_of(num_rest: int) -> int:
         raise ValueError(f"{num_rest} SH coefficients per channel is not a full band set of degree 0..3")
     return d
 
-# Debug modes of the resolve pass (heatmap.frag) and of the splat colours (splat.vert).
-RESOLVE_MODES = {"color": 0, "holes": 1, "depth": 2, "blur": 3, "alpha": 4, "moving": 5}
+# Debug modes of the resolve pass (heatmap.frag) and of the splat colours (splat.vert); the blur
+# and undetermined maps are both an uploaded scalar map in turbo over grey.
+RESOLVE_MODES = {"color": 0, "holes": 1, "depth": 2, "blur": 3, "alpha": 4, "moving": 5, "undetermined": 3}
 SPLAT_MODES = {"color": 0, "speed": 1, "temporal_opacity": 2}
 
 
@@ -252,7 +253,8 @@ class SplatRenderer:
         self._flag_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
 
     def set_scalar_map(self, values: np.ndarray) -> None:
-        """Upload an (H, W) float map (row 0 at the top) for the 'blur' resolve mode."""
+        """Upload an (H, W) float map (row 0 at the top) for the 'blur', 'undetermined' and 'moving'
+        resolve modes."""
         v = np.ascontiguousarray(np.asarray(values, np.float32)[::-1])
         self._scalar_tex.release()
         self._scalar_tex = self.ctx.texture((v.shape[1], v.shape[0]), 1, v.tobytes(), dtype="f4")

@@ -195,10 +195,10 @@ def same_line_if_fits(width: float) -> None:
 
 
 def radio_row(items: tuple[str, ...] | list[str], current: str, id_suffix: str, tips: dict[str, str],
-              viewer=None) -> str:
+              viewer=None, disabled: tuple[str, ...] = ()) -> str:
     """Radio buttons for ``items`` laid out left to right, wrapping to a new line instead of
-    running past the panel's edge, each with its tooltip ``tips[item]``; returns the chosen
-    item."""
+    running past the panel's edge, each with its tooltip ``tips[item]`` (shown on the
+    ``disabled`` ones too, greyed out: say there why); returns the chosen item."""
     style = imgui.get_style()
     right = imgui.get_cursor_screen_pos().x + imgui.get_content_region_avail().x
     chosen = current
@@ -208,8 +208,10 @@ def radio_row(items: tuple[str, ...] | list[str], current: str, id_suffix: str, 
             imgui.same_line()
             if imgui.get_cursor_screen_pos().x + width > right:
                 imgui.new_line()
+        imgui.begin_disabled(item in disabled)
         if imgui.radio_button(f"{item}##{id_suffix}", item == current):
             chosen = item
+        imgui.end_disabled()
         tip(tips[item], viewer)
     return chosen
 

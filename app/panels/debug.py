@@ -1,14 +1,15 @@
 """Debug overlays: hole map (low accumulated alpha), blur map (missing detail against the
-nearest reference), depth, accumulated alpha, per-Gaussian heatmaps (speed, temporal opacity);
-frame timings; screenshot export."""
+nearest reference), undetermined map (the model and its twin field disagree), depth, accumulated
+alpha, per-Gaussian heatmaps (speed, temporal opacity); frame timings; screenshot export."""
 from __future__ import annotations
 
 import numpy as np
 from imgui_bundle import imgui
 
 from app.panels._layout import leave_room_for_label, panel, radio_row, same_line_if_fits, tip
+from app.undetermined import twin_note
 
-RESOLVE = ("color", "holes", "depth", "alpha", "blur")
+RESOLVE = ("color", "holes", "depth", "alpha", "blur", "undetermined")
 # Image modes whose pixels do not show the splat colours (the Gaussian colour modes are greyed out).
 SPLAT_COLOUR_REPLACED = ("depth", "holes", "alpha")
 SPLAT = ("color", "speed", "temporal_opacity")
@@ -16,6 +17,8 @@ IMAGE_TIPS = {"color": "the rendered colours", "holes": "red where the accumulat
               "depth": "depth of each pixel, near red .. far blue (colour bar in scene units)",
               "alpha": "accumulated opacity of each pixel, 0 .. 1",
               "blur": "missing detail against the nearest train camera's real frame (recomputed when the view rests)",
+              "undetermined": "where the model and its twin field disagree, 0 .. 1: the train views do not determine "
+                              "the scene there (recomputed when the view rests)",
               "moving": "the init's moving-content mask, magenta, when snapped to a masked camera and frame"}
 SPLAT_TIPS = {"color": "each Gaussian in its own colour",
               "speed": "each Gaussian coloured by its speed |dmu/dt| (scene units per second, colour bar)",
@@ -30,9 +33,12 @@ def draw(viewer) -> None:
             return
         imgui.text("image")
         tip("what each pixel shows: colour, holes (low opacity), depth, accumulated opacity, blur (missing "
-            "detail vs the nearest real view), moving content (init masks)", viewer)
+            "detail vs the nearest real view), undetermined (the model and its twin field disagree), moving "
+            "content (init masks)", viewer)
         modes = RESOLVE + (("moving",) if viewer.masks() is not None else ())
-        mode = radio_row(modes, st.debug_mode, "image", IMAGE_TIPS, viewer)
+        no_twin = twin_note(viewer)  # why the undetermined mode is greyed out, and the way to a twin
+        tips = {**IMAGE_TIPS, "undetermined": no_twin} if no_twin else IMAGE_TIPS
+        mode = radio_row(modes, st.debug_mode, "image", tips, viewer, disabled=("undetermined",) if no_twin else ())
         if mode != st.debug_mode:
             st.debug_mode = mode
             if mode == "blur":
@@ -45,6 +51,9 @@ def draw(viewer) -> None:
             if ui["ref"] is not None:
                 same_line_if_fits(imgui.calc_text_size(f"vs {ui['ref']}").x)
                 imgui.text(f"vs {ui['ref']}")
+        if st.debug_mode == "undetermined" and not no_twin:
+            imgui.text(f"vs {viewer.twin_path().name}")
+            tip("the twin field the shown model is compared with (the second field co_fields trained)", viewer)
         imgui.text("Gaussians")
         tip("colour each Gaussian by its colour, speed or temporal opacity", viewer)
         # depth and holes replace the splats' colours: a Gaussian colour mode would change nothing
@@ -81,9 +90,7 @@ def compute_blur(viewer) -> None:
     ref_idx = scene.train_ids[j]
     m = blur_map(viewer.splats.read_rgb(viewer.state.background), viewer.splats.read_depth(),
                  viewer.splats.read_alpha(), cam, scene.frame(viewer.state.frame, ref_idx), train[j])
-    viewer.splats.set_scalar_map(m)
-    viewer.scalar_version += 1
-    viewer.blur_key = viewer.view_signature()
+    viewer.show_scalar_map(m, viewer.view_signature())
     viewer.blur_max = float(max(np.percentile(m, 99), 1e-6))
     ui["ref"] = train[j].name or str(ref_idx)
 

@@ -78,14 +78,14 @@ def test_blur_map_follows_the_view(make_viewer, tiny):
     v = d.viewer
     st.debug_mode = "blur"
     d.settle()
-    assert not v.blur_stale and legend(v).note == ""
-    first = v.blur_key
+    assert not v.map_stale and legend(v).note == ""
+    first = v.scalar_key
     v.adaptive.full_cost_ms = 1e6  # as on a slow GL: moving frames are reduced, not final
     st.view.rotate(30.0, 0.0, 400)
     d.frame()
-    assert v.blur_stale and "stale" in legend(v).note
+    assert v.map_stale and "stale" in legend(v).note
     d.settle()
-    assert not v.blur_stale and v.blur_key != first  # recomputed for the new view
+    assert not v.map_stale and v.scalar_key != first  # recomputed for the new view
 
 
 def test_moving_mask_overlay_from_the_run(gl_ctx, tiny, tmp_path, monkeypatch):
