@@ -94,14 +94,20 @@ def self_check_line(check: dict[str, Any]) -> str:
         se = (g.get(name) or {}).get("se_db")
         return f"{label} {psnr[name]:.2f} dB" + ("" if se is None else f" ({g[name]['gain_db']:+.2f} ± {se:.2f})")
 
-    # a fold recorded before the cameras' names were kept names them by index
-    held = check.get("held_back_name", check["held_back_camera"])
-    fold = ", ".join(str(c) for c in check.get("fold_names", check["fold_cameras"]))
-    return (f"Stage-2 self-check on held-back train camera {held} (fold of cameras {fold} at scale "
-            f"{check['scale']:g}, {secs:.0f} s): before {psnr['skip']:.2f} dB, "
+    unit = "fold" if check.get("gain_unit") == "fold" else "scored frame"
+    if check.get("folds"):
+        names = ", ".join(str(f["held_back_name"]) for f in check["folds"])
+        where = (f"on held-back train cameras {names}, one fold each (each trained on the other cameras at scale "
+                 f"{check['scale']:g}, {secs:.0f} s in all); mean over the folds")
+    else:
+        # a fold recorded before the cameras' names were kept names them by index
+        held = check.get("held_back_name", check["held_back_camera"])
+        fold = ", ".join(str(c) for c in check.get("fold_names", check["fold_cameras"]))
+        where = f"on held-back train camera {held} (fold of cameras {fold} at scale {check['scale']:g}, {secs:.0f} s)"
+    return (f"Stage-2 self-check {where}: before {psnr['skip']:.2f} dB, "
             f"{fig('continue', 'more training')}, {fig('refine', 'stage 2')}{margin} -> "
             f"**{check['decision']}**: the final model is {_FINAL[check['decision']]}. Gains are over before, per "
-            f"scored frame: mean ± standard error.")
+            f"{unit}: mean ± standard error.")
 
 
 _FINAL = {"skip": "the stage-1 model", "continue": "the matched-iterations control (no pseudo-views)",

@@ -12,9 +12,16 @@ overfits). So the run asks one of its own train cameras, held back:
 3. the held-back camera's PSNR before (*skip*: no more training), after *continue* and after
    *refine*, on ``eval_frames`` frames spread over the clip.
 
+With ``cameras`` > 1 the check runs one such fold per held-back camera (train cameras ``fold``,
+``fold + 1``, ... in turn, each fold trained on the others) and each candidate's figure is the
+mean over the folds; the unit of the paired gains is then the fold (its mean over the scored
+frames), since the frames of one camera move together and only other cameras tell how a gain
+varies over the scene.
+
 The decision is the best of the candidates if it beats *skip* by more than its margin, else
 *skip*: ``tie_db`` (the fold's own noise) or, with ``margin = "measured"``, the larger of ``tie_db``
-and the 95 % half-width of the candidate's per-frame paired gain over *skip*. Every record
+and the 95 % half-width of the candidate's paired gain over *skip* (per fold, or per scored frame
+when there is one fold). Every record
 holds the per-frame figures and each candidate's gain ± standard error, so a finished fold can
 be decided again under either rule without training; and the run's final model follows it: *refine* runs stage 2,
 *continue* keeps the matched-iterations control, *skip* keeps the stage-1 model, so the final
@@ -60,8 +67,12 @@ class SelfCheckConfig:
       noise; on the validation runs (docs/decisions/self-check.md) it decides one of five differently,
       the demo's, whose fold gained 0.07 dB.
     margin: "fixed" (``tie_db``) or "measured" (the larger of ``tie_db`` and the 95 % half-width
-      of the best candidate's per-frame paired gain over the baseline). "fixed" until the quality
-      bench's seeds decide between them on validation cameras (docs/decisions/self-check.md).
+      of the best candidate's paired gain over the baseline, per fold or per frame). "fixed" until
+      the quality bench's seeds decide between them on validation cameras
+      (docs/decisions/self-check.md).
+    cameras: train cameras held back in turn, one fold each (module docstring); at most the number
+      of train cameras. Each fold costs about what one does, so ``scale`` is the knob that keeps the
+      check's share of a run.
     """
 
     enabled: bool = True
@@ -71,19 +82,27 @@ class SelfCheckConfig:
     tie_db: float = 0.1
     allow_skip: bool = True
     margin: str = "fixed"
+    cameras: int = 1
 
     def __post_init__(self) -> None:
         if not 0.0 < self.scale <= 1.0:
             raise InputError(f"self_check.scale must be in (0, 1], got {self.scale}")
         if self.margin not in MARGINS:
             raise InputError(f"self_check.margin must be one of {', '.join(MARGINS)}, got {self.margin!r}")
-        if self.eval_frames < 1 or self.fold < 0 or self.tie_db < 0:
-            raise InputError("self_check: eval_frames >= 1, fold >= 0 and tie_db >= 0 are needed")
+        if self.eval_frames < 1 or self.fold < 0 or self.tie_db < 0 or self.cameras < 1:
+            raise InputError("self_check: eval_frames >= 1, fold >= 0, tie_db >= 0 and cameras >= 1 are needed")
+
+    def held_back(self, train_ids: Sequence[int]) -> list[int]:
+        """The train cameras held back, one fold each: ``cameras`` of ``train_ids`` from ``fold`` on
+        (cyclically, at most all of them)."""
+        n = len(train_ids)
+        return [int(train_ids[(self.fold + k) % n]) for k in range(min(self.cameras, n))]
 
 
 def gains(frames: dict[str, Sequence[float]], baseline: str = "skip") -> dict[str, dict[str, float | None]]:
-    """{candidate: {"gain_db", "se_db"}}: each other candidate's per-frame paired gain over
-    ``baseline`` (``frames``: candidate -> PSNR per scored frame, dB), mean and standard error."""
+    """{candidate: {"gain_db", "se_db"}}: each other candidate's paired gain over ``baseline``
+    (``frames``: candidate -> PSNR per unit, dB: per scored frame of one fold, or per fold), mean
+    and standard error."""
     out = {}
     for c, values in frames.items():
         if c != baseline and baseline in frames:

@@ -91,11 +91,70 @@ def _fold_restorer(views, init_dir: Path, cfg1, base, out_dir: Path, config, par
 
 
 def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bool = False) -> dict[str, Any]:
-    """The self-check of ``config`` on ``scene`` (module docstring) with the run's ``restorer``;
-    working files under ``out_dir``. Returns the decision record (also ``out_dir/decision.json``).
-    Resumable: the parts finished in ``out_dir`` (PARTS_FILE, the fold's init and model) are
-    reused and an interrupted training continues from its last checkpoint, so a resumed check
-    decides as an uninterrupted one."""
+    """The self-check of ``config`` on ``scene`` (module docstring of ``pipeline.self_check``) with
+    the run's ``restorer``; working files under ``out_dir`` (the first fold's in it, the others' in
+    ``out_dir/fold<k>``). Returns the decision record (also ``out_dir/decision.json``).
+    Resumable: the parts finished (PARTS_FILE, a fold's init and model) are reused and an
+    interrupted training continues from its last checkpoint, so a resumed check decides as an
+    uninterrupted one."""
+    from fixer4d import atomic
+
+    sc = config.self_check
+    out_dir = Path(out_dir)
+    train_ids = list(scene.train_ids)
+    if len(train_ids) < 3:
+        record = {"decision": "refine", "reason": f"{len(train_ids)} train cameras: no fold of at least 2 to check on"}
+        atomic.write_json(out_dir / DECISION_FILE, record)
+        return record
+    out_dir.mkdir(parents=True, exist_ok=True)
+    folds = []
+    for k, held in enumerate(sc.held_back(train_ids)):
+        if len(folds) and progress:
+            print(f"[fixer4d] self-check: fold {k + 1} of {sc.cameras} (held-back camera {held})", flush=True)
+        folds.append(_run_fold(scene, config, out_dir if k == 0 else out_dir / f"fold{k}", held, restorer, progress))
+
+    candidates = ("skip", "continue", "refine")
+    if len(folds) == 1:
+        psnr, units = folds[0]["psnr"], folds[0]["psnr_frames"]
+    else:  # the unit of the paired gains is the fold (its mean over the scored frames)
+        psnr = {c: float(np.mean([f["psnr"][c] for f in folds])) for c in candidates}
+        units = {c: [f["psnr"][c] for f in folds] for c in candidates}
+    decision = decide(psnr, sc.tie_db, sc.allow_skip, sc.margin, units)
+    first = folds[0]
+    seconds = {k: float(sum(f["seconds"].get(k, 0.0) for f in folds))
+               for k in ("init", "stage1", "restorer", "continue", "refine") if k in first["seconds"]}
+    record = {
+        "decision": decision,
+        "held_back_camera": first["held_back_camera"],
+        "fold_cameras": first["fold_cameras"],
+        "held_back_name": first["held_back_name"],
+        "fold_names": first["fold_names"],
+        "held_back_names": [f["held_back_name"] for f in folds],
+        "scale": sc.scale,
+        "frames": first["frames"],
+        "psnr": psnr,
+        "psnr_frames": first["psnr_frames"],
+        "gain_unit": "frame" if len(folds) == 1 else "fold",
+        "gain_refine_db": psnr["refine"] - psnr["skip"],
+        "gain_continue_db": psnr["continue"] - psnr["skip"],
+        "gains": gains(units) if len(units) == len(psnr) else {},
+        "settings": {"lambda_gen": config.stage2.lambda_gen, "pseudo_mask": config.stage2.pseudo_mask,
+                     "stage2_iterations": config.stage2.total_iterations, "restorer": config.restorer.kind,
+                     "tie_db": sc.tie_db, "allow_skip": sc.allow_skip, "margin": sc.margin, "cameras": len(folds)},
+        "seconds": seconds,
+        "reason": _reason(decision, psnr, sc.tie_db if sc.margin == "fixed" else None),
+        **({"folds": folds} if len(folds) > 1 else {}),
+    }
+    atomic.write_json(out_dir / DECISION_FILE, record)
+    log.info("stage-2 self-check on train camera(s) %s: %s", record["held_back_names"], record["reason"])
+    return record
+
+
+def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool) -> dict[str, Any]:
+    """One fold of the check: train camera ``held`` held back, the others trained on (init,
+    stage 1, the fold's learned restorer, the continue and refine candidates); working files in
+    ``out_dir``. Returns {"held_back_camera", "held_back_name", "fold_cameras", "fold_names",
+    "frames", "psnr": {candidate: dB}, "psnr_frames": {candidate: [dB per frame]}, "seconds"}."""
     import json
 
     from fixer4d import atomic
@@ -112,16 +171,9 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
     from fixer4d.train.trainer import Trainer
 
     sc = config.self_check
-    out_dir = Path(out_dir)
-    train_ids = list(scene.train_ids)
-    if len(train_ids) < 3:
-        record = {"decision": "refine", "reason": f"{len(train_ids)} train cameras: no fold of at least 2 to check on"}
-        atomic.write_json(out_dir / DECISION_FILE, record)
-        return record
     out_dir.mkdir(parents=True, exist_ok=True)
     parts = _Parts(out_dir)
-    held = train_ids[sc.fold % len(train_ids)]
-    fold_ids = [i for i in train_ids if i != held]
+    fold_ids = [i for i in scene.train_ids if i != held]
     # every part of the fold reads its own cameras only; the held-back camera's frames are read
     # through ``scored``, by ``_held_back_psnr`` alone
     views = TrainOnlyView(scene, fold_ids, sc.scale, readable=fold_ids)
@@ -176,31 +228,17 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
                                     refresh_cache=refresh, camera_response=copy.deepcopy(response)))
 
     psnr = {c: parts.psnr[c] for c in ("skip", "continue", "refine")}
-    frames = {c: parts.frames[c] for c in psnr if c in parts.frames}  # absent in a fold from before they were kept
-    decision = decide(psnr, sc.tie_db, sc.allow_skip, sc.margin, frames)
-    record = {
-        "decision": decision,
+    return {
         "held_back_camera": int(held),
-        "fold_cameras": [int(i) for i in views.train_ids],
         "held_back_name": scene.cameras[int(held)].name,
+        "fold_cameras": [int(i) for i in views.train_ids],
         "fold_names": [scene.cameras[int(i)].name for i in views.train_ids],
-        "scale": sc.scale,
         "frames": eval_frames,
         "psnr": psnr,
-        "psnr_frames": frames,
-        "gain_refine_db": psnr["refine"] - psnr["skip"],
-        "gain_continue_db": psnr["continue"] - psnr["skip"],
-        "gains": gains(frames) if len(frames) == len(psnr) else {},
-        "settings": {"lambda_gen": config.stage2.lambda_gen, "pseudo_mask": config.stage2.pseudo_mask,
-                     "stage2_iterations": config.stage2.total_iterations, "restorer": config.restorer.kind,
-                     "tie_db": sc.tie_db, "allow_skip": sc.allow_skip, "margin": sc.margin},
+        "psnr_frames": {c: parts.frames[c] for c in psnr if c in parts.frames},  # absent in a fold from before they were kept
         "seconds": {k: parts.seconds[k] for k in ("init", "stage1", "restorer", "continue", "refine")
                     if k in parts.seconds},
-        "reason": _reason(decision, psnr, sc.tie_db if sc.margin == "fixed" else None),
     }
-    atomic.write_json(out_dir / DECISION_FILE, record)
-    log.info("stage-2 self-check on train camera %s: %s", held, record["reason"])
-    return record
 
 
 def _reason(decision: str, psnr: dict[str, float], tie_db: float | None) -> str:

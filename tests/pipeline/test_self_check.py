@@ -230,3 +230,33 @@ def test_the_measured_margin_asks_for_more_than_the_frames_spread():
     assert g["continue"]["se_db"] == 0.0
     # without per-frame figures (a fold from before they were kept) the measured rule is the fixed one
     assert decide(psnr, 0.1, margin="measured") == "refine"
+
+
+def test_two_held_back_cameras_decide_on_the_spread_over_folds(tmp_path):
+    import json
+
+    config = tiny_config(**{"self_check.cameras": 2, "self_check.eval_frames": 2, "self_check.margin": "measured"})
+    scene = load_scene_for(config)
+    record = run_self_check(scene, config, tmp_path / "check", restorer=None)
+    folds = record["folds"]
+    held = [f["held_back_camera"] for f in folds]
+    assert held == [scene.train_ids[3], scene.train_ids[0]]  # train cameras fold, fold + 1 (cyclic)
+    for f in folds:
+        assert f["held_back_camera"] not in f["fold_cameras"] and len(f["fold_cameras"]) == len(scene.train_ids) - 1
+    assert (tmp_path / "check" / "fold1" / "model_stage1.ply").is_file()
+    # each candidate's figure is the mean over the folds; the paired gain is per fold
+    for c in ("skip", "continue", "refine"):
+        assert abs(record["psnr"][c] - np.mean([f["psnr"][c] for f in folds])) < 1e-9
+    assert record["gain_unit"] == "fold" and record["settings"]["cameras"] == 2
+    units = {c: [f["psnr"][c] for f in folds] for c in record["psnr"]}
+    assert record["decision"] == decide(record["psnr"], config.self_check.tie_db, margin="measured", frames=units)
+    diffs = [f["psnr"]["refine"] - f["psnr"]["skip"] for f in folds]
+    assert abs(record["gains"]["refine"]["se_db"] - abs(diffs[0] - diffs[1]) / 2) < 1e-9
+    # the seconds are the folds' together, and the record on disk is the one returned
+    assert abs(record["seconds"]["stage1"] - sum(f["seconds"]["stage1"] for f in folds)) < 1e-9
+    assert json.loads((tmp_path / "check" / "decision.json").read_text())["folds"] == folds
+    from fixer4d.pipeline.report import self_check_line
+
+    line = self_check_line(record)
+    names = ", ".join(scene.cameras[c].name for c in held)
+    assert f"on held-back train cameras {names}, one fold each" in line and "per fold: mean ± standard error" in line
