@@ -20,7 +20,9 @@ MODEL_SUFFIXES = (".ply", ".npz")
 # Model versions a run opens with when the session names none, in order of preference.
 DEFAULT_VERSIONS = ("model_final.ply", "model_stage1.ply")
 EDIT_PATTERN = re.compile(r"^model_edit_(\d+)\.ply$")
-# co_fields saves the second of two fields trained side by side as <model name>_twin<suffix>.
+# A run trained with co_fields keeps the second of its two stage-1 fields under this name
+# (fixer4d.train.co_fields.TWIN_NAME); a model file outside a run has its twin as <stem>_twin<suffix>.
+RUN_TWIN = "model_stage1_twin.ply"
 TWIN_SUFFIX = "_twin"
 
 
@@ -46,12 +48,16 @@ def model_versions(run: Path) -> list[Path]:
 
 
 def twin_path(model: Path | None) -> Path | None:
-    """The twin field saved beside the model file ``model`` (``<stem>_twin<suffix>``), or None
-    when there is none (or no model file)."""
+    """The twin field the model file ``model`` is compared with, or None when there is none: in a
+    run folder the run's ``model_stage1_twin.ply`` (the pipeline compares every later model of the
+    run with it too: stage 2, edits), elsewhere ``<stem>_twin<suffix>`` beside the file; never
+    the file itself."""
     if model is None:
         return None
-    twin = Path(model).with_name(Path(model).stem + TWIN_SUFFIX + Path(model).suffix)
-    return twin if twin.is_file() else None
+    model = Path(model)
+    twin = model.parent / RUN_TWIN if is_run_folder(model.parent) else \
+        model.with_name(model.stem + TWIN_SUFFIX + model.suffix)
+    return twin if twin.is_file() and twin != model else None
 
 
 def next_edit_path(folder: Path) -> Path:

@@ -1,14 +1,17 @@
 """The undetermined overlay: where the shown model and its twin field disagree.
 
-A run trained with ``co_fields`` keeps a second stage-1 field beside its model
-(``model_stage1_twin.ply``, ``app.files.twin_path``). Where the renders of the two fields disagree,
-the train views do not determine the scene (``fixer4d.restore.undetermined``). The map is computed
+A run trained with ``co_fields`` keeps a second stage-1 field beside its models
+(``model_stage1_twin.ply``, ``app.files.twin_path``); every model of the run is compared with it,
+as the pipeline's stage 2 does. Where the two renders disagree, the train views do not determine
+the scene (``fixer4d.restore.undetermined``). The map is computed
 for the resting view from two torch renders at the same camera, time and background: the shown
 Gaussians (edits included) through ``services.render``, the twin through ``services.render_twin``.
 """
 from __future__ import annotations
 
 import numpy as np
+
+from app.files import RUN_TWIN
 
 # How to get a twin field, for the tooltip and the legend of a model without one.
 HOW_TO_GET_A_TWIN = "fixer4d run ... --set co_fields.enabled=true"
@@ -28,6 +31,8 @@ def twin_note(viewer) -> str:
         return ""
     if model is None:
         return f"no twin field: open a run trained with\n{HOW_TO_GET_A_TWIN}"
+    if model.name == RUN_TWIN:
+        return "this is the run's twin field: open another\nversion of the run to compare it with"
     return f"{model.name} has no twin field; a run trained with\n{HOW_TO_GET_A_TWIN} has one"
 
 

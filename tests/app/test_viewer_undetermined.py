@@ -66,6 +66,25 @@ def _counting(renders):
     return render_twin, calls
 
 
+def test_every_model_of_a_run_has_the_runs_twin(tmp_path):
+    from app.files import twin_path
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text("{}")
+    for name in ("model_stage1.ply", "model_final.ply", "model_edit_1.ply"):
+        (run / name).write_bytes(b"ply")
+    assert twin_path(run / "model_final.ply") is None and twin_path(None) is None
+    (run / "model_stage1_twin.ply").write_bytes(b"ply")
+    for name in ("model_stage1.ply", "model_final.ply", "model_edit_1.ply"):  # as the pipeline's stage 2
+        assert twin_path(run / name) == run / "model_stage1_twin.ply"
+    assert twin_path(run / "model_stage1_twin.ply") is None  # not its own twin
+    (tmp_path / "bare.ply").write_bytes(b"ply")  # outside a run: <stem>_twin beside it
+    assert twin_path(tmp_path / "bare.ply") is None
+    (tmp_path / "bare_twin.ply").write_bytes(b"ply")
+    assert twin_path(tmp_path / "bare.ply") == tmp_path / "bare_twin.ply"
+
+
 def test_without_a_twin_the_mode_is_greyed_out_and_says_how_to_get_one(make_viewer, tiny, tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "cfg"))
     d = _open(make_viewer, _run(tmp_path, tiny))
