@@ -6,6 +6,7 @@ Clips are named by scene camera ids everywhere (``RestoreCache.key(frame, cam_i,
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -20,13 +21,36 @@ from fixer4d.restore.visibility import VisibilityConfig
 RESTORER_DIR = "restorer"
 
 
+@dataclass
+class TwinWeight:
+    """Stage 1's twin field (co_fields; RUN/model_stage1_twin.ply) and ``co_fields.weight``: how
+    its disagreement with the rendered model (``restore.undetermined``) enters a request's
+    ``unobserved`` weight (``restore.undetermined.combined_weight``)."""
+
+    model: Any
+    mode: str
+
+
+def twin_weight_for(config: RunConfig, run_dir: str | Path) -> TwinWeight | None:
+    """The run's TwinWeight, None unless co_fields is on with a weight other than "visibility"."""
+    cf = config.co_fields
+    if not cf.enabled or cf.weight == "visibility":
+        return None
+    from fixer4d.model.io import load_ply
+    from fixer4d.train.co_fields import TWIN_NAME
+
+    return TwinWeight(load_ply(Path(run_dir) / TWIN_NAME), cf.weight)
+
+
 def make_request(model, scene, cameras: list[Camera], frame: int, ref_ids: tuple[int, int], *,
                  backend: str = "auto", trajectory: dict[str, Any] | None = None,
-                 visibility: VisibilityConfig | None = None):
+                 visibility: VisibilityConfig | None = None, twin: TwinWeight | None = None):
     """Render a clip and everything the restorer needs at the references (restorers never render).
 
     visibility: when given, the request carries ``unobserved`` (F, H, W): how unobserved each
-    clip pixel is by the scene's train cameras (``restore.visibility``, from these renders)."""
+    clip pixel is by the scene's train cameras (``restore.visibility``, from these renders).
+    twin: with ``visibility``, ``unobserved`` is instead that weight combined with the
+    disagreement of the twin's renders of the clip (``TwinWeight``)."""
     from fixer4d.restore.base import RestoreRequest
     from fixer4d.restore.visibility import TrainView, unobserved_clip
 
@@ -43,6 +67,12 @@ def make_request(model, scene, cameras: list[Camera], frame: int, ref_ids: tuple
     if visibility is not None:
         train = [TrainView(c, d, a) for c, d, a in zip(ref_cams + extra_cams, depth_all[n:], alpha_all[n:])]
         unobserved = unobserved_clip(cameras, depth, alpha, train, visibility)
+        if twin is not None:
+            from fixer4d.restore.undetermined import combined_weight, undetermined_map
+
+            twin_rgb, _, twin_alpha = render_views(twin.model, list(cameras), t, backend)
+            undetermined = np.stack([undetermined_map(*x) for x in zip(rgb, twin_rgb, alpha, twin_alpha)])
+            unobserved = combined_weight(unobserved, undetermined, twin.mode)
     return RestoreRequest(
         rgb=rgb, depth=depth, alpha=alpha, cameras=list(cameras), time=t, frame=frame,
         ref_images=[scene.frame(frame, i) for i in ref_ids], ref_cameras=ref_cams,
@@ -80,7 +110,8 @@ def _restore_job(job):
 
 
 def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, progress: bool = True,
-                          backend: str = "auto", executor=None, restorer=None) -> Callable[[Any, int], None]:
+                          backend: str = "auto", executor=None, restorer=None,
+                          twin: TwinWeight | None = None) -> Callable[[Any, int], None]:
     """The stage-2 cache refresh: render every trajectory (the pair paths and arcs, and with
     ``trajectories.undetermined_views`` the paths to the views the current model leaves most
     undetermined, ``pipeline.undetermined_views``) at every restored timestamp with the
@@ -88,7 +119,8 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
     write them to RUN/cache/round_<r> (with ``stage2.pseudo_target = "gated"``, each restored frame
     blended into its render by confidence x unobserved weight first). Complete entries of a round are reused (a resumed run does
     not redo them). restorer: the run's configured one when None (a diagnostic may pass another,
-    e.g. benchmarks/stage2_ceiling.py's ground-truth oracle)."""
+    e.g. benchmarks/stage2_ceiling.py's ground-truth oracle). twin: the requests' ``TwinWeight``
+    (None: the visibility weight alone)."""
     from fixer4d.pipeline.executors import LocalExecutor
     from fixer4d.pipeline.keys import stage2_key
     from fixer4d.restore.cache import RestoreCache
@@ -118,7 +150,8 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
         for start in range(0, len(todo), RESTORE_BATCH):
             batch = todo[start:start + RESTORE_BATCH]
             requests = [make_request(model, scene, tr.cameras, f, ids, backend=backend,
-                                     trajectory=clip_meta(tr, ids), visibility=config.stage2.visibility)
+                                     trajectory=clip_meta(tr, ids), visibility=config.stage2.visibility,
+                                     twin=twin)
                         for f, tr, ids in batch]
             results = executor.map(_restore_job, [(restorer, req) for req in requests])
             if gated:  # the pseudo-target: restored where unobserved and trusted, the fallback elsewhere
@@ -214,13 +247,14 @@ def clip_through(scene, camera: Camera) -> tuple[list[Camera], tuple[int, int]]:
 
 
 def restoration_render_fn(model, scene, restorer, backend: str = "auto", visibility: VisibilityConfig | None = None,
-                          fill: bool = True) -> Callable[[Camera, float], np.ndarray]:
+                          fill: bool = True, twin: TwinWeight | None = None) -> Callable[[Camera, float], np.ndarray]:
     """A render function for evaluation whose images are *restored* renders: the restored middle
     frame of ``clip_through`` the held-out camera (the "restoration" rows of the paper's Table 2).
     visibility: when given, the frame is ``gate_restoration``'s (the restored frame where the train
     cameras leave the pixel unobserved, by the restorer's confidence; the unobserved fill there
     with ``fill``, else the render, whose holes take the restored frame); None: the restorer's
-    output as it is (the paper's rows).
+    output as it is (the paper's rows). twin: the gate's weight takes the twin field's
+    disagreement in (``make_request``).
     """
 
     def fn(camera: Camera, t: float) -> np.ndarray:
@@ -228,7 +262,7 @@ def restoration_render_fn(model, scene, restorer, backend: str = "auto", visibil
         cams, ids = clip_through(scene, camera)
         req = make_request(model, scene, cams, frame, ids, backend=backend,
                            trajectory={"name": f"through-{camera.name}", "pair": list(ids), "amplitude": 0.0},
-                           visibility=visibility)
+                           visibility=visibility, twin=twin)
         result = restorer.restore(req)
         if visibility is None:
             return result.rgb[1]

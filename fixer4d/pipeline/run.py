@@ -21,8 +21,9 @@ from fixer4d import atomic, numerics
 from fixer4d.pipeline import report as R
 from fixer4d.pipeline import stages as S
 from fixer4d.pipeline.config import RunConfig
-from fixer4d.pipeline.restoration import (UnobservedMasks, blur_render_fn, pseudo_view_summary,
-                                          restoration_render_fn, run_restorer)
+from fixer4d.pipeline.keys import co_fields_weight_key
+from fixer4d.pipeline.restoration import (TwinWeight, UnobservedMasks, blur_render_fn, pseudo_view_summary,
+                                          restoration_render_fn, run_restorer, twin_weight_for)
 from fixer4d.pipeline.run_folder import RunFolder, load_scene_for, stage_key
 from fixer4d.pipeline.shared_static import SHARED_DIR, export_shared_static
 from fixer4d.pipeline.stage_cache import StageCache
@@ -178,8 +179,9 @@ def _stage1_restoration_rows(ctx: S.StageContext, report: _Report, model, restor
     report.add(R.metrics_row(R.ROW_BLUR, mb, rec.seconds(f"init_{method}", "stage1")))
     m = S.evaluate_stage(ctx, R.ROW_RESTORED_INIT,
                          restoration_render_fn(model, ctx.scene, restorer, ctx.backend, gate,
-                                               config.eval.fill_unobserved),
-                         stage_key(s1_key, S.restorer_key(config), gate_settings(gate, config.eval.fill_unobserved)),
+                                               config.eval.fill_unobserved, _twin(ctx, gate)),
+                         stage_key(s1_key, S.restorer_key(config), gate_settings(gate, config.eval.fill_unobserved),
+                                   *co_fields_weight_key(config)),
                          report.seconds("stage1", "restorer"), unobserved)
     report.add(R.metrics_row(R.ROW_RESTORED_INIT, m, rec.seconds(f"init_{method}", "stage1", "restorer")
                              + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_INIT)}")))
@@ -209,13 +211,18 @@ def _final_rows(ctx: S.StageContext, report: _Report, model, decision: str, rest
     if restorer is not None and config.eval.restoration_rows:
         m = S.evaluate_stage(ctx, R.ROW_RESTORED_REFINED,
                              restoration_render_fn(model, ctx.scene, restorer, ctx.backend, gate,
-                                               config.eval.fill_unobserved),
+                                               config.eval.fill_unobserved, _twin(ctx, gate)),
                              stage_key(s2_key, S.restorer_key(config),
                                        gate_settings(gate, config.eval.fill_unobserved)),
                              report.seconds("stage1", "restorer", "stage2"), unobserved)
         report.add(R.metrics_row(R.ROW_RESTORED_REFINED, m, full_secs
                                  + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_REFINED)}")))
     return final
+
+
+def _twin(ctx: S.StageContext, gate) -> TwinWeight | None:
+    """The gated rows' twin-field weight (co_fields.weight; None: the visibility weight alone)."""
+    return None if gate is None else twin_weight_for(ctx.config, ctx.path)
 
 
 def gate_settings(gate, fill: bool) -> dict[str, Any] | None:

@@ -48,8 +48,6 @@ TERMS_NAME = "model_terms.json"
 # The same file as run folders made before the terms were called so name it: read when
 # TERMS_NAME is absent (``terms_path``), never written.
 FORMER_TERMS_NAME = "model_effects.json"
-# Stage 1's twin field (co_fields.enabled), beside model_stage1.ply.
-TWIN_NAME = "model_stage1_twin.ply"
 
 
 def terms_path(run_dir: Path) -> Path:
@@ -150,7 +148,7 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
     from fixer4d.model.terms import terms_report
     from fixer4d.model.io import load_ply, save_ply
 
-    from fixer4d.train.co_fields import TWIN_DIR
+    from fixer4d.train.co_fields import TWIN_DIR, TWIN_NAME
 
     key = stage1_key(ctx.config, method)
     twin = ctx.config.co_fields.enabled and method == ctx.config.init_method
@@ -281,7 +279,7 @@ def stage2(ctx: StageContext, model, refresh: Callable[[Any, int], None] | None 
     When the stage's settings changed since an earlier attempt, that attempt's cache and
     checkpoints are moved aside (RUN/stale/) so no stale pseudo-target is reused."""
     from fixer4d.model.io import load_ply, save_ply
-    from fixer4d.pipeline.restoration import make_refresh_callback
+    from fixer4d.pipeline.restoration import make_refresh_callback, twin_weight_for
     from fixer4d.restore.cache import RestoreCache
     from fixer4d.train.trainer import Trainer
 
@@ -301,7 +299,8 @@ def stage2(ctx: StageContext, model, refresh: Callable[[Any, int], None] | None 
         from fixer4d.pipeline.executors import executor_for
 
         refresh = make_refresh_callback(ctx.path, ctx.train_scene, ctx.config, progress=ctx.progress, backend=ctx.backend,
-                                        executor=executor_for(ctx.config.executor))
+                                        executor=executor_for(ctx.config.executor),
+                                        twin=twin_weight_for(ctx.config, ctx.path))
     trainer = Trainer(model, ctx.train_scene, ctx.training_config(), run_dir=ctx.path, stage2=ctx.config.stage2,
                       cache=RestoreCache(ctx.path / "cache", fingerprint=key), refresh_cache=refresh,
                       camera_response=stage1_response(ctx))

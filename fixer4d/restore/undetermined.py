@@ -80,4 +80,17 @@ def undetermined_map(rgb_a: np.ndarray, rgb_b: np.ndarray, alpha_a: np.ndarray, 
     return out.astype(np.float32)
 
 
-__all__ = ["undetermined_map", "WINDOW_PX", "COLOUR_LOW", "COLOUR_HIGH", "COVERAGE_LOW", "COVERAGE_HIGH"]
+def combined_weight(visibility: np.ndarray, undetermined: np.ndarray, mode: str) -> np.ndarray:
+    """The per-pixel weight that gates restoration and the pseudo-loss, (...) float32 in [0, 1]:
+    ``mode`` "visibility" -> the visibility weight (``restore.visibility``), "undetermined" -> the
+    two fields' disagreement (``undetermined_map``), "max" -> the larger of the two. Both (...)."""
+    if mode == "visibility":
+        return np.asarray(visibility, np.float32)
+    if mode == "undetermined":
+        return np.asarray(undetermined, np.float32)
+    if mode == "max":
+        return np.maximum(visibility, undetermined).astype(np.float32)
+    raise InputError(f"combined_weight: mode must be visibility, undetermined or max, got {mode!r}")
+
+
+__all__ = ["undetermined_map", "combined_weight", "WINDOW_PX", "COLOUR_LOW", "COLOUR_HIGH", "COVERAGE_LOW", "COVERAGE_HIGH"]

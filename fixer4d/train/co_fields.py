@@ -45,8 +45,10 @@ log = logging.getLogger("fixer4d.train")
 # Field B's seed is field A's plus this: far from the seeds a study sweeps (0, 1, 2, ...), so that
 # the twin of one run never repeats the field A of another.
 TWIN_SEED_OFFSET = 1_000_003
-# Field B's folder inside the run folder (its checkpoints).
+# Field B's folder inside the run folder (its checkpoints), and field B itself beside field A's
+# model_stage1.ply.
 TWIN_DIR = "twin"
+TWIN_NAME = "model_stage1_twin.ply"
 
 
 def unsupported(means: np.ndarray, other: np.ndarray, distance: float) -> np.ndarray:
@@ -164,4 +166,4 @@ class CoFields:
         return True
 
 
-__all__ = ["CoFields", "co_prune", "prune_trainer", "twin_trainer", "unsupported", "TWIN_SEED_OFFSET", "TWIN_DIR"]
+__all__ = ["CoFields", "co_prune", "prune_trainer", "twin_trainer", "unsupported", "TWIN_SEED_OFFSET", "TWIN_DIR", "TWIN_NAME"]

@@ -27,7 +27,10 @@ class CoFieldsConfig:
     about its own scale of it, so the two fields' descendants of one initial point lie within a
     few percent_dense of each other, while a floater one field grew alone in empty space does not.
     weight: "visibility" (restore.visibility's unobserved weight, as without co_fields),
-    "undetermined" (the twin's render disagreement at the pseudo-view) or "max" of the two.
+    "undetermined" (the twin's render disagreement at the pseudo-view) or "max" of the two; it
+    gates stage 2's pseudo-targets and the Restoration rows. The twin stays as stage 1 left it
+    while stage 2 trains field A. The stage-2 self-check's fold trains no twin: its stage 2 gates
+    by the visibility weight.
     """
 
     enabled: bool = False

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from fixer4d.errors import InputError
-from fixer4d.restore.undetermined import undetermined_map
+from fixer4d.restore.undetermined import combined_weight, undetermined_map
 
 H, W = 40, 50
 
@@ -55,3 +55,14 @@ def test_shapes_are_checked():
         undetermined_map(rgb, rgb[:-1], alpha, alpha)
     with pytest.raises(InputError):
         undetermined_map(rgb, rgb, alpha, alpha, window=4)
+
+
+def test_the_combined_weight_is_either_map_or_their_max():
+    vis = np.array([[0.0, 0.7], [1.0, 0.2]], np.float32)
+    und = np.array([[0.5, 0.1], [0.0, 0.9]], np.float32)
+    np.testing.assert_array_equal(combined_weight(vis, und, "visibility"), vis)
+    np.testing.assert_array_equal(combined_weight(vis, und, "undetermined"), und)
+    np.testing.assert_array_equal(combined_weight(vis, und, "max"),
+                                  np.array([[0.5, 0.7], [1.0, 0.9]], np.float32))
+    with pytest.raises(InputError):
+        combined_weight(vis, und, "mean")
