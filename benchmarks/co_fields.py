@@ -2,6 +2,7 @@
 the option is worth on held-out (validation) cameras, paired with the quality bench's baseline.
 
     python benchmarks/co_fields.py run RUN [--set KEY=VALUE ...] --baseline FILE.json --out OUT.json
+    python benchmarks/co_fields.py weights RUN --fields DIR [--set KEY=VALUE ...] --out OUT.json
     python benchmarks/co_fields.py summary OUT.json ... --out SUMMARY.json
 
 ``run`` builds stage 1 exactly as the pipeline does (``pipeline.stages.stage1_trainer``, RUN's
@@ -11,6 +12,10 @@ twin side by side (``train.co_fields.CoFields``) and scores field A like the "ST
 of the same set and seed (its "STGS w/ MVS" row is field A's paired baseline). The cost is each
 field's own training seconds in the same process, and the co-pruning's. ``summary`` pairs the
 runs by set over seeds (``fixer4d.stats``: mean of the paired differences and its 95 % interval).
+``run --save-fields DIR`` keeps both fields (DIR/field_a.ply, DIR/field_b.ply) for ``weights``: the
+gated "Restoration (init)" row of field A with RUN's restorer, once per ``co_fields.weight``
+(visibility, undetermined, max; field B the twin), on the same cameras: the weight's effect on
+the restored images, paired on one model.
 """
 from __future__ import annotations
 
@@ -50,6 +55,12 @@ def run(args: argparse.Namespace) -> int:
         wall0 = time.perf_counter()
         co.train()
         wall = time.perf_counter() - wall0
+        if args.save_fields is not None:
+            from fixer4d.model.io import save_ply
+
+            args.save_fields.mkdir(parents=True, exist_ok=True)
+            save_ply(co.a.model.cpu(), args.save_fields / "field_a.ply")
+            save_ply(co.b.model.cpu(), args.save_fields / "field_b.ply")
         scores = {}
         for name, trainer in (("a", co.a), ("b", co.b)):
             render = model_render_fn(trainer.model, backend=config.training.backend)
@@ -68,6 +79,35 @@ def run(args: argparse.Namespace) -> int:
           f"{result['gain_db']:+.2f}), field B {scores['b']['psnr']:.2f}; {scores['a']['gaussians']} / "
           f"{scores['b']['gaussians']} Gaussians; stage 1 {wall:.0f} s wall, field A alone {scores['a']['train_s']:.0f} s "
           f"(x{result['cost_ratio']:.2f}); pruned {[(h['pruned_a'], h['pruned_b']) for h in co.history]}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=1))
+    return 0
+
+
+def weights(args: argparse.Namespace) -> int:
+    from fixer4d.model.io import load_ply
+    from fixer4d.pipeline.restoration import TwinWeight, UnobservedMasks, restoration_render_fn, run_restorer
+    from fixer4d.pipeline.run_folder import RunFolder, load_scene_for
+    from fixer4d.pipeline.stages import StageContext, evaluate_stage
+    from fixer4d.train.co_fields_config import WEIGHTS
+
+    config = variant_config(args.run, args.sets)
+    scene = load_scene_for(config)
+    a, b = load_ply(args.fields / "field_a.ply"), load_ply(args.fields / "field_b.ply")
+    restorer = run_restorer(config, args.run)
+    gate, backend = config.stage2.visibility, config.training.backend
+    unobserved = UnobservedMasks(a, scene, gate, backend)
+    result = {"run": str(args.run), "sets": args.sets, "fields": str(args.fields), "rows": {}}
+    with tempfile.TemporaryDirectory(prefix="co_fields_weights_") as tmp:
+        ctx = StageContext(run=RunFolder(Path(tmp), config), scene=scene, progress=False)
+        for mode in WEIGHTS:
+            twin = None if mode == "visibility" else TwinWeight(b, mode)
+            render = restoration_render_fn(a, scene, restorer, backend, gate, config.eval.fill_unobserved, twin)
+            tic = time.perf_counter()
+            m = evaluate_stage(ctx, "Restoration (init)", render, f"weight-{mode}", {}, unobserved)["mean"]
+            result["rows"][mode] = {"psnr": m["psnr"], "psnr_unobserved": m.get("psnr_unobserved"),
+                                    "lpips": m.get("lpips"), "seconds": time.perf_counter() - tic}
+            print(f"{mode}: Restoration (init) {m['psnr']:.3f} dB (unobserved {m.get('psnr_unobserved')})", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=1))
     return 0
@@ -111,7 +151,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE")
     p.add_argument("--baseline", type=Path, required=True, help="the quality bench's file of this set and seed")
     p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--save-fields", dest="save_fields", type=Path, default=None, help="keep both fields here")
     p.set_defaults(fn=run)
+    w = sub.add_parser("weights", help="the gated Restoration (init) row of field A under each co_fields.weight")
+    w.add_argument("run", type=Path, help="the finished run whose restorer is used")
+    w.add_argument("--fields", type=Path, required=True, help="a `run --save-fields` folder")
+    w.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE")
+    w.add_argument("--out", type=Path, required=True)
+    w.set_defaults(fn=weights)
     s = sub.add_parser("summary", help="pair the runs by set over seeds")
     s.add_argument("files", type=Path, nargs="+")
     s.add_argument("--out", type=Path, required=True)
