@@ -59,6 +59,9 @@ class OpacityDecayConfig:
       densification window (~700 steps at a factor ~0.994), as the reset does once.
     start: first step (0-based) that decays; None = the stage's first densification
       (``densify_from``), 4C4D's start (densify_from_iter 500).
+    until_fraction: no step from this fraction of stage 1 on decays (1.0: every step to the end,
+      as 4C4D; 0.5: only while the default schedule densifies and prunes, so the opacities the
+      decay held down recover in the second half).
     hidden / dropout: the network's hidden width and dropout rate (4C4D's 32 and 0.1).
     lr / weight_decay: Adam settings of the network (4C4D's 1e-5 and 1e-4: the factor only needs
       to move within a range of 0.004, so it learns slowly and stays close to its middle).
@@ -68,6 +71,7 @@ class OpacityDecayConfig:
     f_min: float = 0.990
     f_max: float = 0.998
     start: int | None = None
+    until_fraction: float = 1.0
     hidden: int = 32
     dropout: float = 0.1
     lr: float = 1e-5
@@ -78,6 +82,8 @@ class OpacityDecayConfig:
             raise InputError(f"opacity_decay: need 0 < f_min <= f_max <= 1, got f_min={self.f_min}, f_max={self.f_max}")
         if self.start is not None and self.start < 0:
             raise InputError(f"opacity_decay.start must be >= 0 or null, got {self.start}")
+        if not 0.0 < self.until_fraction <= 1.0:
+            raise InputError(f"opacity_decay.until_fraction must be in (0, 1], got {self.until_fraction}")
         if self.hidden < 1 or not 0.0 <= self.dropout < 1.0:
             raise InputError("opacity_decay: hidden must be >= 1 and dropout in [0, 1)")
         if not self.lr > 0 or self.weight_decay < 0:

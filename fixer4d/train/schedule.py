@@ -36,8 +36,8 @@ class StageSchedule:
     the model is densified at (1-based) steps from < s < until.
     opacity_reset_every: steps between opacity resets (while densifying), None = none; the size
     prunes apply only after the first reset, so there are none either without resets.
-    decay_from: first (0-based) step of the learned opacity decay (``train.opacity_decay``), which
-    replaces the resets; None = no decay.
+    decay_from / decay_until: the (0-based) steps from <= s < until of the learned opacity decay
+    (``train.opacity_decay``), which replaces the resets; decay_from None = no decay.
     revises_terms: whether an auto-mode model-terms decision is revised on the density schedule.
     lambda_gen, pseudo_batch: weight of the pseudo-view loss and cached frames per step; the
     stage draws pseudo-views when both are > 0.
@@ -57,6 +57,7 @@ class StageSchedule:
     opacity_reset_every: int | None
     revises_terms: bool
     decay_from: int | None = None
+    decay_until: int | None = None
     lambda_gen: float = 0.0
     pseudo_batch: int = 0
     refresh_every: int = 1
@@ -69,11 +70,12 @@ class StageSchedule:
         decay in their place, from its ``start`` or the first densification), no pseudo-views."""
         decay = config.opacity_decay
         decay_from = (None if not decay.enabled else config.densify_from if decay.start is None else decay.start)
+        decay_until = int(math.ceil(decay.until_fraction * config.iterations))
         return cls(stage=1, iterations=config.iterations, seed=config.seed, lr_means_init=config.lr_means_init,
                    lr_means_final=config.lr_means_final, densify_from=config.densify_from,
                    densify_until=config.densify_until,
                    opacity_reset_every=None if decay.enabled else config.opacity_reset_every,
-                   revises_terms=True, decay_from=decay_from)
+                   revises_terms=True, decay_from=decay_from, decay_until=decay_until)
 
     @classmethod
     def stage2(cls, config: TrainingConfig, stage2: Stage2Config) -> "StageSchedule":
@@ -117,7 +119,7 @@ class StageSchedule:
 
     def decays(self, step: int) -> bool:
         """Whether (0-based) ``step`` decays the opacities it renders."""
-        return self.decay_from is not None and step >= self.decay_from
+        return self.decay_from is not None and self.decay_from <= step < self.decay_until
 
     def refresh_round(self, step: int) -> int | None:
         """The cache round refreshed before (0-based) ``step``, or None."""

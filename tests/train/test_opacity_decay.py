@@ -70,6 +70,8 @@ def test_the_decay_replaces_the_resets_in_stage1_only():
     assert s1.opacity_reset_every is None and s1.decay_from == on.densify_from
     assert not s1.decays(on.densify_from - 1) and s1.decays(on.densify_from) and s1.decays(1499)
     assert StageSchedule.stage1(TrainingConfig.for_iterations(1500, opacity_decay={"enabled": True, "start": 7})).decay_from == 7
+    half = StageSchedule.stage1(TrainingConfig.for_iterations(1500, opacity_decay={"enabled": True, "until_fraction": 0.5}))
+    assert half.decays(749) and not half.decays(750)
     assert StageSchedule.stage2(on, Stage2Config()).decay_from is None
     assert StageSchedule.stage1(matched_config(on, Stage2Config())).decay_from is None
     off = StageSchedule.stage1(TrainingConfig.for_iterations(1500))
