@@ -26,8 +26,11 @@ import tempfile
 import time
 from pathlib import Path
 
-import fixer4d  # noqa: F401  (sets the OpenMP wait policy before torch is imported)
-from stage1_variants import train_view_psnr, variant_config
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import fixer4d  # noqa: E402,F401  (sets the OpenMP wait policy before torch is imported)
+from benchmarks.stage1_variants import train_view_psnr, variant_config  # noqa: E402
 
 ROW = "STGS w/ MVS"
 
@@ -69,7 +72,8 @@ def run(args: argparse.Namespace) -> int:
                             "psnr_static": m.get("psnr_static"), "lpips": m.get("lpips"),
                             "train_view_psnr": train_view_psnr(render, scene, config.eval.stride),
                             "gaussians": trainer.model.num_gaussians, "train_s": trainer.train_seconds}
-    result = {"run": str(args.run), "sets": sets, "co_fields": config.co_fields.to_dict(),
+    result = {"run": str(args.run), "scene": Path(config.scene.source).name, "sets": sets,
+              "co_fields": config.co_fields.to_dict(),
               "seed": config.training.seed, "baseline_file": str(args.baseline), "baseline_psnr": baseline["psnr"],
               "baseline_lpips": baseline.get("lpips"), "field_a": scores["a"], "field_b": scores["b"],
               "gain_db": scores["a"]["psnr"] - baseline["psnr"], "co_prune": co.history,
@@ -119,8 +123,7 @@ def summary(args: argparse.Namespace) -> int:
     by_set: dict[str, list[dict]] = {}
     for path in args.files:
         r = json.loads(path.read_text())
-        source = next(s.split("=", 1)[1] for s in r["sets"] if s.startswith("scene.source="))
-        by_set.setdefault(Path(source).name, []).append(r)
+        by_set.setdefault(r["scene"], []).append(r)
     out = {}
     for name, runs in sorted(by_set.items()):
         runs.sort(key=lambda r: r["seed"])
