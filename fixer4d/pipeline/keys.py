@@ -131,8 +131,10 @@ def self_check_key(config: RunConfig) -> str:
     """The stage-2 self-check's fold: everything stage 2 depends on, and the check's own settings
     but those of the decision (``SELF_CHECK_DECISION_SETTINGS``)."""
     fold = {k: v for k, v in config.to_dict()["self_check"].items() if k not in SELF_CHECK_DECISION_SETTINGS}
-    if fold.get("cameras") == 1:  # one held-back camera: the check of every run from before it had a count
-        fold.pop("cameras")
+    # settings at the values every check had before they existed leave those checks' keys as they were
+    for name, before in (("cameras", 1), ("scale_budget", False)):
+        if fold.get(name) == before:
+            fold.pop(name)
     # a learned restorer is trained again inside the fold, on the fold's cameras only
     own_restorer = ("fold_restorer",) if config.restorer.kind == "learned" else ()
     return stage_key("self_check", stage2_key(config), fold, config.init_frame_stride, *own_restorer)

@@ -71,8 +71,12 @@ class SelfCheckConfig:
       the quality bench's seeds decide between them on validation cameras
       (docs/decisions/self-check.md).
     cameras: train cameras held back in turn, one fold each (module docstring); at most the number
-      of train cameras. Each fold costs about what one does, so ``scale`` is the knob that keeps the
-      check's share of a run.
+      of train cameras.
+    scale_budget: the fold's init points and Gaussian cap scale with its pixels (x ``scale`` ^ 2).
+      The run's budget is sized per pixel of a view (``training.max_gaussians``), and with the
+      full budget a fold at scale 0.5 costs 60-80 % of the run's stage 1, since the per-Gaussian
+      work does not shrink with the image; scaled, folds get cheap enough to hold back several
+      cameras.
     """
 
     enabled: bool = True
@@ -83,6 +87,7 @@ class SelfCheckConfig:
     allow_skip: bool = True
     margin: str = "fixed"
     cameras: int = 1
+    scale_budget: bool = False
 
     def __post_init__(self) -> None:
         if not 0.0 < self.scale <= 1.0:
@@ -91,6 +96,16 @@ class SelfCheckConfig:
             raise InputError(f"self_check.margin must be one of {', '.join(MARGINS)}, got {self.margin!r}")
         if self.eval_frames < 1 or self.fold < 0 or self.tie_db < 0 or self.cameras < 1:
             raise InputError("self_check: eval_frames >= 1, fold >= 0, tie_db >= 0 and cameras >= 1 are needed")
+
+    def fold_training(self, training):
+        """The fold's TrainingConfig from the run's ``training`` (``scale_budget``)."""
+        import dataclasses
+
+        if not self.scale_budget:
+            return training
+        share = self.scale ** 2
+        return dataclasses.replace(training, max_gaussians=max(1, round(training.max_gaussians * share)),
+                                   init_max_points=max(1, round(training.init_max_points * share)))
 
     def held_back(self, train_ids: Sequence[int]) -> list[int]:
         """The train cameras held back, one fold each: ``cameras`` of ``train_ids`` from ``fold`` on

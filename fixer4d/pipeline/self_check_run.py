@@ -185,7 +185,7 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
         run_init(views, config.init.method, init_dir, frames=frames, config=config.init, progress=False)
         parts.finish("init", time.perf_counter() - t0)
 
-    cfg1 = dataclasses.replace(config.training, progress=progress)
+    cfg1 = dataclasses.replace(sc.fold_training(config.training), progress=progress)
     if "stage1" not in parts.seconds:
         init = DecomposedInit.load(init_dir) if has_decomposed(init_dir) else load_frame_clouds(init_dir)
         model, terms_decision = model_from_init(init, views, cfg1, config.model_terms)

@@ -260,3 +260,22 @@ def test_two_held_back_cameras_decide_on_the_spread_over_folds(tmp_path):
     line = self_check_line(record)
     names = ", ".join(scene.cameras[c].name for c in held)
     assert f"on held-back train cameras {names}, one fold each" in line and "per fold: mean ± standard error" in line
+
+
+def test_the_fold_budget_and_the_key_of_the_new_settings():
+    from fixer4d.pipeline.keys import stage2_key, self_check_key
+    from fixer4d.pipeline.run_folder import stage_key
+
+    config = tiny_config()
+    sc = config.self_check
+    assert sc.fold_training(config.training) is config.training  # the run's budget unless asked
+    scaled = tiny_config(**{"self_check.scale_budget": True, "self_check.scale": 0.5})
+    fold = scaled.self_check.fold_training(scaled.training)
+    assert fold.max_gaussians == round(scaled.training.max_gaussians / 4)
+    assert fold.init_max_points == round(scaled.training.init_max_points / 4)
+    # a check at the settings every check had before cameras / scale_budget existed keeps its key
+    before = {k: v for k, v in config.to_dict()["self_check"].items()
+              if k not in ("tie_db", "allow_skip", "margin", "cameras", "scale_budget")}
+    assert self_check_key(config) == stage_key("self_check", stage2_key(config), before, config.init_frame_stride)
+    assert len({self_check_key(config), self_check_key(scaled),
+                self_check_key(tiny_config(**{"self_check.cameras": 2}))}) == 3
