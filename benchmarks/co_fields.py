@@ -101,7 +101,8 @@ def weights(args: argparse.Namespace) -> int:
     restorer = run_restorer(config, args.run)
     gate, backend = config.stage2.visibility, config.training.backend
     unobserved = UnobservedMasks(a, scene, gate, backend)
-    result = {"run": str(args.run), "sets": args.sets, "fields": str(args.fields), "rows": {}}
+    result = {"run": str(args.run), "scene": Path(config.scene.source).name, "seed": config.training.seed,
+              "sets": args.sets, "fields": str(args.fields), "rows": {}}
     with tempfile.TemporaryDirectory(prefix="co_fields_weights_") as tmp:
         ctx = StageContext(run=RunFolder(Path(tmp), config), scene=scene, progress=False)
         for mode in WEIGHTS:
@@ -121,10 +122,21 @@ def summary(args: argparse.Namespace) -> int:
     from fixer4d.stats import interval, paired_gain, student_t_quantile
 
     by_set: dict[str, list[dict]] = {}
+    by_weights: dict[str, list[dict]] = {}
     for path in args.files:
         r = json.loads(path.read_text())
-        by_set.setdefault(r["scene"], []).append(r)
+        (by_weights if "fields" in r else by_set).setdefault(r["scene"], []).append(r)
     out = {}
+    for name, runs in sorted(by_weights.items()):
+        runs.sort(key=lambda r: r["seed"])
+        base = [r["rows"]["visibility"]["psnr"] for r in runs]
+        entry = {"seeds": [r["seed"] for r in runs], "visibility": interval(base)}
+        for mode in ("undetermined", "max"):
+            mean, se = paired_gain([r["rows"][mode]["psnr"] for r in runs], base)
+            entry[f"{mode}_minus_visibility_db"] = {
+                "mean": mean, "ci95": None if se is None else student_t_quantile(0.975, len(runs) - 1) * se}
+            print(f"{name} Restoration (init) {mode} - visibility: {mean:+.3f} dB")
+        out[f"weights:{name}"] = entry
     for name, runs in sorted(by_set.items()):
         runs.sort(key=lambda r: r["seed"])
         a = [r["field_a"]["psnr"] for r in runs]
