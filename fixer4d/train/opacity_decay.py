@@ -53,10 +53,12 @@ class OpacityDecayConfig:
 
     enabled: decay instead of opacity resets in stage 1 (stage 2 and the matched control never
       decay: they continue a shaped model, as they never reset either).
-    f_min / f_max: range of the per-step factor. 4C4D uses [0.996, 0.998] per render over 30k
-      iterations of 4 views; per step of a 1500-iteration stage 1 the defaults below let an
-      unsupported Gaussian at opacity 0.5 fade under the prune threshold (0.005) within the
-      densification window (~700 steps at a factor ~0.994), as the reset does once.
+    f_min / f_max: range of the per-step factor: 4C4D's [0.996, 0.998] (per render there). A
+      visible Gaussian's logit then falls by about (1 - f) / (1 - opacity) a step, which Adam's
+      opacity steps (lr 0.05) hold up to an opacity of about 0.94 where the views need it. A
+      wider range, [0.990, 0.998] (an unsupported Gaussian at 0.5 fades under the prune
+      threshold within the densification window), lost 0.17 dB more on demo_val
+      (docs/decisions/opacity-decay.md).
     start: first step (0-based) that decays; None = the stage's first densification
       (``densify_from``), 4C4D's start (densify_from_iter 500).
     until_fraction: no step from this fraction of stage 1 on decays (1.0: every step to the end,
@@ -68,7 +70,7 @@ class OpacityDecayConfig:
     """
 
     enabled: bool = False
-    f_min: float = 0.990
+    f_min: float = 0.996
     f_max: float = 0.998
     start: int | None = None
     until_fraction: float = 1.0
