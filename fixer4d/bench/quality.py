@@ -157,14 +157,17 @@ def _run_child(argv: list[str], log: Callable[[str], None]) -> None:
 
 
 def run_set(cs: CameraSet, seed: int, runs: Path, out: Path, log: Callable[[str], None] = print,
-            runner: Callable[[list[str], Callable[[str], None]], None] = _run_child) -> list[Path]:
-    """Run (or resume) ``cs`` at ``seed`` and write its result file(s); returns their paths."""
+            runner: Callable[[list[str], Callable[[str], None]], None] = _run_child,
+            overrides: Sequence[str] = ()) -> list[Path]:
+    """Run (or resume) ``cs`` at ``seed`` and write its result file(s); returns their paths.
+    overrides: ``KEY=VALUE`` settings added to the set's command (``--set``), an option under test."""
     run_dir = runs / cs.name / f"seed{seed}"
-    command = f"fixer4d run {cs.scene} --out {run_dir} --seed {seed} " + " ".join(cs.args)
+    args = (*cs.args, *(a for kv in overrides for a in ("--set", kv)))
+    command = f"fixer4d run {cs.scene} --out {run_dir} --seed {seed} " + " ".join(args)
     test_file = out / f"{cs.name}{'_val' if cs.validation_only else ''}_seed{seed}.json"
     written = []
     if not test_file.is_file():
-        runner(_cli("run", cs.scene, "--out", str(run_dir), "--seed", str(seed), *cs.args), log)
+        runner(_cli("run", cs.scene, "--out", str(run_dir), "--seed", str(seed), *args), log)
         _write(test_file, record_run(run_dir, test_file.stem, command.strip(), seed))
     written.append(test_file)
     if cs.validation is not None:
@@ -259,6 +262,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", default="0,1,2", help="comma-separated seeds (default 0,1,2)")
     parser.add_argument("--runs", type=Path, default=DEFAULT_RUNS, help="where the run folders go (kept, resumable)")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="result files and summary.json")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="a setting added to every run's command (repeatable): an option under test; give "
+                             "it its own --runs and --out")
     parser.add_argument("--summary-only", action="store_true", help="only summarize the result files in --out")
     parser.add_argument("--readme", type=Path, default=None,
                         help="also rewrite the results block of this Markdown file (README.md) from the summary")
@@ -278,7 +284,8 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             print(f"[quality] {i}/{len(todo)}: {cs.name}, seed {seed} ({time.perf_counter() - t0:.0f} s so far)",
                   flush=True)
-            run_set(cs, seed, args.runs, args.out, log=lambda m: print(f"[quality] {m}", flush=True))
+            run_set(cs, seed, args.runs, args.out, log=lambda m: print(f"[quality] {m}", flush=True),
+                    overrides=args.overrides)
     summary = summarize(args.out)
     _write(args.out / "summary.json", summary)
     if args.readme is not None:

@@ -75,6 +75,12 @@ def test_the_bench_runs_each_set_once_and_summarizes(tmp_path, monkeypatch):
     table = Q.markdown(summary)
     assert "| [demo](benchmarks/results/quality/demo_seed0.json) (0, 1) |" in table and "+0.30 ± 0.00" in table
     assert table.index("| [demo]") < table.index("*demo_val*")  # test splits first
+    # an option under test reaches the run's command and is recorded with it
+    Q.run_set(sets["demo"], 2, tmp_path / "runs", tmp_path / "out", log=lambda m: None, runner=fake_runner,
+              overrides=["training.opacity_decay.enabled=true"])
+    assert calls[-2][-2:] == ["--set", "training.opacity_decay.enabled=true"]
+    assert json.loads((tmp_path / "out" / "demo_seed2.json").read_text())["command"].endswith(
+        "--set training.opacity_decay.enabled=true")
 
 
 def test_a_set_whose_data_is_absent_says_so(tmp_path):
