@@ -38,6 +38,7 @@ DEFAULT_SWEEP: list[dict[str, Any]] = [
     {"name": "rounds-3", "stage2.rounds": 3},
     {"name": "K-0.5x", "stage2.refresh_every": 0.5},
     {"name": "restorer-refs-only", "restorer.warp.use_extra_views": False},
+    {"name": "undetermined-views-4", "trajectories.undetermined_views": 4},
     # the restorer axis: geometric warp vs the learned per-scene prior at two training budgets
     {"name": "restorer-warp", "restorer.kind": "warp"},
     {"name": "restorer-learned", "restorer.kind": "learned"},
@@ -47,8 +48,10 @@ DEFAULT_SWEEP: list[dict[str, Any]] = [
     # the model-terms axis: decided by evidence (the base), every term on every Gaussian, static only
     {"name": "model-terms-all", "model_terms.mode": "all"},
     {"name": "model-terms-static", "model_terms.mode": "static"},
-    # stage 1's opacity reset replaced by the learned opacity decay (train.opacity_decay)
+    # stage 1's opacity reset replaced by the learned opacity decay (train.opacity_decay), and two
+    # stage-1 fields with co-pruning (train.co_fields)
     {"name": "opacity-decay", "training.opacity_decay.enabled": True},
+    {"name": "co-fields", "co_fields.enabled": True},
     {"name": "res-0.5", "scene.scale": 0.5},
     {"name": "iters-0.5x", "training.iterations": 0.5},
     {"name": "iters-2x", "training.iterations": 2.0},
