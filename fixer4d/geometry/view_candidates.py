@@ -1,5 +1,5 @@
 """Candidate novel cameras around a rig, the pick of the best-scored ones, and the short paths
-that reach them from the rig (issue 43, item 3: pseudo-views where the model is undetermined).
+that reach them from the rig (the pseudo-views where the model is undetermined).
 
 Only the train cameras' poses and intrinsics enter here: no image, no model, no held-out camera.
 

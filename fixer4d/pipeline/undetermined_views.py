@@ -1,4 +1,4 @@
-"""Pseudo-views where the model is undetermined (issue 43, item 3): extra restored clips beyond
+"""Pseudo-views where the model is undetermined: extra restored clips beyond
 the pair trajectories and arcs, on paths to the cameras of an orbit pool whose views the model
 leaves most undetermined (``trajectories.undetermined_views`` = k; 0 = off).
 

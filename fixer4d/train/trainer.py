@@ -87,6 +87,12 @@ def _drawn(snap: Snapshot, out: RenderOutput) -> torch.Tensor:
     return torch.where(snap.opacities.detach() >= ALPHA_MIN, out.radii, torch.zeros_like(out.radii))
 
 
+def _decayed(base: torch.Tensor | None) -> dict[str, torch.Tensor]:
+    """``model.at``'s keyword for a step's decayed base opacities (none without the decay, so a
+    model that only takes (t, camera_center) still trains)."""
+    return {} if base is None else {"base_opacities": base}
+
+
 class Trainer:
     """Optimizes a SpacetimeGaussians model on a scene (stage 1, or stage 2 with ``stage2``).
 
@@ -310,7 +316,7 @@ class Trainer:
             cam = self.scene.cameras[cam_id]
             tic = time.perf_counter()
             if snap is None or not shared:
-                snap = self.model.at(t, camera_center=None if shared else cam.center, base_opacities=base)
+                snap = self.model.at(t, camera_center=None if shared else cam.center, **_decayed(base))
             timing["t_at"] += time.perf_counter() - tic
             out = self._render_view(snap, cam, outputs, timing, view=int(v))
             tic = time.perf_counter()
@@ -331,7 +337,7 @@ class Trainer:
         views rendered in one gsplat call, one loss over the (V, H, W, 3) batch (V x its mean
         is the per-view sum)."""
         tic = time.perf_counter()
-        snap = self.model.at(t, base_opacities=base)
+        snap = self.model.at(t, **_decayed(base))
         timing["t_at"] += time.perf_counter() - tic
         index = [int(v) for v in views]
         tic = time.perf_counter()
