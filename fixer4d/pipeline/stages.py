@@ -145,9 +145,8 @@ def init_stage(ctx: StageContext, method: str):
 
 def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
     """Stage 1 (STGS on the observed views) from ``clouds`` -> ``model_path``; resumes mid-stage."""
-    from fixer4d.model.terms import terms_report
     from fixer4d.model.io import load_ply, save_ply
-
+    from fixer4d.model.terms import terms_report
     from fixer4d.train.co_fields import TWIN_DIR, TWIN_NAME
 
     key = stage1_key(ctx.config, method)
