@@ -40,6 +40,7 @@ import numpy as np
 import torch
 
 from fixer4d.errors import InputError
+from fixer4d.geometry.subsample import subsample
 from fixer4d.model.camera_response import decide as decide_camera_response
 from fixer4d.model.initial_scales import initial_temporal_std, knn_scales
 from fixer4d.model.spacetime import MAX_MOTION_DEGREE, ModelConfig, SpacetimeGaussians
@@ -316,7 +317,7 @@ def _apply_forced(sw: _Switches, forced: dict[str, Any], reasons: dict[str, str]
 
 
 def model_from_decomposed(init, decision: TermsDecision, *, opacity: float, max_points: int,
-                          seed: int = 0) -> SpacetimeGaussians:
+                          seed: int = 0, subsample_method: str = "random") -> SpacetimeGaussians:
     """Gaussians from a DecomposedInit and its TermsDecision.
 
     Static cloud -> static Gaussians (no time terms; clip-long dynamic ones in mode "all"),
@@ -324,18 +325,20 @@ def model_from_decomposed(init, decision: TermsDecision, *, opacity: float, max_
     centred at their frame's time with the init spacing as temporal std, motion seeded with the
     track fit up to the point's degree, omega with the local rigid fit where it rotates; scales
     from 3-NN within their frame. At most ``max_points`` (moving points first, up to
-    DYNAMIC_CAP_SHARE of the cap; seeded uniform subsamples).
+    DYNAMIC_CAP_SHARE of the cap; ``subsample_method``: a uniform draw with ``seed`` or an even
+    spread in space, moving points frame by frame, fixer4d.geometry.subsample).
     """
     rng = np.random.default_rng(seed)
     cfg = decision.model_config
     dyn_idx = np.nonzero(decision.dynamic_keep)[0]
     n_dyn_cap = int(max_points * DYNAMIC_CAP_SHARE) if init.num_static else max_points
     if dyn_idx.size > n_dyn_cap:
-        dyn_idx = np.sort(rng.choice(dyn_idx, size=n_dyn_cap, replace=False))
+        dyn_idx = dyn_idx[subsample(np.asarray(init.dyn_points)[dyn_idx], n_dyn_cap, subsample_method, rng,
+                                    groups=np.asarray(init.dyn_frames)[dyn_idx])]
     st_idx = np.arange(init.num_static)
     room = max_points - dyn_idx.size
     if st_idx.size > room:
-        st_idx = np.sort(rng.choice(st_idx, size=max(room, 0), replace=False))
+        st_idx = subsample(np.asarray(init.static_points), max(room, 0), subsample_method, rng)
     s_pts = np.asarray(init.static_points, np.float64)[st_idx]
     d_pts = np.asarray(init.dyn_points, np.float64)[dyn_idx]
     s_scales = knn_scales(s_pts)

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from fixer4d.errors import InputError
+from fixer4d.geometry.subsample import INIT_SUBSAMPLES
 from fixer4d.restore.visibility import VisibilityConfig
 from fixer4d.train.device import DEVICES
 from fixer4d.train.opacity_decay import OpacityDecayConfig
@@ -77,9 +78,12 @@ class TrainingConfig:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     # -- initialization -------------------------------------------------------------------
-    # Cap on the points taken from all per-frame clouds (seeded uniform subsample); CPU
-    # rendering cost grows with the Gaussian count.
+    # Cap on the points taken from all per-frame clouds; CPU rendering cost grows with the
+    # Gaussian count.
     init_max_points: int = 15_000
+    # How the capped points are chosen (fixer4d.geometry.subsample): "random", a uniform draw
+    # with the seed; "spatial", one point per cell of an even grid, the same for every seed.
+    init_subsample: str = "random"
     init_opacity: float = 0.1
     # Hard cap on the model size during densification: ~0.7 Gaussian per pixel of one 200x150
     # view; a larger budget fits the train views better and generalizes worse at 1500 iterations
@@ -162,6 +166,9 @@ class TrainingConfig:
             raise InputError(f"TrainingConfig.iterations must be >= 0, got {self.iterations}")
         if self.device not in DEVICES:
             raise InputError(f"TrainingConfig.device {self.device!r}: choose one of {list(DEVICES)}")
+        if self.init_subsample not in INIT_SUBSAMPLES:
+            raise InputError(f"TrainingConfig.init_subsample {self.init_subsample!r}: choose one of "
+                             f"{list(INIT_SUBSAMPLES)}")
         if self.frame_order not in FRAME_ORDERS:
             raise InputError(f"TrainingConfig.frame_order {self.frame_order!r}: choose one of {list(FRAME_ORDERS)}")
         if self.views_per_step < 1:

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from fixer4d.errors import InputError
+from fixer4d.geometry.subsample import subsample
 from fixer4d.geometry.camera import Camera, rig_extent
 from fixer4d.model.terms import ModelTermsConfig, TermsDecision
 from fixer4d.model.initial_scales import knn_scales
@@ -46,7 +47,8 @@ def model_from_clouds(clouds: Sequence[Any], scene: MultiViewVideo, config: Trai
     Each point becomes a Gaussian with time centre = its frame's time, isotropic scale = the RMS
     distance to its 3 nearest neighbours *within its frame* (points of different frames
     coincide on static content and would give degenerate scales), opacity ``config.init_opacity``.
-    At most ``config.init_max_points`` points are kept (seeded uniform subsample). An empty or
+    At most ``config.init_max_points`` points are kept (``config.init_subsample``: a seeded
+    uniform draw or an even spread, frame by frame; fixer4d.geometry.subsample). An empty or
     nearly empty init (< MIN_INIT_POINTS points) is topped up with FALLBACK_POINTS random points
     inside the scene bounds (logged); without known bounds it raises InputError.
     """
@@ -65,7 +67,7 @@ def model_from_clouds(clouds: Sequence[Any], scene: MultiViewVideo, config: Trai
     rng = np.random.default_rng(config.seed)
 
     if points.shape[0] > config.init_max_points:
-        keep = np.sort(rng.choice(points.shape[0], size=config.init_max_points, replace=False))
+        keep = subsample(points, config.init_max_points, config.init_subsample, rng, groups=group)
         points, colors, times, group = points[keep], colors[keep], times[keep], group[keep]
 
     scales = np.zeros(points.shape[0])
@@ -128,7 +130,7 @@ def model_from_init(init: Any, scene: MultiViewVideo, config: TrainingConfig,
         return model_from_clouds(init.frame_clouds(), scene, config), None
     decision = decide_terms(init, terms)
     model = model_from_decomposed(init, decision, opacity=config.init_opacity, max_points=config.init_max_points,
-                                  seed=config.seed)
+                                  seed=config.seed, subsample_method=config.init_subsample)
     return model, decision
 
 
