@@ -16,6 +16,10 @@ summarizes them in ``<out>/summary.json``:
   Full − matched (the same iterations without pseudo-views), Restoration (init) − STGS w/ MVS
   (the render itself is the identity baseline).
 
+``--against OUT`` pairs these result files with another option's, seed by seed (``compare``):
+per split and row, the difference this − that per seed with its interval, written to
+``<out>/against_<name of OUT>.json``.
+
 Resumable: a finished (set, seed) is read back from its result file; a killed run resumes inside
 ``fixer4d run``'s own run folder. Progress is printed before each run. Runs happen in child
 processes, so each starts with the numerics mode of this process's environment (portable by
@@ -189,14 +193,20 @@ def _write(path: Path, data: dict[str, Any]) -> None:
     write_json(path, data)
 
 
-def summarize(out: Path) -> dict[str, Any]:
-    """``summary.json`` of every result file in ``out``: per split (``<set>`` or ``<set>_val``)
-    the ``summarize_split`` of its seeds, with the files it read."""
+def _result_files(out: Path) -> dict[str, list[tuple[int, Path]]]:
+    """The result files in ``out`` by split (``<set>`` or ``<set>_val``): [(seed, path)], by seed."""
     groups: dict[str, list[tuple[int, Path]]] = {}
     for path in sorted(out.glob("*_seed*.json")):
         split, _, seed = path.stem.rpartition("_seed")
         if seed.isdigit():
             groups.setdefault(split, []).append((int(seed), path))
+    return {split: sorted(files) for split, files in groups.items()}
+
+
+def summarize(out: Path) -> dict[str, Any]:
+    """``summary.json`` of every result file in ``out``: per split (``<set>`` or ``<set>_val``)
+    the ``summarize_split`` of its seeds, with the files it read."""
+    groups = _result_files(out)
     summary = {}
     for split, files in sorted(groups.items()):
         records = [json.loads(p.read_text()) for _, p in sorted(files)]
@@ -206,6 +216,53 @@ def summarize(out: Path) -> dict[str, Any]:
                           "commits": sorted({str(r.get("commit")) for r in records}),
                           "numerics": sorted({str((r.get("numerics") or {}).get("mode", "unrecorded")) for r in records})}
     return summary
+
+
+#: The rows two options are compared on (``compare``).
+COMPARED_ROWS = (ROW_MVS, ROW_RESTORED, ROW_FULL)
+
+
+def compare(out: Path, against: Path) -> dict[str, Any]:
+    """One option against another, paired per seed: for each split both result folders have,
+    over the seeds both have, each row of ``COMPARED_ROWS`` as (``out``'s − ``against``'s) per
+    seed, with its ``interval`` per metric, and both options' self-check decisions."""
+    mine, theirs = _result_files(out), _result_files(against)
+    result: dict[str, Any] = {}
+    for split in sorted(set(mine) & set(theirs)):
+        a_files, b_files = dict(mine[split]), dict(theirs[split])
+        seeds = sorted(set(a_files) & set(b_files))
+        if not seeds:
+            continue
+        a = [json.loads(a_files[s].read_text()) for s in seeds]
+        b = [json.loads(b_files[s].read_text()) for s in seeds]
+        rows = {}
+        for row in COMPARED_ROWS:
+            diffs = {k: [(ra[row][k] - rb[row][k]) if row in ra and row in rb and ra[row].get(k) is not None
+                         and rb[row].get(k) is not None else None for ra, rb in zip(map(_rows, a), map(_rows, b))]
+                     for k in METRICS}
+            if any(v is not None for v in diffs["psnr"]):
+                rows[row] = {k: {**interval(v), "values": v} for k, v in diffs.items()}
+        result[split] = {"seeds": seeds, "rows": rows,
+                         "self_check": [[((r.get("self_check") or {}).get("decision") or "off") for r in recs]
+                                        for recs in (a, b)]}
+    return result
+
+
+def compare_markdown(comparison: dict[str, Any]) -> str:
+    """The table of ``compare``: per split, each row's paired PSNR difference ± 95 % half-width and
+    its per-seed values (test splits first, then validation)."""
+    head = ["split (seeds)", *(f"{r} (paired)" for r in COMPARED_ROWS), "self-check (this / that)"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for split in sorted(comparison, key=lambda s: (s.endswith("_val"), s)):
+        c = comparison[split]
+        cells = []
+        for row in COMPARED_ROWS:
+            iv = c["rows"].get(row, {}).get("psnr")
+            per_seed = ", ".join("n/a" if v is None else f"{v:+.2f}" for v in (iv or {}).get("values", []))
+            cells.append(f"{_fmt(iv, signed=True)} ({per_seed})" if iv else "")
+        checks = " / ".join("".join(d[0] for d in side) for side in c["self_check"])
+        lines.append(f"| {split} ({', '.join(str(s) for s in c['seeds'])}) | " + " | ".join(cells + [checks]) + " |")
+    return "\n".join(lines)
 
 
 def _fmt(iv: dict[str, Any] | None, signed: bool = False) -> str:
@@ -266,6 +323,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="a setting added to every run's command (repeatable): an option under test; give "
                              "it its own --runs and --out")
     parser.add_argument("--summary-only", action="store_true", help="only summarize the result files in --out")
+    parser.add_argument("--against", type=Path, default=None, metavar="OUT",
+                        help="also pair these result files with another option's (its --out), seed by seed: "
+                             "writes <out>/against_<name>.json and prints the paired table")
     parser.add_argument("--readme", type=Path, default=None,
                         help="also rewrite the results block of this Markdown file (README.md) from the summary")
     args = parser.parse_args(argv)
@@ -291,8 +351,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.readme is not None:
         write_block(args.readme, summary)
     print(markdown(summary))
+    if args.against is not None:
+        comparison = compare(args.out, args.against)
+        _write(args.out / f"against_{args.against.name}.json", {"this": str(args.out), "that": str(args.against),
+                                                                "splits": comparison})
+        print(f"\n{args.out} − {args.against}, paired per seed (dB):\n" + compare_markdown(comparison))
     return 0
 
 
 __all__ = ["CameraSet", "camera_sets", "summarize_split", "record_run", "run_set", "summarize", "markdown", "block",
-           "write_block", "main"]
+           "write_block", "compare", "compare_markdown", "main"]

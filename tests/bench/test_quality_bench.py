@@ -107,3 +107,22 @@ def test_the_readme_table_is_generated_from_the_committed_result_files():
     committed = Q.summarize(Q.DEFAULT_OUT)
     assert committed, "no committed quality-bench result files"
     assert Q.block(committed) in readme, "README's QUALITY block is stale: fixer4d bench quality --summary-only --readme README.md"
+
+
+def test_two_options_are_paired_seed_by_seed(tmp_path):
+    this, that = tmp_path / "decay", tmp_path / "reset"
+    for seed, (mvs_a, mvs_b) in enumerate(((25.5, 25.0), (24.4, 24.0), (26.6, 26.0))):
+        Q._write(this / f"demo_val_seed{seed}.json", _record(seed, mvs_a, mvs_a + 0.1, mvs_a, "refine"))
+        Q._write(that / f"demo_val_seed{seed}.json", _record(seed, mvs_b, mvs_b, mvs_b))
+    Q._write(this / "demo_val_seed7.json", _record(7, 30.0, 30.0, 30.0))  # no partner: left out
+    Q._write(that / "panoptic_seed0.json", _record(0, 20.0, 20.0, 20.0))  # a split only one side has
+    c = Q.compare(this, that)
+    assert set(c) == {"demo_val"} and c["demo_val"]["seeds"] == [0, 1, 2]
+    mvs = c["demo_val"]["rows"]["STGS w/ MVS"]["psnr"]
+    assert mvs["values"] == pytest.approx([0.5, 0.4, 0.6]) and mvs["mean"] == pytest.approx(0.5)
+    assert mvs["ci95"] == pytest.approx(4.3027 * 0.1 / math.sqrt(3), abs=1e-3)
+    assert c["demo_val"]["rows"]["Full"]["psnr"]["mean"] == pytest.approx(0.6)
+    assert "Restoration (init)" not in c["demo_val"]["rows"]  # neither side has the row
+    assert c["demo_val"]["self_check"] == [["refine"] * 3, ["skip"] * 3]
+    table = Q.compare_markdown(c)
+    assert "| demo_val (0, 1, 2) | +0.50 ± 0.25 (+0.50, +0.40, +0.60) |" in table and "rrr / sss" in table
