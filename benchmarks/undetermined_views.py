@@ -2,6 +2,7 @@
 finished quality-bench runs without re-running stage 1 (docs/decisions/undetermined-views.md).
 
     python benchmarks/undetermined_views.py SET --seeds 0,1,2 --views 4 --runs DIR [--measure] --out FILE
+        [--base-runs runs/quality --base-out benchmarks/results/quality]
 
 SET is a quality-bench camera set (panoptic, panoptic_c, demo). ``--measure`` copies each seed's
 run ``runs/quality/SET/seed<S>`` to ``DIR/SET/seed<S>_k<K>``, runs stage 2 there with the views
@@ -14,7 +15,9 @@ The result file holds, per seed, the validation rows (PSNR, PSNR on unobserved p
 the paired differences with ``fixer4d.stats.interval``: k − k = 0, k − STGS w/ MVS, k − the
 matched-iterations control (as much plain training) and k − the baseline's Full (the self-check's
 choice). It also holds the same figures on the test cameras
-(reported beside, never chosen on) and stage 2's seconds.
+(reported beside, never chosen on) and stage 2's seconds. ``--base-runs`` / ``--base-out``:
+another quality bench's runs and result files as the base (an option's, e.g. the opacity decay's
+``runs/quality_decay``).
 """
 from __future__ import annotations
 
@@ -43,13 +46,13 @@ def _refined(run: Path) -> bool:
     return stages.is_file() and bool(json.loads(stages.read_text()).get("stage2", {}).get("done"))
 
 
-def measure(name: str, seed: int, views: int, runs: Path) -> Path:
+def measure(name: str, seed: int, views: int, runs: Path, base_runs: Path = REPO_ROOT / DEFAULT_RUNS) -> Path:
     """Copy the seed's finished run, refine it with ``views`` views (stage 2 forced), evaluate it on
     the validation cameras; returns the copy."""
     run = runs / name / f"seed{seed}_k{views}"
     if not run.exists():
         run.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copytree(REPO_ROOT / DEFAULT_RUNS / name / f"seed{seed}", run)
+        shutil.copytree(base_runs / name / f"seed{seed}", run)
     cli = [sys.executable, "-m", "fixer4d.cli"]
     subprocess.run([*cli, "refine", str(run), "--set", f"trajectories.undetermined_views={views}",
                     "--set", "self_check.enabled=false", "--quiet"], check=True)
@@ -66,11 +69,12 @@ def _stage2(run: Path, report: Path) -> dict[str, Any] | None:
     return {**{m: full.get(m) for m in METRICS}, "seconds": seconds}
 
 
-def seed_figures(name: str, seed: int, views: int, runs: Path, split: str) -> dict[str, Any] | None:
+def seed_figures(name: str, seed: int, views: int, runs: Path, split: str,
+                 base_out: Path = DEFAULT_OUT) -> dict[str, Any] | None:
     """The rows of one seed on ``split`` ("val" or "test"): the baseline's, stage 2 with the views
     and the k = 0 control (None where not measured)."""
     suffix = "_val" if split == "val" else ""
-    base = json.loads((DEFAULT_OUT / f"{name}{suffix}_seed{seed}.json").read_text())
+    base = json.loads((base_out / f"{name}{suffix}_seed{seed}.json").read_text())
     rows = _rows(base)
 
     def report(k: int) -> Path:
@@ -114,14 +118,19 @@ def main() -> int:
     parser.add_argument("--runs", type=Path, required=True, help="where the copies of the runs go (outside git)")
     parser.add_argument("--measure", action="store_true", help="copy, refine and evaluate before reading")
     parser.add_argument("--out", type=Path, help="the result JSON")
+    parser.add_argument("--base-runs", type=Path, default=REPO_ROOT / DEFAULT_RUNS,
+                        help="the quality bench's run folders the copies start from (default runs/quality)")
+    parser.add_argument("--base-out", type=Path, default=DEFAULT_OUT,
+                        help="that bench's result files (default benchmarks/results/quality)")
     args = parser.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     if args.measure:
         for seed in seeds:
-            measure(args.set, seed, args.views, args.runs)
+            measure(args.set, seed, args.views, args.runs, args.base_runs)
     result: dict[str, Any] = {"set": args.set, "views": args.views, "command": " ".join(sys.argv)}
     for split in ("val", "test"):
-        per_seed = {str(s): f for s in seeds if (f := seed_figures(args.set, s, args.views, args.runs, split))}
+        per_seed = {str(s): f for s in seeds
+                    if (f := seed_figures(args.set, s, args.views, args.runs, split, args.base_out))}
         result[split] = {"seeds": per_seed, "paired": paired(per_seed)}
     for split in ("val", "test"):
         for label, iv in result[split]["paired"]["psnr"].items():
