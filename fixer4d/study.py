@@ -48,9 +48,9 @@ DEFAULT_SWEEP: list[dict[str, Any]] = [
     # the model-terms axis: decided by evidence (the base), every term on every Gaussian, static only
     {"name": "model-terms-all", "model_terms.mode": "all"},
     {"name": "model-terms-static", "model_terms.mode": "static"},
-    # stage 1's opacity reset replaced by the learned opacity decay (train.opacity_decay), and two
+    # stage 1's opacity reset in place of the learned opacity decay (train.opacity_decay), and two
     # stage-1 fields with co-pruning (train.co_fields)
-    {"name": "opacity-decay", "training.opacity_decay.enabled": True},
+    {"name": "opacity-reset", "training.opacity_decay.enabled": False},
     {"name": "co-fields", "co_fields.enabled": True},
     {"name": "res-0.5", "scene.scale": 0.5},
     {"name": "iters-0.5x", "training.iterations": 0.5},

@@ -32,11 +32,12 @@ RESULT_NEUTRAL = ("progress", "checkpoint_every", "keep_checkpoints")
 
 def result_settings(config: dict[str, Any]) -> dict[str, Any]:
     """A TrainingConfig's settings that decide its result: all but the result-neutral ones, the
-    opacity decay's when it is off, the init subsample when it is the random draw, and the requested ``device``, which decides nothing until
-    resolved: the device a training runs on (``device_kind``) is recorded beside them instead."""
+    opacity decay's when it is off, the init subsample when it is the random draw, and the
+    requested ``device``, which decides nothing until resolved: the device a training runs on
+    (``device_kind``) is recorded beside them instead."""
     out = {k: v for k, v in config.items() if k not in RESULT_NEUTRAL and k != "device"}
-    # an opacity decay that is off, and the random init subsample, leave the keys of every
-    # training from before they existed
+    # the reset (an opacity decay that is off) and the random init subsample key a training as
+    # every training from before those settings existed, so its finished stages stay valid
     if not (out.get("opacity_decay") or {}).get("enabled", False):
         out.pop("opacity_decay", None)
     if out.get("init_subsample") == "random":

@@ -345,7 +345,7 @@ def matched_config(training: TrainingConfig, stage2: Stage2Config) -> TrainingCo
     return dataclasses.replace(training, iterations=n, lr_means_init=stage2.lr_means_init,
                                lr_means_final=stage2.lr_means_final, densify_from=min(training.densify_every, until),
                                densify_until=until, opacity_reset_every=n + 1, seed=stage2.seed,
-                               opacity_decay=OpacityDecayConfig())
+                               opacity_decay=OpacityDecayConfig(enabled=False))
 
 
 def _known(cls: type, d: dict[str, Any]) -> dict[str, Any]:

@@ -74,8 +74,9 @@ def test_the_decay_replaces_the_resets_in_stage1_only():
     assert half.decays(749) and not half.decays(750)
     assert StageSchedule.stage2(on, Stage2Config()).decay_from is None
     assert StageSchedule.stage1(matched_config(on, Stage2Config())).decay_from is None
-    off = StageSchedule.stage1(TrainingConfig.for_iterations(1500))
+    off = StageSchedule.stage1(TrainingConfig.for_iterations(1500, opacity_decay={"enabled": False}))
     assert off.decay_from is None and off.opacity_reset_every == 500
+    assert TrainingConfig().opacity_decay.enabled  # the default since five seeds chose it
 
 
 def test_decay_settings_are_checked_and_key_the_stage_only_when_on():
@@ -83,12 +84,13 @@ def test_decay_settings_are_checked_and_key_the_stage_only_when_on():
         OpacityDecayConfig(f_min=0.999, f_max=0.99)
     with pytest.raises(InputError, match="unknown keys"):
         TrainingConfig(opacity_decay={"enabled": True, "rate": 2})
-    assert "opacity_decay" not in result_settings(TrainingConfig().to_dict())
-    assert result_settings(TrainingConfig(opacity_decay={"enabled": True}).to_dict())["opacity_decay"]["enabled"]
-    base = resolve(overrides={}, defaults={})
-    on = resolve(overrides={"training.opacity_decay.enabled": True}, defaults={})
-    assert on.training.opacity_decay.enabled
-    assert stage1_key(base, "mvs") != stage1_key(on, "mvs")
+    # the reset keys its stages as every training did before the decay existed
+    assert "opacity_decay" not in result_settings(TrainingConfig(opacity_decay={"enabled": False}).to_dict())
+    assert result_settings(TrainingConfig().to_dict())["opacity_decay"]["enabled"]
+    reset = resolve(overrides={"training.opacity_decay.enabled": False}, defaults={})
+    on = resolve(overrides={}, defaults={})
+    assert on.training.opacity_decay.enabled and not reset.training.opacity_decay.enabled
+    assert stage1_key(reset, "mvs") != stage1_key(on, "mvs")
 
 
 def _decay_config(make_config) -> TrainingConfig:

@@ -118,7 +118,8 @@ def test_size_prunes_only_when_configured_and_after_the_reset(small_scene, small
         return real(*args, **kw)
 
     monkeypatch.setattr(trainer_module, "densify_and_prune", spy)
-    cfg = make_config(12, densify_from=1, densify_every=3, densify_until=11, opacity_reset_every=5, **sizes)
+    cfg = make_config(12, densify_from=1, densify_every=3, densify_until=11, opacity_reset_every=5,
+                      opacity_decay={"enabled": False}, **sizes)
     Trainer(model_from_clouds(small_clouds, small_scene, cfg), small_scene, cfg).train()
     assert len(calls) == 3  # rounds at steps 3, 6, 9; the reset at step 5
     expected = (sizes.get("prune_world_scale"), sizes.get("prune_screen_fraction"))
