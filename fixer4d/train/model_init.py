@@ -13,8 +13,8 @@ import numpy as np
 import torch
 
 from fixer4d.errors import InputError
-from fixer4d.geometry.subsample import subsample
 from fixer4d.geometry.camera import Camera, rig_extent
+from fixer4d.geometry.subsample import subsample
 from fixer4d.model.terms import ModelTermsConfig, TermsDecision
 from fixer4d.model.initial_scales import knn_scales
 from fixer4d.model.spacetime import ModelConfig, SpacetimeGaussians

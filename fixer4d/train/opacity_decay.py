@@ -1,5 +1,5 @@
-"""Learned opacity decay: stage 1's way of shaping the model, in place of opacity resets (4C4D's idea,
-CVPR 2026; the reset stays as ``training.opacity_decay.enabled=false``).
+"""Learned opacity decay: how stage 1 shapes the model, in place of opacity resets (4C4D's idea,
+CVPR 2026; ``training.opacity_decay.enabled=false`` gives the reset back).
 
 With four cameras a Gaussian can explain the train views from a wrong depth: nothing in the
 photometric loss pulls it out once its opacity is high, and the opacity reset of 3DGS (every
