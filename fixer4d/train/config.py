@@ -82,7 +82,9 @@ class TrainingConfig:
     # Gaussian count.
     init_max_points: int = 15_000
     # How the capped points are chosen (fixer4d.geometry.subsample): "random", a uniform draw
-    # with the seed; "spatial", one point per cell of an even grid, the same for every seed.
+    # with the seed; "stratified", one seeded draw from each of k runs of the points in Z-order
+    # (the density kept to within a point per region); "spatial", one point per cell of an even
+    # grid, the same for every seed.
     init_subsample: str = "random"
     init_opacity: float = 0.1
     # Hard cap on the model size during densification: ~0.7 Gaussian per pixel of one 200x150

@@ -48,8 +48,8 @@ def model_from_clouds(clouds: Sequence[Any], scene: MultiViewVideo, config: Trai
     distance to its 3 nearest neighbours *within its frame* (points of different frames
     coincide on static content and would give degenerate scales), opacity ``config.init_opacity``.
     At most ``config.init_max_points`` points are kept (``config.init_subsample``: a seeded
-    uniform draw or an even spread, frame by frame; fixer4d.geometry.subsample). An empty or
-    nearly empty init (< MIN_INIT_POINTS points) is topped up with FALLBACK_POINTS random points
+    uniform draw, a seeded stratified one or an even spread, frame by frame;
+    fixer4d.geometry.subsample). An empty or nearly empty init (< MIN_INIT_POINTS points) is topped up with FALLBACK_POINTS random points
     inside the scene bounds (logged); without known bounds it raises InputError.
     """
     pts_l, col_l, t_l, fid_l = [], [], [], []

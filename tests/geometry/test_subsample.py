@@ -1,10 +1,11 @@
-"""The init subsample: the random draw as it always was, the spatial one even and seed-free."""
+"""The init subsample: the random draw as it always was, the stratified one keeping each region's
+share whatever the seed, the spatial one even and seed-free."""
 import numpy as np
 import pytest
 import torch
 
 from fixer4d.errors import InputError
-from fixer4d.geometry.subsample import spatial_subsample, subsample
+from fixer4d.geometry.subsample import morton_keys, spatial_subsample, stratified_subsample, subsample
 from fixer4d.model import terms as E
 from fixer4d.train.checkpoints import result_settings
 from fixer4d.train.config import TrainingConfig
@@ -43,6 +44,40 @@ def test_spatial_reaches_the_sparse_region_a_random_draw_starves():
     # the kept spread points cover the room: every octant keeps some
     octant = (pts[even][spread[even]] > 0) @ np.array([1, 2, 4])
     assert np.bincount(octant, minlength=8).min() > 20
+
+
+def test_stratified_keeps_each_regions_share_where_the_random_draw_varies():
+    pts, spread = _cluster_and_room()
+    region = (pts > 0) @ np.array([1, 2, 4]) + 8 * spread  # 16 regions: ball or room, by octant
+    def counts(method: str) -> np.ndarray:  # (20 seeds, 16 regions) kept points per region
+        return np.array([np.bincount(region[subsample(pts, 1000, method, np.random.default_rng(s))], minlength=16)
+                         for s in range(20)])
+    strat, rand = counts("stratified"), counts("random")
+    # the same mean share (both keep the density), a fraction of the spread over seeds: only the
+    # runs a region's boundary cuts vary (many where the octant planes cut the dense ball)
+    assert np.allclose(strat.mean(axis=0), rand.mean(axis=0), rtol=0.1, atol=1.5)
+    ratio = strat.std(axis=0) / rand.std(axis=0)
+    assert ratio.max() < 0.65 and ratio.mean() < 0.45
+    assert strat[:, 8:].sum(axis=1).std() < 0.3 * rand[:, 8:].sum(axis=1).std()  # room against ball
+    a, b = (stratified_subsample(pts, 1000, np.random.default_rng(s)) for s in (0, 1))
+    assert a.size == b.size == 1000 and np.unique(a).size == 1000 and np.all(np.diff(a) > 0)
+    assert not np.array_equal(a, b)  # the seed still picks the points inside each run
+
+
+def test_stratified_edge_cases():
+    same = np.zeros((40, 3))
+    assert np.array_equal(morton_keys(same), np.zeros(40, np.int64))
+    keep = subsample(same, 10, "stratified", np.random.default_rng(0))
+    assert keep.size == 10 and np.unique(keep).size == 10
+    assert subsample(same, 100, "stratified", np.random.default_rng(0)).size == 40
+    line = np.c_[np.linspace(0.0, 1.0, 101), np.zeros(101), np.zeros(101)]
+    assert np.all(np.diff(morton_keys(line)) > 0)  # one axis: the key is the cell index's order
+    keep = stratified_subsample(line, 10, np.random.default_rng(3))
+    assert np.all(np.diff(keep) >= 1) and np.all(keep // 10 == np.arange(10))  # one per tenth
+    two = np.concatenate([line, line])  # two frames: each keeps its share
+    groups = np.r_[np.zeros(101, int), np.ones(101, int)]
+    keep = stratified_subsample(two, 20, np.random.default_rng(3), groups)
+    assert int((groups[keep] == 0).sum()) == 10
 
 
 def test_groups_never_share_a_cell():
