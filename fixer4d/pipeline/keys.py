@@ -124,7 +124,7 @@ def matched_key(config: RunConfig) -> str:
 
 # The self-check's settings that only decide from the fold's figures: changing them re-decides
 # from the finished fold instead of training it again.
-SELF_CHECK_DECISION_SETTINGS = ("tie_db", "allow_skip", "margin")
+SELF_CHECK_DECISION_SETTINGS = ("tie_db", "allow_skip", "allow_continue", "margin")
 
 
 def self_check_key(config: RunConfig) -> str:

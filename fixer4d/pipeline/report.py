@@ -104,8 +104,9 @@ def self_check_line(check: dict[str, Any]) -> str:
         held = check.get("held_back_name", check["held_back_camera"])
         fold = ", ".join(str(c) for c in check.get("fold_names", check["fold_cameras"]))
         where = f"on held-back train camera {held} (fold of cameras {fold} at scale {check['scale']:g}, {secs:.0f} s)"
+    more = f"{fig('continue', 'more training')}, " if "continue" in psnr else ""
     return (f"Stage-2 self-check {where}: before {psnr['skip']:.2f} dB, "
-            f"{fig('continue', 'more training')}, {fig('refine', 'stage 2')}{margin} -> "
+            f"{more}{fig('refine', 'stage 2')}{margin} -> "
             f"**{check['decision']}**: the final model is {_FINAL[check['decision']]}. Gains are over before, per "
             f"{unit}: mean ± standard error.")
 

@@ -113,7 +113,7 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
             print(f"[fixer4d] self-check: fold {k + 1} of {sc.cameras} (held-back camera {held})", flush=True)
         folds.append(_run_fold(scene, config, out_dir if k == 0 else out_dir / f"fold{k}", held, restorer, progress))
 
-    candidates = ("skip", "continue", "refine")
+    candidates = sc.candidates()
     if len(folds) == 1:
         psnr, units = folds[0]["psnr"], folds[0]["psnr_frames"]
     else:  # the unit of the paired gains is the fold (its mean over the scored frames)
@@ -136,11 +136,12 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
         "psnr_frames": first["psnr_frames"],
         "gain_unit": "frame" if len(folds) == 1 else "fold",
         "gain_refine_db": psnr["refine"] - psnr["skip"],
-        "gain_continue_db": psnr["continue"] - psnr["skip"],
+        "gain_continue_db": psnr["continue"] - psnr["skip"] if "continue" in psnr else None,
         "gains": gains(units) if len(units) == len(psnr) else {},
         "settings": {"lambda_gen": config.stage2.lambda_gen, "pseudo_mask": config.stage2.pseudo_mask,
                      "stage2_iterations": config.stage2.total_iterations, "restorer": config.restorer.kind,
-                     "tie_db": sc.tie_db, "allow_skip": sc.allow_skip, "margin": sc.margin, "cameras": len(folds)},
+                     "tie_db": sc.tie_db, "allow_skip": sc.allow_skip, "allow_continue": sc.allow_continue,
+                     "margin": sc.margin, "cameras": len(folds)},
         "seconds": seconds,
         "reason": _reason(decision, psnr, sc.tie_db if sc.margin == "fixed" else None),
         **({"folds": folds} if len(folds) > 1 else {}),
@@ -218,7 +219,7 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
         score = _held_back_psnr(model, scored, held, eval_frames, backend, background)
         parts.finish(name, seconds + time.perf_counter() - t0, frames=score)
 
-    if "continue" not in parts.psnr:
+    if sc.allow_continue and "continue" not in parts.psnr:
         candidate("continue", Trainer(copy.deepcopy(base), views, matched_config(cfg1, config.stage2),
                                       run_dir=out_dir / "continue", camera_response=copy.deepcopy(response)))
     if "refine" not in parts.psnr:
@@ -227,7 +228,7 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
                                     cache=RestoreCache(out_dir / "cache", fingerprint=stage2_key(config)),
                                     refresh_cache=refresh, camera_response=copy.deepcopy(response)))
 
-    psnr = {c: parts.psnr[c] for c in ("skip", "continue", "refine")}
+    psnr = {c: parts.psnr[c] for c in sc.candidates()}
     return {
         "held_back_camera": int(held),
         "held_back_name": scene.cameras[int(held)].name,
@@ -244,11 +245,13 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
 def _reason(decision: str, psnr: dict[str, float], tie_db: float | None) -> str:
     figures = ", ".join(f"{k} {v:.2f} dB" for k, v in psnr.items())
     margin = f"{tie_db:g} dB" if tie_db is not None else "its measured margin"
-    what = {"skip": f"no more training: neither stage 2 nor the longer control raised the held-back camera by more "
-                    f"than {margin}",
+    control = "continue" in psnr
+    what = {"skip": (f"no more training: neither stage 2 nor the longer control raised the held-back camera by "
+                     f"more than {margin}" if control else
+                     f"no more training: stage 2 did not raise the held-back camera by more than {margin}"),
             "continue": "more training on the observed views, without pseudo-views: the pseudo-loss did not pay",
-            "refine": "stage 2 with pseudo-views: it beat the same amount of plain training on the held-back "
-                      "camera"}[decision]
+            "refine": ("stage 2 with pseudo-views: it beat the same amount of plain training on the held-back camera"
+                       if control else "stage 2 with pseudo-views: it raised the held-back camera")}[decision]
     return f"{decision} ({what}; held-back train camera: {figures})"
 
 

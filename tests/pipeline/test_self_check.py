@@ -47,7 +47,7 @@ def test_decide_leaves_the_baseline_only_beyond_the_tie():
 def test_noise_pseudo_targets_are_caught_without_held_out_cameras(tmp_path):
     # the paper's stage 2 (restored targets on every pixel) with a heavy pseudo-loss on noise
     common = {"training.iterations": 300, "stage2.lambda_gen": 4.0, "stage2.refresh_every": 100,
-              "self_check.scale": 1.0, "self_check.eval_frames": 2}
+              "self_check.scale": 1.0, "self_check.eval_frames": 2, "self_check.allow_continue": True}
     config = tiny_config(**common, **PAPER_TARGETS)
     scene = HeldOutSpy(load_scene_for(config))
     record = run_self_check(scene, config, tmp_path / "paper", NoiseRestorer())
@@ -105,7 +105,7 @@ def test_a_killed_check_resumes_to_the_same_decision(tmp_path, monkeypatch):
         else:
             raise AssertionError(f"the check was not interrupted in {part}")
         done = json.loads((out / "parts.json").read_text())["psnr"]
-        assert set(done) == (set() if part == "stage 1" else {"skip", "continue"})
+        assert set(done) == (set() if part == "stage 1" else {"skip"})  # continue is not a candidate
     model_written = (out / "model_stage1.ply").stat().st_mtime_ns
     resumed = run_self_check(scene, config, out, NoiseRestorer())
     assert (out / "model_stage1.ply").stat().st_mtime_ns == model_written  # the fold's stage 1 was not redone
@@ -245,7 +245,8 @@ def test_two_held_back_cameras_decide_on_the_spread_over_folds(tmp_path):
         assert f["held_back_camera"] not in f["fold_cameras"] and len(f["fold_cameras"]) == len(scene.train_ids) - 1
     assert (tmp_path / "check" / "fold1" / "model_stage1.ply").is_file()
     # each candidate's figure is the mean over the folds; the paired gain is per fold
-    for c in ("skip", "continue", "refine"):
+    assert set(record["psnr"]) == {"skip", "refine"}
+    for c in record["psnr"]:
         assert abs(record["psnr"][c] - np.mean([f["psnr"][c] for f in folds])) < 1e-9
     assert record["gain_unit"] == "fold" and record["settings"]["cameras"] == 2
     units = {c: [f["psnr"][c] for f in folds] for c in record["psnr"]}
@@ -275,7 +276,53 @@ def test_the_fold_budget_and_the_key_of_the_new_settings():
     assert fold.init_max_points == round(scaled.training.init_max_points / 4)
     # a check at the settings every check had before cameras / scale_budget existed keeps its key
     before = {k: v for k, v in config.to_dict()["self_check"].items()
-              if k not in ("tie_db", "allow_skip", "margin", "cameras", "scale_budget")}
+              if k not in ("tie_db", "allow_skip", "margin", "cameras", "scale_budget", "allow_continue")}
     assert self_check_key(config) == stage_key("self_check", stage2_key(config), before, config.init_frame_stride)
     assert len({self_check_key(config), self_check_key(scaled),
                 self_check_key(tiny_config(**{"self_check.cameras": 2}))}) == 3
+    assert self_check_key(tiny_config(**{"self_check.allow_continue": True})) == self_check_key(config)
+
+
+def test_a_check_without_continue_neither_trains_nor_chooses_it(tmp_path):
+    import pytest
+
+    from fixer4d.errors import InputError
+    from fixer4d.pipeline.report import self_check_line
+    from fixer4d.pipeline.self_check import SelfCheckConfig
+
+    config = tiny_config(**{"self_check.eval_frames": 2})
+    assert config.self_check.candidates() == ("skip", "refine")  # the default
+    record = run_self_check(load_scene_for(config), config, tmp_path / "check", restorer=None)
+    assert set(record["psnr"]) == {"skip", "refine"} and "continue" not in record["seconds"]
+    assert record["gain_continue_db"] is None and set(record["gains"]) == {"refine"}
+    assert record["decision"] == decide(record["psnr"], config.self_check.tie_db)
+    line = self_check_line(record)
+    assert "more training" not in line and "stage 2" in line
+    with pytest.raises(InputError, match="refine alone"):
+        SelfCheckConfig(allow_skip=False, allow_continue=False)
+
+
+def test_allowing_continue_trains_only_continue_in_the_finished_fold(tiny_run, tmp_path, monkeypatch):
+    import json
+    import shutil
+
+    from fixer4d.cli import main
+    from fixer4d.pipeline import self_check_run
+
+    run_dir = tmp_path / "run"
+    shutil.copytree(tiny_run[0], run_dir)
+    before = json.loads((run_dir / "self_check" / "decision.json").read_text())
+    trained = []
+    train = self_check_run._train
+
+    def spy(trainer, progress):
+        trained.append(trainer.run_dir.name)
+        return train(trainer, progress)
+
+    monkeypatch.setattr(self_check_run, "_train", spy)
+    assert main(["refine", str(run_dir), "--set", "self_check.allow_continue=true", "--quiet"]) == 0
+    after = json.loads((run_dir / "report.json").read_text())["self_check"]
+    assert trained == ["continue"]  # the fold's stage 1 and refine were kept
+    assert {k: after["psnr"][k] for k in before["psnr"]} == before["psnr"] and "continue" in after["psnr"]
+    assert after["settings"]["allow_continue"] is True
+    assert after["decision"] == decide(after["psnr"], after["settings"]["tie_db"])
