@@ -3,15 +3,16 @@
     python benchmarks/self_check_agreement.py [RESULTS_DIR ...] [--out FILE.json]
 
 Reads the quality bench's result files (``fixer4d bench quality``; default: the opacity decay's
-``benchmarks/results/quality_allow_continue`` and the reset's ``benchmarks/results/quality_opacity_reset``,
-made while the fold trained every candidate) and pairs, run by run, the fold's gain of *continue* over *skip* (the held-back train camera's PSNR,
+``benchmarks/results/quality_allow_continue`` and the reset's
+``benchmarks/results/quality_opacity_reset``, made while the fold trained every candidate) and
+pairs, run by run, the fold's gain of *continue* over *skip* (the held-back train camera's PSNR,
 ``self_check.psnr``) with the same choice's gain on the run's held-out cameras: the "STGS w/ MVS
-(matched iterations)" row (the continued model) minus "STGS w/ MVS" (the stage-1 model), each
-run's own training. Every run of the bench has both, whatever it decided, so the pairs are not
-selected by the decision. *refine* is paired where the run chose it (the Full row then is the refined
-model). Reports, per results folder and camera kind (validation / test) and over all: Pearson's
-correlation of the two gains, the share of runs where their signs agree, and how often the fold's
-rule (beat *skip* by more than the tie margin) picked a candidate that lowered the held-out cameras.
+(matched iterations)" row (the continued model) minus "STGS w/ MVS" (the stage-1 model), each run's
+own training. Every run of the bench has both, whatever it decided, so the pairs are not selected by
+the decision. *refine* is paired where the run chose it (the Full row then is the refined model).
+Reports, per results folder and camera kind (validation / test) and over all: Pearson's correlation
+of the two gains, the share of runs where their signs agree, and how often the fold's rule (beat
+*skip* by more than the tie margin) picked a candidate that lowered the held-out cameras.
 Nothing is trained; the figures are the bench's.
 """
 from __future__ import annotations

@@ -6,8 +6,8 @@ uniformly with the run's seed: the kept set changes with the seed, and the draw 
 regions dense (a textured wall near the rig) and the sparse ones sparse. ``stratified`` keeps the
 density too, with less of the seed's luck: the points are put in Z-order (Morton order of their
 grid cells, group by group) and cut into k runs of N/k consecutive points, and one point is drawn
-from each run; every region keeps its share of the cloud to within one point, where a uniform
-draw's share varies by its binomial spread. ``spatial`` keeps one point per cell of the coarsest
+from each run; a region keeps its share of the cloud to within the runs its boundary cuts, where a
+uniform draw's share varies by its binomial spread. ``spatial`` keeps one point per cell of the coarsest
 grid that has at least k occupied cells, the point nearest its cell's centre: the same points for
 every seed, and every region the cloud reaches keeps some.
 """
@@ -38,8 +38,9 @@ def subsample(points: np.ndarray, k: int, method: str, rng: np.random.Generator,
     """Sorted indices of at most ``k`` rows of ``points`` (N, 3); all N when N <= k.
 
     method: ``random`` (``rng``'s uniform draw without replacement), ``stratified``
-    (``stratified_subsample`` with ``rng``) or ``spatial`` (``spatial_subsample``; ``rng`` unused). groups: (N,) integer labels whose points never share
-    a cell (the frame of a moving point: two frames' points at one place are two Gaussians)."""
+    (``stratified_subsample`` with ``rng``) or ``spatial`` (``spatial_subsample``; ``rng`` unused).
+    groups: (N,) integer labels whose points never share a cell (the frame of a moving point: two
+    frames' points at one place are two Gaussians)."""
     n = int(points.shape[0])
     if n <= k:
         return np.arange(n)
