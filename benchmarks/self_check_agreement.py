@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import re
+import statistics
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -66,12 +66,8 @@ def agreement(pairs: list[dict], candidate: str) -> dict:
     out["fold_gain_mean"] = sum(xs) / n
     out["heldout_gain_mean"] = sum(ys) / n
     out["sign_agreement"] = sum((x > 0) == (y > 0) for x, y in zip(xs, ys)) / n
-    if n >= 3:
-        mx, my = out["fold_gain_mean"], out["heldout_gain_mean"]
-        sxy = sum((x - mx) * (y - my) for x, y in zip(xs, ys))
-        sxx = sum((x - mx) ** 2 for x in xs)
-        syy = sum((y - my) ** 2 for y in ys)
-        out["correlation"] = sxy / math.sqrt(sxx * syy) if sxx > 0 and syy > 0 else None
+    if n >= 3 and len(set(xs)) > 1 and len(set(ys)) > 1:  # Pearson's r needs both to vary
+        out["correlation"] = statistics.correlation(xs, ys)
     return out
 
 
