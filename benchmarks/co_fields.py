@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
             save_ply(co.b.model.cpu(), args.save_fields / "field_b.ply")
         scores = {}
         for name, trainer in (("a", co.a), ("b", co.b)):
-            render = model_render_fn(trainer.model, backend=config.training.backend)
+            render = model_render_fn(trainer.model, config.training.backend, ctx.background)
             m = evaluate_stage(ctx, ROW, render, f"field-{name}", {})["mean"]
             scores[name] = {"psnr": m["psnr"], "psnr_dynamic": m.get("psnr_dynamic"),
                             "psnr_static": m.get("psnr_static"), "lpips": m.get("lpips"),
@@ -91,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
 def weights(args: argparse.Namespace) -> int:
     from fixer4d.model.io import load_ply
     from fixer4d.pipeline.restoration import TwinWeight, UnobservedMasks, restoration_render_fn, run_restorer
+    from fixer4d.train.background import resolve_background
     from fixer4d.pipeline.run_folder import RunFolder, load_scene_for
     from fixer4d.pipeline.stages import StageContext, evaluate_stage
     from fixer4d.train.co_fields_config import WEIGHTS
@@ -107,7 +108,8 @@ def weights(args: argparse.Namespace) -> int:
         ctx = StageContext(run=RunFolder(Path(tmp), config), scene=scene, progress=False)
         for mode in WEIGHTS:
             twin = None if mode == "visibility" else TwinWeight(b, mode)
-            render = restoration_render_fn(a, scene, restorer, backend, gate, config.eval.fill_unobserved, twin)
+            render = restoration_render_fn(a, scene, restorer, backend, gate, config.eval.fill_unobserved, twin,
+                                           resolve_background(config.training.background, scene))
             tic = time.perf_counter()
             m = evaluate_stage(ctx, "Restoration (init)", render, f"weight-{mode}", {}, unobserved)["mean"]
             result["rows"][mode] = {"psnr": m["psnr"], "psnr_unobserved": m.get("psnr_unobserved"),

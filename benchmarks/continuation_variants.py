@@ -63,13 +63,14 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="continuation_variant_") as tmp:
         ctx = StageContext(run=RunFolder(Path(tmp), config), scene=scene, progress=False)
         backend = config.training.backend
-        before = evaluate_stage(ctx, "STGS w/ MVS", model_render_fn(model, backend=backend), "stage1", {})["mean"]
+        before = evaluate_stage(ctx, "STGS w/ MVS", model_render_fn(model, backend, ctx.background), "stage1",
+                                {})["mean"]
         trainer = Trainer(model, ctx.train_scene, cfg, run_dir=None, camera_response=response)
         cpu0 = time.process_time()
         trainer.train(progress=False)
         cpu = time.process_time() - cpu0
         after = evaluate_stage(ctx, "STGS w/ MVS (matched iterations)",
-                               model_render_fn(trainer.host_model(), backend=backend), "continued", {})["mean"]
+                               model_render_fn(trainer.host_model(), backend, ctx.background), "continued", {})["mean"]
     result = {"run": str(args.run), "sets": args.sets, "keep_decay": args.keep_decay,
               "stage1": {k: before.get(k) for k in ("psnr", "psnr_dynamic", "lpips")},
               "continued": {k: after.get(k) for k in ("psnr", "psnr_dynamic", "lpips")},

@@ -85,6 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     from fixer4d.model.io import load_ply
     from fixer4d.pipeline.run_folder import load_scene_for, read_run_config
     from fixer4d.scene.train_view import TrainOnlyView
+    from fixer4d.train.background import resolve_background
 
     decision_file = args.run / "self_check" / "decision.json"
     if not decision_file.is_file():
@@ -94,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     decision = json.loads(decision_file.read_text())
     held, fold_ids = int(decision["held_back_camera"]), [int(c) for c in decision["fold_cameras"]]
     scored = TrainOnlyView(scene, fold_ids, config.self_check.scale)
-    background = torch.tensor(config.training.background, dtype=torch.float32)
+    background = torch.tensor(resolve_background(config.training.background, scored), dtype=torch.float32)
     backend = config.training.backend
     fold_model = load_ply(args.run / "self_check" / "model_stage1.ply")
     unseen = _unseen(fold_model, [scored.cameras[c] for c in fold_ids])

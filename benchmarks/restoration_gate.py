@@ -83,6 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     from fixer4d.model.io import load_ply
     from fixer4d.pipeline.other_cameras import check_same_train_cameras
     from fixer4d.pipeline.restoration import clip_through, make_request, run_restorer
+    from fixer4d.train.background import resolve_background
     from fixer4d.pipeline.run_folder import load_scene_for, read_run_config, source_commit
     from fixer4d.eval.class_psnr import ClassPSNR
     from fixer4d.scene import load_scene
@@ -98,7 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     for cam_idx in scene.test_ids:
         cams, ids = clip_through(scene, scene.cameras[cam_idx])
         for frame in range(0, scene.num_frames, args.stride):
-            request = make_request(model, scene, cams, frame, ids, visibility=config.stage2.visibility)
+            request = make_request(model, scene, cams, frame, ids, visibility=config.stage2.visibility,
+                                   background=resolve_background(config.training.background, scene))
             result = restorer.restore(request)
             psnr.add(scene.frame(frame, cam_idx), images(request, result, config.stage2.visibility, tols),
                      pixel_classes(request.unobserved[1], request.alpha[1]))

@@ -53,6 +53,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from fixer4d.model.io import load_ply
     from fixer4d.pipeline.restoration import make_request
+    from fixer4d.train.background import resolve_background
     from fixer4d.pipeline.run_folder import load_scene_for, read_run_config
     from fixer4d.restore.reference_warp import ReferenceWarpRestorer
 
@@ -69,7 +70,8 @@ def main(argv: list[str] | None = None) -> int:
         order = np.argsort([np.linalg.norm(scene.cameras[i].center - cam.center) for i in scene.train_ids])
         refs = (scene.train_ids[order[0]], scene.train_ids[order[1]])
         for f in frames:
-            req = make_request(model, scene, [cam], f, refs, backend=config.training.backend)
+            req = make_request(model, scene, [cam], f, refs, backend=config.training.backend,
+                               background=resolve_background(config.training.background, scene))
             truth, true_depth = scene.render_gt(cam, req.time)
             model_depth = req.depth[0]
             rel = np.abs(model_depth - true_depth) / np.maximum(true_depth, 1e-9)

@@ -49,12 +49,12 @@ def main(argv: list[str] | None = None) -> int:
                           terms=config.model_terms, camera_response=built.response)
         trainer.train(progress=False)
         model = trainer.host_model()
-        result["test_psnr"] = evaluate_stage(ctx, "STGS w/ MVS", model_render_fn(model, backend=backend), "test",
-                                             {})["mean"]["psnr"]
+        result["test_psnr"] = evaluate_stage(ctx, "STGS w/ MVS", model_render_fn(model, backend, ctx.background),
+                                             "test", {})["mean"]["psnr"]
     val_config = variant_config(args.run, [f"training.seed={args.init_seed}", f"scene.source={args.val}"])
     with tempfile.TemporaryDirectory(prefix="seed_swap_") as tmp:
         ctx = StageContext(run=RunFolder(Path(tmp), val_config), scene=load_scene_for(val_config), progress=False)
-        result["val_psnr"] = evaluate_stage(ctx, "STGS w/ MVS", model_render_fn(model, backend=backend), "val",
+        result["val_psnr"] = evaluate_stage(ctx, "STGS w/ MVS", model_render_fn(model, backend, ctx.background), "val",
                                             {})["mean"]["psnr"]
     print(json.dumps(result))
     if args.out is not None:

@@ -33,6 +33,7 @@ def seams(run: Path, which: str = "final") -> dict:
     from fixer4d.eval.evaluate import heldout_moving_masks
     from fixer4d.model.io import load_ply
     from fixer4d.render.views import model_render_fn
+    from fixer4d.train.background import resolve_background
     from fixer4d.pipeline.run_folder import load_scene_for, read_run_config
     from fixer4d.pipeline.segments import segment_dir, split_segments, to_local_time
 
@@ -46,7 +47,8 @@ def seams(run: Path, which: str = "final") -> dict:
     for k, r in enumerate(ranges):
         d = segment_dir(run, k, r)
         path = d / names[which] if (d / names[which]).is_file() else d / names["stage1"]
-        fns.append(model_render_fn(load_ply(path), config.training.backend, config.training.background))
+        fns.append(model_render_fn(load_ply(path), config.training.backend,
+                                   resolve_background(config.training.background, scene)))
     out = []
     for k in range(len(ranges) - 1):
         shared = list(range(ranges[k + 1][0], ranges[k][1]))

@@ -72,6 +72,7 @@ def score_run(run: Path, cameras_from: str, stride: int, models: tuple[str, ...]
     from fixer4d.model.io import load_ply
     from fixer4d.pipeline.other_cameras import check_same_train_cameras
     from fixer4d.pipeline.restoration import clip_frame, clip_through, gate_restoration, make_request, run_restorer
+    from fixer4d.train.background import resolve_background
     from fixer4d.pipeline.run_folder import load_scene_for, read_run_config
     from fixer4d.restore.sr_prior import RealESRGANPrior, SRPriorConfig, apply_prior
     from fixer4d.scene import load_scene
@@ -92,7 +93,8 @@ def score_run(run: Path, cameras_from: str, stride: int, models: tuple[str, ...]
     for cam_idx in scene.test_ids:
         cams, ids = clip_through(scene, scene.cameras[cam_idx])
         for frame in range(0, scene.num_frames, stride):
-            request = make_request(model, scene, cams, frame, ids, visibility=vis)
+            request = make_request(model, scene, cams, frame, ids, visibility=vis,
+                                   background=resolve_background(config.training.background, scene))
             request, result = clip_frame(request, restorer.restore(request), 1)
             variants = {NONE: result, **{m: apply_prior(result, p) for m, p in priors.items()}}
             images = {}

@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         cpu0, wall0 = time.process_time(), time.perf_counter()
         averages = train_with_tail_averages(trainer, args.average_from)
         cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
-        render = model_render_fn(trainer.model, backend=config.training.backend)
+        render = model_render_fn(trainer.model, config.training.backend, ctx.background)
         mean = evaluate_stage(ctx, "STGS w/ MVS", render, "variant", {})["mean"]
         result = {"run": str(args.run), "sets": args.sets, "psnr": mean["psnr"],
                   "psnr_dynamic": mean.get("psnr_dynamic"), "psnr_static": mean.get("psnr_static"),
@@ -113,8 +113,8 @@ def main(argv: list[str] | None = None) -> int:
         last = {k: v.clone() for k, v in trainer.model.state_dict().items()}
         for start, avg in averages.items():
             trainer.model.load_state_dict({**last, **avg["state"]})
-            m = evaluate_stage(ctx, "STGS w/ MVS", model_render_fn(trainer.model, backend=config.training.backend),
-                               f"average-from-{start}", {})["mean"]
+            render = model_render_fn(trainer.model, config.training.backend, ctx.background)
+            m = evaluate_stage(ctx, "STGS w/ MVS", render, f"average-from-{start}", {})["mean"]
             result["averaged"][str(start)] = {"iterates": avg["n"], "psnr": m["psnr"],
                                               "psnr_dynamic": m.get("psnr_dynamic"), "lpips": m.get("lpips")}
         trainer.model.load_state_dict(last)

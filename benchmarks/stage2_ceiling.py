@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
                                     restorer=GroundTruthOracle(ctx.scene))
     model = S.stage2(ctx, model, refresh=refresh)
     m = S.evaluate_stage(ctx, "Full (oracle pseudo-targets)",
-                         model_render_fn(model, ctx.backend, config.training.background),
+                         model_render_fn(model, ctx.backend, ctx.background),
                          S.stage2_key(config) + ":oracle", {"prep": None, "train": ctx.run.records.seconds("stage2")})
 
     report = json.loads((args.run / "report.json").read_text())

@@ -76,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
     from fixer4d.model.io import load_ply
     from fixer4d.render.views import model_render_fn
     from fixer4d.pipeline.run_folder import RunFolder
+    from fixer4d.train.background import resolve_background
     from fixer4d.pipeline.stages import eval_slug
 
     if args.cameras_from is not None:
@@ -88,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
     folder = RunFolder.open(args.run)
     model_path = find_model(folder.path, args.model)
     model = load_ply(model_path).eval()
-    render_fn = model_render_fn(model, args.backend, folder.config.training.background)
+    render_fn = model_render_fn(model, args.backend, resolve_background(folder.config.training.background,
+                                                                        folder.scene))
     method = args.method or method_name_for(model_path, folder.config.init_method)
     stride = folder.config.eval.stride if args.stride is None else args.stride
     if stride < 1:

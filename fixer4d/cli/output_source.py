@@ -49,7 +49,13 @@ class OutputSource:
 
     @property
     def background(self) -> tuple[float, float, float] | None:
-        return None if self.config is None else tuple(self.config.training.background)
+        """The run's render background (``training.background`` resolved on the run's train
+        views); None for a bare model file (black)."""
+        if self.config is None:
+            return None
+        from fixer4d.train.background import resolve_background
+
+        return resolve_background(self.config.training.background, self.scene)
 
 
 def open_source(source: str | Path, model_path: Path) -> OutputSource:

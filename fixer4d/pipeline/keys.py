@@ -49,8 +49,11 @@ def init_key(config: RunConfig, method: str) -> str:
 
 def stage1_key(config: RunConfig, method: str) -> str:
     d = config.to_dict()
+    training = training_settings(d["training"])
+    if method != config.init_method:  # the sparse baseline trains without the depth prior
+        training.pop("depth_prior", None)
     # the sections' contents are hashed, not their names: "model_terms" (formerly "effects") keys as before
-    return stage_key("stage1", init_key(config, method), training_settings(d["training"]), config.seed,
+    return stage_key("stage1", init_key(config, method), training, config.seed,
                      d["model_terms"], *shared_static_key(config),
                      *(co_fields_key(config) if method == config.init_method else ()))
 

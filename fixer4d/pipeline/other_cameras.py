@@ -50,6 +50,7 @@ def evaluate_on_other_cameras(run_dir: str | Path, other: str | Path, *, progres
     from fixer4d.pipeline.run_folder import RunFolder, load_scene_for
     from fixer4d.pipeline.self_check import DECISION_FILE
     from fixer4d.render.views import model_render_fn
+    from fixer4d.train.background import resolve_background
 
     folder = RunFolder.open(run_dir)
     config = folder.config
@@ -60,7 +61,7 @@ def evaluate_on_other_cameras(run_dir: str | Path, other: str | Path, *, progres
     check_same_train_cameras(folder.scene, scene)
     out = folder.path / "heldout" / Path(source).name
     ev = config.eval
-    bg = config.training.background
+    bg = resolve_background(config.training.background, folder.scene)
     stage1_path = folder.path / "model_stage1.ply"
     if not stage1_path.is_file():
         raise InputError(f"{folder.path}: no model_stage1.ply; run `fixer4d run` to the end first")
@@ -83,7 +84,7 @@ def evaluate_on_other_cameras(run_dir: str | Path, other: str | Path, *, progres
         score(R.ROW_BLUR, blur_render_fn(stage1, ev.blur_sigma_px, "auto", bg))
         gate = config.stage2.visibility if config.eval.gate_restoration else None
         score(R.ROW_RESTORED_INIT, restoration_render_fn(stage1, scene, run_restorer(config, folder.path), "auto",
-                                                         gate, ev.fill_unobserved))
+                                                         gate, ev.fill_unobserved, background=bg))
     for name, path in models:
         if path.is_file():
             score(name, model_render_fn(load_ply(path).eval(), "auto", bg))

@@ -44,8 +44,12 @@ def twin_weight_for(config: RunConfig, run_dir: str | Path) -> TwinWeight | None
 
 def make_request(model, scene, cameras: list[Camera], frame: int, ref_ids: tuple[int, int], *,
                  backend: str = "auto", trajectory: dict[str, Any] | None = None,
-                 visibility: VisibilityConfig | None = None, twin: TwinWeight | None = None):
+                 visibility: VisibilityConfig | None = None, twin: TwinWeight | None = None,
+                 background: tuple[float, float, float] | None = None):
     """Render a clip and everything the restorer needs at the references (restorers never render).
+
+    background: the RGB the renders show where nothing covers a pixel (the run's
+    ``training.background``, resolved; None: black), the colour the model trains over.
 
     visibility: when given, the request carries ``unobserved`` (F, H, W): how unobserved each
     clip pixel is by the scene's train cameras (``restore.visibility``, from these renders).
@@ -59,7 +63,7 @@ def make_request(model, scene, cameras: list[Camera], frame: int, ref_ids: tuple
     extra_ids = [i for i in scene.train_ids if i not in ref_ids]
     extra_cams = [scene.cameras[i] for i in extra_ids]
     # one call, so a clip's endpoints (= the reference cameras) are rendered once
-    rgb_all, depth_all, alpha_all = render_views(model, list(cameras) + ref_cams + extra_cams, t, backend)
+    rgb_all, depth_all, alpha_all = render_views(model, list(cameras) + ref_cams + extra_cams, t, backend, background)
     n, m = len(cameras), len(cameras) + len(ref_cams)
     rgb, depth, alpha = rgb_all[:n], depth_all[:n], alpha_all[:n]
     ref_depth, ref_alpha, extra_depth = depth_all[n:m], alpha_all[n:m], depth_all[m:]
@@ -70,7 +74,7 @@ def make_request(model, scene, cameras: list[Camera], frame: int, ref_ids: tuple
         if twin is not None:
             from fixer4d.restore.undetermined import combined_weight, undetermined_map
 
-            twin_rgb, _, twin_alpha = render_views(twin.model, list(cameras), t, backend)
+            twin_rgb, _, twin_alpha = render_views(twin.model, list(cameras), t, backend, background)
             undetermined = np.stack([undetermined_map(*x) for x in zip(rgb, twin_rgb, alpha, twin_alpha)])
             unobserved = combined_weight(unobserved, undetermined, twin.mode)
     return RestoreRequest(
@@ -124,6 +128,7 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
     from fixer4d.pipeline.executors import LocalExecutor
     from fixer4d.pipeline.keys import stage2_key
     from fixer4d.restore.cache import RestoreCache
+    from fixer4d.train.background import resolve_background
 
     # entries written under other settings (restorer, trajectories, stage-1 model) are set aside
     cache = RestoreCache(Path(run_dir) / "cache", fingerprint=stage2_key(config))
@@ -133,6 +138,7 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
     trajectories = scene_trajectories_for(scene, config.trajectories)
     frames = list(range(0, scene.num_frames, max(1, config.trajectories.time_stride)))
     gated = config.stage2.pseudo_target == "gated"
+    background = resolve_background(config.training.background, scene)
 
     def refresh(model, round_index: int) -> None:
         from tqdm.auto import tqdm
@@ -151,7 +157,7 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
             batch = todo[start:start + RESTORE_BATCH]
             requests = [make_request(model, scene, tr.cameras, f, ids, backend=backend,
                                      trajectory=clip_meta(tr, ids), visibility=config.stage2.visibility,
-                                     twin=twin)
+                                     twin=twin, background=background)
                         for f, tr, ids in batch]
             results = executor.map(_restore_job, [(restorer, req) for req in requests])
             if gated:  # the pseudo-target: restored where unobserved and trusted, the fallback elsewhere
@@ -247,14 +253,16 @@ def clip_through(scene, camera: Camera) -> tuple[list[Camera], tuple[int, int]]:
 
 
 def restoration_render_fn(model, scene, restorer, backend: str = "auto", visibility: VisibilityConfig | None = None,
-                          fill: bool = True, twin: TwinWeight | None = None) -> Callable[[Camera, float], np.ndarray]:
+                          fill: bool = True, twin: TwinWeight | None = None,
+                          background: tuple[float, float, float] | None = None
+                          ) -> Callable[[Camera, float], np.ndarray]:
     """A render function for evaluation whose images are *restored* renders: the restored middle
     frame of ``clip_through`` the held-out camera (the "restoration" rows of the paper's Table 2).
     visibility: when given, the frame is ``gate_restoration``'s (the restored frame where the train
     cameras leave the pixel unobserved, by the restorer's confidence; the unobserved fill there
     with ``fill``, else the render, whose holes take the restored frame); None: the restorer's
     output as it is (the paper's rows). twin: the gate's weight takes the twin field's
-    disagreement in (``make_request``).
+    disagreement in (``make_request``). background: the renders' (``make_request``).
     """
 
     def fn(camera: Camera, t: float) -> np.ndarray:
@@ -262,7 +270,7 @@ def restoration_render_fn(model, scene, restorer, backend: str = "auto", visibil
         cams, ids = clip_through(scene, camera)
         req = make_request(model, scene, cams, frame, ids, backend=backend,
                            trajectory={"name": f"through-{camera.name}", "pair": list(ids), "amplitude": 0.0},
-                           visibility=visibility, twin=twin)
+                           visibility=visibility, twin=twin, background=background)
         result = restorer.restore(req)
         if visibility is None:
             return result.rgb[1]
@@ -290,10 +298,13 @@ class UnobservedMasks:
     """``masks(camera_index, frame) -> (H, W) bool``: the pixels of a (held-out) camera that no
     train camera explains, from ``model``'s renders at that camera and at the train cameras
     (``restore.visibility``; weight > 0.5). Reads no image: safe for held-out cameras. Masks are
-    memoized, so every report row of one model scores the same region."""
+    memoized, so every report row of one model scores the same region. The model is copied: stage
+    2 trains the stage-1 model in place, and a resumed run computes the masks only after it."""
 
     def __init__(self, model, scene, visibility: VisibilityConfig, backend: str = "auto") -> None:
-        self.model = model
+        import copy
+
+        self.model = copy.deepcopy(model)
         self.scene = scene
         self.visibility = visibility
         self.backend = backend

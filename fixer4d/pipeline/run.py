@@ -83,7 +83,7 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
     s1_key = S.stage1_key(config, method)
     # the held-out pixels no train camera explains, from the stage-1 model: one region for every row
     unobserved = UnobservedMasks(model, ctx.scene, config.stage2.visibility, ctx.backend)
-    m = S.evaluate_stage(ctx, main_row, model_render_fn(model, ctx.backend, config.training.background), s1_key,
+    m = S.evaluate_stage(ctx, main_row, model_render_fn(model, ctx.backend, ctx.background), s1_key,
                          report.seconds("stage1"), unobserved)
     report.add(R.metrics_row(main_row, m, rec.seconds(f"init_{method}", "stage1")))
     final_metrics = m
@@ -154,7 +154,7 @@ def _baseline_sparse_row(ctx: S.StageContext, report: _Report) -> None:
     try:
         clouds = S.init_stage(ctx, "sparse")
         base = S.stage1(ctx, "sparse", clouds, ctx.path / "baseline_sparse" / "model_stage1.ply", "stage1_sparse")
-        m = S.evaluate_stage(ctx, R.ROW_COLMAP, model_render_fn(base, ctx.backend, config.training.background),
+        m = S.evaluate_stage(ctx, R.ROW_COLMAP, model_render_fn(base, ctx.backend, ctx.background),
                              S.stage1_key(config, "sparse"),
                              {"prep": rec.seconds("init_sparse"), "train": rec.seconds("stage1_sparse")})
         report.add(R.metrics_row(R.ROW_COLMAP, m, rec.seconds("init_sparse", "stage1_sparse")))
@@ -173,13 +173,13 @@ def _stage1_restoration_rows(ctx: S.StageContext, report: _Report, model, restor
     config, rec = ctx.config, ctx.run.records
     method = config.init_method
     report.add(R.copied_row(R.ROW_IDENTITY, stage1_metrics))
-    blur = blur_render_fn(model, config.eval.blur_sigma_px, ctx.backend, config.training.background)
+    blur = blur_render_fn(model, config.eval.blur_sigma_px, ctx.backend, ctx.background)
     mb = S.evaluate_stage(ctx, R.ROW_BLUR, blur, stage_key(s1_key, "blur", config.eval.blur_sigma_px),
                           report.seconds("stage1"), unobserved)
     report.add(R.metrics_row(R.ROW_BLUR, mb, rec.seconds(f"init_{method}", "stage1")))
     m = S.evaluate_stage(ctx, R.ROW_RESTORED_INIT,
                          restoration_render_fn(model, ctx.scene, restorer, ctx.backend, gate,
-                                               config.eval.fill_unobserved, _twin(ctx, gate)),
+                                               config.eval.fill_unobserved, _twin(ctx, gate), ctx.background),
                          stage_key(s1_key, S.restorer_key(config), gate_settings(gate, config.eval.fill_unobserved),
                                    *co_fields_weight_key(config)),
                          report.seconds("stage1", "restorer"), unobserved)
@@ -191,7 +191,7 @@ def _matched_row(ctx: S.StageContext, report: _Report, model, unobserved) -> Non
     """Stage 1 continued as long as stage 2 trains, without pseudo-views (the control row)."""
     config, rec = ctx.config, ctx.run.records
     matched = S.matched_stage1(ctx, model)
-    m = S.evaluate_stage(ctx, R.ROW_MATCHED, model_render_fn(matched, ctx.backend, config.training.background),
+    m = S.evaluate_stage(ctx, R.ROW_MATCHED, model_render_fn(matched, ctx.backend, ctx.background),
                          S.matched_key(config), report.seconds("stage1", "matched"), unobserved)
     report.add(R.metrics_row(R.ROW_MATCHED, m, rec.seconds(f"init_{config.init_method}", "stage1", "matched")))
     del matched
@@ -205,13 +205,13 @@ def _final_rows(ctx: S.StageContext, report: _Report, model, decision: str, rest
     trained = ("matched",) if decision == "continue" else ()
     full_secs = rec.seconds(f"init_{config.init_method}", "stage1", "restorer", "self_check", *trained, "stage2")
     s2_key = stage_key(S.stage2_key(config), decision)
-    final = S.evaluate_stage(ctx, R.ROW_FULL, model_render_fn(model, ctx.backend, config.training.background), s2_key,
+    final = S.evaluate_stage(ctx, R.ROW_FULL, model_render_fn(model, ctx.backend, ctx.background), s2_key,
                              report.seconds("stage1", "restorer", "self_check", "stage2"), unobserved)
     report.add(R.metrics_row(R.ROW_FULL, final, full_secs))
     if restorer is not None and config.eval.restoration_rows:
         m = S.evaluate_stage(ctx, R.ROW_RESTORED_REFINED,
                              restoration_render_fn(model, ctx.scene, restorer, ctx.backend, gate,
-                                               config.eval.fill_unobserved, _twin(ctx, gate)),
+                                               config.eval.fill_unobserved, _twin(ctx, gate), ctx.background),
                              stage_key(s2_key, S.restorer_key(config),
                                        gate_settings(gate, config.eval.fill_unobserved)),
                              report.seconds("stage1", "restorer", "stage2"), unobserved)
@@ -339,7 +339,7 @@ def run_segmented(config: RunConfig, out: str | Path, *, progress: bool = True,
             rows.append(row)
             continue
         stitched = SegmentedModel([load_ply(Path(j[1]) / model_file) for j in jobs], ranges, scene.num_frames)
-        m = S.evaluate_stage(ctx, name, model_render_fn(stitched, ctx.backend, config.training.background),
+        m = S.evaluate_stage(ctx, name, model_render_fn(stitched, ctx.backend, ctx.background),
                              stage_key(key, name), {"train": seconds})
         rows.append(R.metrics_row(name, m, seconds))
         del stitched

@@ -167,6 +167,7 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
     from fixer4d.pipeline.restoration import make_refresh_callback
     from fixer4d.restore.cache import RestoreCache
     from fixer4d.scene.train_view import TrainOnlyView
+    from fixer4d.train.background import resolve_background
     from fixer4d.train.config import matched_config
     from fixer4d.train.model_init import model_from_init
     from fixer4d.train.trainer import Trainer
@@ -193,7 +194,8 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
         response = (CameraResponse(len(views.train_ids))
                     if terms_decision is not None and terms_decision.camera_response else None)
         trainer = Trainer(model, views, cfg1, run_dir=out_dir / "stage1",
-                          terms=config.model_terms if terms_decision is not None else None, camera_response=response)
+                          terms=config.model_terms if terms_decision is not None else None, camera_response=response,
+                          depth_init=init)
         model, seconds = _train(trainer, progress)
         save_ply(model, out_dir / FOLD_MODEL)
         atomic.write_json(out_dir / FOLD_RESPONSE, None if trainer.response is None else trainer.response.to_json())
@@ -205,7 +207,7 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
     saved_response = json.loads((out_dir / FOLD_RESPONSE).read_text())
     response = None if saved_response is None else CameraResponse.from_json(saved_response)
     eval_frames = sorted({int(round(x)) for x in np.linspace(0, scene.num_frames - 1, sc.eval_frames)})
-    background = torch.tensor(cfg1.background, dtype=torch.float32)
+    background = torch.tensor(resolve_background(cfg1.background, views), dtype=torch.float32)
     backend = cfg1.backend
     if "skip" not in parts.psnr:
         parts.finish("skip", frames=_held_back_psnr(base, scored, held, eval_frames, backend, background))

@@ -99,6 +99,13 @@ class StageContext:
     def backend(self) -> str:
         return self.config.training.backend
 
+    @property
+    def background(self) -> tuple[float, float, float]:
+        """The RGB this run's renders use (``training.background`` resolved on its train views)."""
+        from fixer4d.train.background import resolve_background
+
+        return resolve_background(self.config.training.background, self.train_scene)
+
     def training_config(self, **changes: Any):
         return dataclasses.replace(self.config.training, progress=self.progress, **changes)
 
@@ -161,7 +168,7 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
         ctx.run.records.finish(name, key, seconds)
         return load_ply(model_path)
     t0 = time.perf_counter()
-    trainer, decision = stage1_trainer(ctx, clouds, model_path.parent)
+    trainer, decision = stage1_trainer(ctx, clouds, model_path.parent, depth_prior=method == ctx.config.init_method)
     if twin:
         from fixer4d.train.co_fields import CoFields, twin_trainer
 
@@ -187,12 +194,13 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
     return model
 
 
-def stage1_trainer(ctx: StageContext, init, run_dir: Path | None):
+def stage1_trainer(ctx: StageContext, init, run_dir: Path | None, depth_prior: bool = True):
     """(Trainer, model-terms decision) exactly as ``stage1`` builds them: the model from ``init`` (a
     decomposed init -> terms decided by evidence under ``config.model_terms``; per-frame clouds ->
     every term on), the run's TrainingConfig with its scaled schedule, term revisions during
     training. For callers that step the trainer themselves too (the viewer's live training).
-    run_dir: where checkpoints go (None: none)."""
+    run_dir: where checkpoints go (None: none). depth_prior: ``init``'s points are depth targets
+    when ``training.depth_prior`` is on (False: the sparse baseline, which stays the paper's STGS)."""
     from fixer4d.train.model_init import model_from_init
     from fixer4d.train.trainer import Trainer
 
@@ -214,7 +222,8 @@ def stage1_trainer(ctx: StageContext, init, run_dir: Path | None):
 
         response = CameraResponse(len(ctx.train_scene.train_ids))
     trainer = Trainer(model, ctx.train_scene, cfg, run_dir=run_dir,
-                      terms=ctx.config.model_terms if decision is not None else None, camera_response=response)
+                      terms=ctx.config.model_terms if decision is not None else None, camera_response=response,
+                      depth_init=init if depth_prior else None)
     return trainer, decision
 
 

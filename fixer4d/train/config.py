@@ -17,6 +17,8 @@ from typing import Any
 from fixer4d.errors import InputError
 from fixer4d.geometry.subsample import INIT_SUBSAMPLES
 from fixer4d.restore.visibility import VisibilityConfig
+from fixer4d.train.background import MEAN, check_background
+from fixer4d.train.depth_prior import DepthPriorConfig
 from fixer4d.train.device import DEVICES
 from fixer4d.train.opacity_decay import OpacityDecayConfig
 
@@ -75,7 +77,10 @@ class TrainingConfig:
     # camera stack), so every frame gets the same share of the steps and a resumed run draws
     # the same frames without extra state.
     frame_order: str = "iid"
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # What a render shows where no Gaussian covers a pixel: 3 numbers in [0, 1], or "mean", the
+    # train views' mean colour (train/background.py; over black, +3 dB on Panoptic's validation
+    # cameras, docs/decisions/background.md)
+    background: tuple[float, float, float] | str = MEAN
 
     # -- initialization -------------------------------------------------------------------
     # Cap on the points taken from all per-frame clouds; CPU rendering cost grows with the
@@ -154,6 +159,8 @@ class TrainingConfig:
     opacity_reset_value: float = 0.01
     # learned decay of the visible opacities in place of the resets (train.opacity_decay; off)
     opacity_decay: OpacityDecayConfig = field(default_factory=OpacityDecayConfig)
+    # the init's points as a depth target of stage 1's train views (train.depth_prior; off)
+    depth_prior: DepthPriorConfig = field(default_factory=DepthPriorConfig)
 
     # -- bookkeeping ------------------------------------------------------------------------
     checkpoint_every: int = 375
@@ -161,9 +168,11 @@ class TrainingConfig:
     progress: bool = True
 
     def __post_init__(self) -> None:
-        self.background = tuple(float(x) for x in self.background)  # type: ignore[assignment]
+        self.background = check_background(self.background)  # type: ignore[assignment]
         if isinstance(self.opacity_decay, dict):
             self.opacity_decay = OpacityDecayConfig(**_known(OpacityDecayConfig, self.opacity_decay))
+        if isinstance(self.depth_prior, dict):
+            self.depth_prior = DepthPriorConfig(**_known(DepthPriorConfig, self.depth_prior))
         if self.iterations < 0:
             raise InputError(f"TrainingConfig.iterations must be >= 0, got {self.iterations}")
         if self.device not in DEVICES:
@@ -229,7 +238,7 @@ class TrainingConfig:
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
-        d["background"] = list(self.background)
+        d["background"] = self.background if isinstance(self.background, str) else list(self.background)
         return d
 
     @classmethod
@@ -356,7 +365,7 @@ def _known(cls: type, d: dict[str, Any]) -> dict[str, Any]:
     if unknown:
         raise InputError(f"{cls.__name__}: unknown keys {unknown} in the config; remove them or update fixer4d")
     out = dict(d)
-    if "background" in out:
+    if "background" in out and not isinstance(out["background"], str):
         out["background"] = tuple(out["background"])
     return out
 

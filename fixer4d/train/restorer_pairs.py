@@ -48,6 +48,7 @@ from fixer4d.restore.config import META_FILE, VALIDATION_FILE, WEIGHTS_FILE, Res
 from fixer4d.restore.learned import LearnedRestorer, request_features, restore_features, train_network
 from fixer4d.restore.reference_warp import ReferenceWarpRestorer
 from fixer4d.scene.base import MultiViewVideo
+from fixer4d.train.background import resolve_background
 from fixer4d.scene.train_view import TrainOnlyView
 from fixer4d.train.config import SCHEDULE_KEYS, TrainingConfig
 from fixer4d.train.model_init import model_from_clouds, model_from_init
@@ -104,7 +105,6 @@ def _init_model(init: Any, views: TrainOnlyView, cfg: TrainingConfig):
 
 def _loo_config(training: TrainingConfig, iterations: int) -> TrainingConfig:
     keep = {k: v for k, v in training.to_dict().items() if k not in _SCHEDULE_FIELDS}
-    keep["background"] = tuple(keep["background"])
     return TrainingConfig.for_iterations(iterations, **keep, progress=False)
 
 
@@ -285,7 +285,8 @@ def train_scene_restorer(scene: MultiViewVideo, clouds: Sequence[Any], training:
     if model is not None:
         c0 = time.process_time()
         with torch.no_grad():
-            seen = seen_samples(model, scene, config, torch.tensor(training.background, dtype=torch.float32))
+            seen = seen_samples(model, scene, config, torch.tensor(resolve_background(training.background, scene),
+                                                                    dtype=torch.float32))
         pair_cpu += time.process_time() - c0
 
     train_set = _fold_samples(folds, [c for c in train_ids if c != held])

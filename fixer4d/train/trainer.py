@@ -50,9 +50,11 @@ from fixer4d.render.api import RenderOutput, render, render_batch, resolve_backe
 from fixer4d.render.constants import ALPHA_MIN
 from fixer4d.render.views import model_render_fn
 from fixer4d.scene.base import MultiViewVideo
+from fixer4d.train.background import resolve_background
 from fixer4d.train.checkpoints import (CHECKPOINT_FORMAT, check_resumable, list_checkpoints, read_checkpoint,
                                        remove_partial_checkpoints, training_settings, write_checkpoint)
 from fixer4d.train.config import TrainingConfig, Stage2Config
+from fixer4d.train.depth_prior import DepthTargets, NovelDepthViews, depth_loss
 from fixer4d.train.device import training_device
 from fixer4d.train.losses import masked_l1, masked_l1_device, mean_squared_error, stg_loss, stg_loss_device
 from fixer4d.train.model_init import scene_extent
@@ -74,6 +76,8 @@ CHECK_EVERY = 10
 # Pseudo-view cameras whose gsplat matrices stay on the device: a stage-2 round's trajectories
 # hold a few dozen cameras (trajectories.frames per pair), so a round's are all kept.
 CAMERA_CACHE = 256
+# The novel depth views' random stream beside the seed (any constant other streams do not use).
+NOVEL_DEPTH_STREAM = 7
 # A rendered view of a step: its render, camera and ``_drawn`` radii (densification statistics).
 RenderedView = tuple[RenderOutput, Camera, torch.Tensor]
 
@@ -107,6 +111,8 @@ class Trainer:
     terms: the model-terms config whose auto decisions stage 1 revises (None: no revisions).
     camera_response: a CameraResponse over the train views, trained with the model: each train
       view's render passes through it before its loss (None: the cameras agree on colour).
+    depth_init: the init (DecomposedInit or frame clouds) whose points hold the train views'
+      rendered depth in stage 1 when ``config.depth_prior`` is on (``train.depth_prior``).
 
     ``step()`` runs one iteration and returns scalars; ``train(n)`` runs up to ``n`` more (default:
     to the end) with a progress bar and checkpoints; ``stop()`` ends ``train`` after the current
@@ -117,7 +123,8 @@ class Trainer:
     def __init__(self, model: SpacetimeGaussians, scene: MultiViewVideo, config: TrainingConfig, *,
                  run_dir: str | Path | None = None, stage2: Stage2Config | None = None,
                  cache: PseudoCache | None = None, refresh_cache: RefreshFn | None = None,
-                 terms: ModelTermsConfig | None = None, camera_response: CameraResponse | None = None) -> None:
+                 terms: ModelTermsConfig | None = None, camera_response: CameraResponse | None = None,
+                 depth_init: Any = None) -> None:
         if len(scene.train_ids) < 1:
             raise InputError(f"{scene.name}: no train cameras to optimize on")
         if stage2 is not None and cache is None:
@@ -138,7 +145,8 @@ class Trainer:
         self.stage = self.schedule.stage
         self.train_ids = list(scene.train_ids)
         self.extent = scene_extent(scene.train_cameras, model.means)
-        self.background = torch.tensor(config.background, dtype=torch.float32, device=self.device)
+        self.background = torch.tensor(resolve_background(config.background, scene), dtype=torch.float32,
+                                       device=self.device)
         seed = self.schedule.seed
         self._seed = int(seed)
         self._frame_pass: tuple[int, np.ndarray] | None = None  # (pass index, frame order) of "shuffled"
@@ -154,6 +162,14 @@ class Trainer:
                       OpacityDecay(config.opacity_decay, self.device, seed))
         # per-train-camera colour response (None: the cameras agree on colour)
         self.response = None if camera_response is None else camera_response.to(self.device)
+        # the init's points as depth targets of the train views (stage 1 with training.depth_prior)
+        prior = config.depth_prior if stage2 is None and depth_init is not None else None
+        self.depth_targets = (DepthTargets(depth_init, scene.train_cameras, prior, self._moving_mask, self.device)
+                              if prior is not None and prior.weight > 0 else None)
+        self.novel_depth = (NovelDepthViews(depth_init, scene.train_cameras, prior, self.device)
+                            if prior is not None and prior.novel_weight > 0 else None)
+        # the novel cameras' own draws: the train views' and frames' draws stay those of the seed
+        self.novel_rng = np.random.default_rng([seed, NOVEL_DEPTH_STREAM])
         self.response_optimizer = (None if camera_response is None else
                                    torch.optim.Adam(camera_response.parameters(), lr=RESPONSE_LR))
         self.stats = DensifyStats.zeros(model.num_gaussians, self.device)
@@ -235,6 +251,8 @@ class Trainer:
         # densification threshold (3DGS: one view per step) is calibrated.
         n_views = max(len(views), 1)
         loss_stg = loss_stg / n_views
+        if self.novel_depth is not None and self.step_count % self.config.depth_prior.novel_every == 0:
+            loss_stg = loss_stg + self._novel_depth_term(base, timing)
         if self.response is not None:
             loss_stg = loss_stg + RESPONSE_REG * self.response.regularizer()
         loss_gen = torch.zeros((), device=self.device)
@@ -327,6 +345,8 @@ class Trainer:
             else:
                 target = self._frames.target(int(v), frame)
                 loss_stg = loss_stg + stg_loss_device(recorded, target, self._pixel_weight(int(v), frame))
+            if (term := self._depth_term(out, int(v), frame)) is not None:
+                loss_stg = loss_stg + term
             mses.append(mean_squared_error(recorded, target))
             timing["t_loss"] += time.perf_counter() - tic
         return loss_stg, torch.stack(mses)
@@ -352,6 +372,9 @@ class Trainer:
         weights = [self._pixel_weight(v, frame) for v in index]
         weight = None if weights[0] is None else torch.stack(weights)
         loss_stg = len(index) * stg_loss_device(recorded, target, weight)
+        for out, v in zip(rendered, index):
+            if (term := self._depth_term(out, v, frame)) is not None:
+                loss_stg = loss_stg + term
         mses = (recorded.detach().double() - target.double()).pow(2).mean(dim=(1, 2, 3))
         timing["t_loss"] += time.perf_counter() - tic
         return loss_stg, mses
@@ -433,17 +456,45 @@ class Trainer:
             return None
         if self._frames is not None and self._frames.weights is not None:
             return self._frames.weights[view][frame]
+        if self._frames is not None:
+            self._moving_masks()
+            self._frames.cache_weights(self._moving_packed, w)
+            return self._frames.weights[view][frame]
+        return torch.from_numpy(1.0 + w * self._moving_mask(view, frame).astype(np.float32))
+
+    def _moving_masks(self) -> np.ndarray:
+        """(V, T, H, ceil(W/8)) the train views' moving-content masks, bit-packed (estimated on
+        first use)."""
         if self._moving_packed is None:
             from fixer4d.init.masks import moving_masks_for_scene
 
             masks = moving_masks_for_scene(self.scene, self.train_ids, list(range(self.scene.num_frames)))
             self._moving_packed = np.packbits(masks, axis=-1)
-            if self._frames is not None:
-                self._frames.cache_weights(self._moving_packed, w)
-                return self._frames.weights[view][frame]
+        return self._moving_packed
+
+    def _moving_mask(self, view: int, frame: int) -> np.ndarray:
+        """(H, W) bool moving-content mask of train view ``view`` at ``frame``."""
         width = self.scene.cameras[self.train_ids[view]].width
-        m = np.unpackbits(self._moving_packed[view, frame], axis=-1, count=width).astype(np.float32)
-        return torch.from_numpy(1.0 + w * m)
+        return np.unpackbits(self._moving_masks()[view, frame], axis=-1, count=width).astype(bool)
+
+    def _novel_depth_term(self, base: torch.Tensor | None, timing: dict[str, float]) -> torch.Tensor:
+        """weight x L_depth of one novel camera's render at an init frame (``NovelDepthViews``); its
+        render enters no densification statistic (no image was seen there)."""
+        drawn = self.novel_depth.draw(self.novel_rng)
+        if drawn is None:
+            return torch.zeros((), device=self.device)
+        cam, frame, target = drawn
+        snap = self.model.at(self.scene.time(frame), **_decayed(base))
+        out = self._render_view(snap, cam, [], timing)
+        return self.config.depth_prior.novel_weight * depth_loss(out.depth, target)
+
+    def _depth_term(self, out: RenderOutput, view: int, frame: int) -> torch.Tensor | None:
+        """weight x L_depth of train view ``view``'s render at ``frame`` (``train.depth_prior``);
+        None without depth targets or without a target there."""
+        if self.depth_targets is None:
+            return None
+        target = self.depth_targets.target(view, frame)
+        return None if target is None else self.config.depth_prior.weight * depth_loss(out.depth, target)
 
     def _render_view(self, snap: Snapshot, cam: Camera, outputs: list[RenderedView],
                      timing: dict[str, float], view: int | None = None) -> RenderOutput:
@@ -591,6 +642,7 @@ class Trainer:
                     "camera_response": {k: v.detach().clone() for k, v in self.response.state_dict().items()},
                     "camera_response_optimizer": self.response_optimizer.state_dict()}),
                 **({} if self.decay is None else {"opacity_decay": self.decay.state_dict()}),
+                **({} if self.novel_depth is None else {"novel_depth_rng": self.novel_rng.bit_generator.state}),
             }
 
     def load_state_dict(self, state: dict[str, Any], source: str = "checkpoint") -> None:
@@ -617,6 +669,8 @@ class Trainer:
                 self.response_optimizer.load_state_dict(state["camera_response_optimizer"])
             if self.decay is not None:
                 self.decay.load_state_dict(state["opacity_decay"])
+            if self.novel_depth is not None:
+                self.novel_rng.bit_generator.state = state["novel_depth_rng"]
             if self.pseudo is not None:
                 self.pseudo.forget(int(state["round"]))
 

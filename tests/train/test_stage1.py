@@ -19,8 +19,9 @@ from fixer4d.train.trainer import Trainer
 def test_training_raises_heldout_psnr(stage1_run):
     trainer, p_init, p_final = stage1_run
     assert trainer.step_count == trainer.total_iterations
-    # measured: 13.4 dB -> 18.9 dB (seed 0); a broken loss, lr or densify stays near the init
-    assert p_final > p_init + 4.0, (p_init, p_final)
+    # measured: 15.9 dB -> 19.2 dB (seed 0, over the train views' mean colour); a broken loss, lr
+    # or densify stays near the init
+    assert p_final > p_init + 2.5, (p_init, p_final)
     assert trainer.model.num_gaussians <= trainer.config.max_gaussians
     last = trainer.history[-1]
     assert last["psnr"] > trainer.history[0]["psnr"] + 5.0

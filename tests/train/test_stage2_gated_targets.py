@@ -10,6 +10,7 @@ from fixer4d.pipeline.restoration import make_refresh_callback, make_request
 from fixer4d.restore.base import RestoreResult
 from fixer4d.restore.cache import RestoreCache
 from fixer4d.restore.visibility import hole_weight
+from fixer4d.train.background import resolve_background
 
 MAGENTA = np.array([1.0, 0.0, 1.0], np.float32)
 # 8-bit PNG frames in the cache
@@ -42,7 +43,8 @@ def test_gated_targets_keep_the_render_and_fill_its_holes(tmp_path, small_scene,
     for entry in entries:
         pair = tuple(entry.meta["trajectory"]["pair"])
         req = make_request(model, small_scene, entry.cameras, entry.frame, pair, backend="cpu",
-                           visibility=config.stage2.visibility)
+                           visibility=config.stage2.visibility,
+                           background=resolve_background(config.training.background, small_scene))
         hole = hole_weight(req.alpha, config.stage2.visibility)[..., None]
         expected = req.rgb + hole * (MAGENTA - req.rgb)
         np.testing.assert_allclose(entry.rgb(), np.clip(expected, 0, 1), atol=QUANTUM)
