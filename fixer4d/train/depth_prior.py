@@ -17,8 +17,9 @@ occludes it), plus the frame's own moving points where the frame is an init fram
 init (clouds at its frames only) gives targets at its frames. Only the train cameras' own init
 enters: no held-out image, nothing a held-out camera saw.
 
-``training.depth_prior.weight = 0`` (the default) switches it off: no target is built and every
-trained digit stays as it was.
+``weight = 0`` and ``novel_weight = 0`` (the defaults: it lost on validation cameras,
+docs/decisions/depth-prior.md) switch it off: no target is built and every trained digit stays as
+it was.
 """
 from __future__ import annotations
 
@@ -33,8 +34,9 @@ from fixer4d.geometry.camera import Camera
 
 # Relative depth errors are clipped here, where their gradient stops: a point seen through a hole
 # in a nearer surface, or a stray depth of the fusion, is 50 % or more off and must not pull the
-# model, while the fog this prior removes sits 10-40 % in front of its surface (measured on
-# Panoptic's stage-1 models: 5-13 % of train pixels render > 10 % nearer than the init's points).
+# model, while the fog this prior removes sits 10-40 % in front of its surface (Panoptic's stage-1
+# models over black: 7-23 % of train pixels render > 10 % nearer than the init's points,
+# benchmarks/results/depth_gap_background_panoptic.json).
 RELATIVE_CLIP = 0.5
 # Depths are compared relative to the target; this floor keeps the division finite for a point
 # on the camera's near plane.
