@@ -52,7 +52,9 @@ def train_views_mean(scene) -> tuple[float, float, float]:
     on the order of the additions: the same digits on every CPU; the rounding covers the rest."""
     if not scene.train_ids:
         raise InputError(f"{scene.name}: no train cameras to take the background colour from")
-    frames = sorted({int(round(x)) for x in np.linspace(0, scene.num_frames - 1, min(MEAN_FRAMES, scene.num_frames))})
+    from fixer4d.calib.sfm import spread_frames
+
+    frames = spread_frames(scene.num_frames, MEAN_FRAMES)
     total, count = np.zeros(3), 0
     for cam in scene.train_ids:
         for f in frames:

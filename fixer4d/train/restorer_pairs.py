@@ -48,8 +48,8 @@ from fixer4d.restore.config import META_FILE, VALIDATION_FILE, WEIGHTS_FILE, Res
 from fixer4d.restore.learned import LearnedRestorer, request_features, restore_features, train_network
 from fixer4d.restore.reference_warp import ReferenceWarpRestorer
 from fixer4d.scene.base import MultiViewVideo
-from fixer4d.train.background import resolve_background
 from fixer4d.scene.train_view import TrainOnlyView
+from fixer4d.train.background import resolve_background
 from fixer4d.train.config import SCHEDULE_KEYS, TrainingConfig
 from fixer4d.train.model_init import model_from_clouds, model_from_init
 from fixer4d.train.trainer import Trainer

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from fixer4d.calib.sfm import spread_frames
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
 from fixer4d.pipeline.config import resolve
@@ -48,8 +49,7 @@ def test_the_mean_is_the_train_views_own_and_reads_no_held_out_camera(small_scen
     spy = _Spy(small_scene)
     rgb = train_views_mean(spy)
     assert spy.read == set(small_scene.train_ids)
-    frames = sorted({int(round(x)) for x in np.linspace(0, small_scene.num_frames - 1,
-                                                        min(MEAN_FRAMES, small_scene.num_frames))})
+    frames = spread_frames(small_scene.num_frames, MEAN_FRAMES)
     want = np.mean([small_scene.frame(f, c).reshape(-1, 3).astype(np.float64)
                     for c in small_scene.train_ids for f in frames], axis=(0, 1))
     assert np.allclose(rgb, want, atol=1e-6)
