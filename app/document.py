@@ -244,6 +244,7 @@ class Document:
                 self.report_error("session", exc)
             if src.model_path is not None:
                 state.model_version = src.model_path.name
+        state.choose_background(state.background_mode, src.background)
         self.state, self.source = state, src
         self.home_view = home
         self._trajectory_cache.clear()

@@ -79,7 +79,7 @@ def open_scene(source: str, scale: float, iterations: int | None, init: str,
     session_dir = config_dir() / _slug(source if is_builtin_name(source) or not path.exists() else str(path.resolve()))
     cache, restore = make_restore(session_dir / "cache")
     src = ViewerSource(scene=scene, label=f"{scene.name} (live training)", training=training, cache=cache,
-                       restore=restore)
+                       restore=restore, background=run_background(None, scene))
     return src, None, session_dir
 
 
@@ -108,19 +108,30 @@ def open_run(run: Path, model: Path | None = None) -> tuple[ViewerSource, Any, P
     from fixer4d.model.io import load_model
     from fixer4d.pipeline.run_folder import load_scene_for, read_run_config
 
-    scene = load_scene_for(read_run_config(run))  # read only: the viewer never rewrites config.json
+    config = read_run_config(run)  # read only: the viewer never rewrites config.json
+    scene = load_scene_for(config)
+    background = run_background(config, scene)
     if model is None and not model_versions(run) and segment_models(run):
         timeline = SegmentTimeline.load(run, scene.num_frames)
         cache, restore = make_restore(run / "cache", run)
         src = ViewerSource(scene=scene, run_dir=run, label=f"{run} ({len(timeline.ranges)} segments)", cache=cache,
-                           restore=restore, segments=timeline)
+                           restore=restore, segments=timeline, background=background)
         return src, timeline.arrays[timeline.segment_of(0.0)], run / "viewer"
     model_path = model if model is not None else choose_model(run, remembered_version(run / "viewer" / "session.json"))
     g = GaussianArrays.from_model(load_model(model_path))
     cache, restore = make_restore(run / "cache", run)
     src = ViewerSource(scene=scene, run_dir=run, label=str(model_path), cache=cache, restore=restore,
-                       model_path=model_path)
+                       model_path=model_path, background=background)
     return src, g, run / "viewer"
+
+
+def run_background(config: Any, scene: Any) -> tuple[float, float, float]:
+    """The RGB a run of ``config`` (None: the default config, as live training uses) trains and
+    restores ``scene`` over: its ``training.background`` resolved from the scene's train views."""
+    from fixer4d.pipeline.config import resolve
+    from fixer4d.train.background import resolve_background
+
+    return resolve_background((config if config is not None else resolve()).training.background, scene)
 
 
 def make_restore(cache_dir: Path, run_dir: Path | None = None) -> tuple[Any, RestoreQueue]:

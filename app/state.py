@@ -26,6 +26,9 @@ MAX_UNDO = 100
 UNDO_HINT = "Ctrl+Z undoes it"
 # Default number of frames on a new trajectory (the paper's clips are short).
 DEFAULT_TRAJECTORY_FRAMES = 16
+# What the 3D view shows where no Gaussian lies: black makes holes stand out; "run" is the colour
+# the run trained over (``ViewerSource.background``), so the view looks like its renders.
+BACKGROUNDS = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0), "run": None}
 
 
 @dataclass(frozen=True)
@@ -91,6 +94,7 @@ class AppState:
     show_frusta: bool = True
     show_trajectories: bool = True
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    background_mode: str = "black"  # a key of BACKGROUNDS; ``background`` is its colour
     undo_stack: list[Edit] = field(default_factory=list)
     redo_stack: list[Edit] = field(default_factory=list)
     status: str = ""
@@ -292,13 +296,24 @@ class AppState:
             return np.zeros(0, bool)
         return np.zeros(self.gaussians.n, bool) if self.selection is None else self.selection
 
+    def choose_background(self, mode: str, run_rgb: tuple[float, float, float] | None) -> None:
+        """Show ``mode`` (a key of ``BACKGROUNDS``) behind the Gaussians; "run" is ``run_rgb``, the
+        run's own background, and falls back on black where the source has none."""
+        if mode not in BACKGROUNDS:
+            raise InputError(f"background {mode!r} is not one of {', '.join(BACKGROUNDS)}")
+        rgb = BACKGROUNDS[mode] if mode != "run" else run_rgb
+        if rgb is None:
+            mode, rgb = "black", BACKGROUNDS["black"]
+        self.background_mode, self.background = mode, tuple(float(x) for x in rgb)
+
     # ---- session ------------------------------------------------------------------------------
     def session_dict(self) -> dict[str, Any]:
         return {"version": SESSION_VERSION, "camera": self.view.to_dict(), "frame": self.frame,
                 "loop": self.loop, "fps": self.fps, "selected_trajectory": self.selected_trajectory,
                 "trajectories": [t.to_dict() for t in self.trajectories], "preview_alpha": self.preview_alpha,
                 "splat_mode": self.splat_mode, "debug_mode": self.debug_mode, "show_frusta": self.show_frusta,
-                "show_trajectories": self.show_trajectories, "model_version": self.model_version}
+                "show_trajectories": self.show_trajectories, "background": self.background_mode,
+                "model_version": self.model_version}
 
     def save_session(self, path: str | Path) -> Path:
         return write_json(path, self.session_dict())
@@ -328,6 +343,8 @@ class AppState:
         self.debug_mode = str(d.get("debug_mode", "color"))
         self.show_frusta = bool(d.get("show_frusta", True))
         self.show_trajectories = bool(d.get("show_trajectories", True))
+        mode = str(d.get("background", "black"))
+        self.background_mode = mode if mode in BACKGROUNDS else "black"  # its colour: the source's (``choose_background``)
         # the model version is chosen when the run opens (app.files.remembered_version); keep
         # the one actually shown
         return True

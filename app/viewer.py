@@ -74,6 +74,7 @@ class Viewer(Viewport, View3D, Document):
                 state.load_session(session_path)
             except Exception as exc:  # a bad session must not stop the app; say so
                 state.status = str(exc)
+        state.choose_background(state.background_mode, source.background)
         self.check_autosave()
         self.show_notice(source)
 
@@ -333,14 +334,19 @@ class Viewer(Viewport, View3D, Document):
             self._trajectory_cache[id(spec)] = hit  # specs are immutable: an edit makes a new one
         return hit[1]
 
-    def gaussians_render_fn(self) -> GaussiansRenderFn:
+    def gaussians_render_fn(self, background: tuple[float, float, float] | None = None) -> GaussiansRenderFn:
         """``fn(camera, t) -> {"rgb", "depth", "alpha"}``: torch renders of the displayed
-        Gaussians (the set the GL view shows, edits included) at clip time t, from the injected
-        ``services.render``."""
+        Gaussians (the set the GL view shows, edits included) at clip time t over ``background``
+        (None: the view's), from the injected ``services.render``."""
         st, src = self.state, self.source
         key = (st.gaussians_version, self._segment, id(src))
-        return self.services.render(key, st.gaussians, src.segments, self._segment, tuple(st.background),
-                                    src.render_backend)
+        return self.services.render(key, st.gaussians, src.segments, self._segment,
+                                    tuple(st.background if background is None else background), src.render_backend)
+
+    def targets_background(self) -> tuple[float, float, float]:
+        """What restorations render over: the run's background (as its pseudo-targets were made),
+        else the view's."""
+        return tuple(self.source.background if self.source.background is not None else self.state.background)
 
     def image_texture(self, name: str, image: np.ndarray) -> moderngl.Texture:
         """Upload an (H, W, 3) float [0,1] or uint8 image as a named texture for imgui.image

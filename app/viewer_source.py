@@ -32,6 +32,9 @@ class ViewerSource:
       segment that owns the current frame), or None.
     notice: what the user should know about how the source was resolved (shown when it opens),
       e.g. a bundled scene name that is also a folder here.
+    background: the RGB in [0, 1] the run trains and restores over where no Gaussian lies
+      (``training.background`` resolved for its scene, e.g. the train views' mean colour), or None
+      for a bare model. Restoration jobs and Compare render over it, like the pseudo-targets.
     """
 
     scene: Any = None
@@ -44,6 +47,7 @@ class ViewerSource:
     model_path: Path | None = None
     segments: Any = None
     notice: str = ""
+    background: tuple[float, float, float] | None = None
 
 
 def _missing(what: str) -> Callable[..., Any]:

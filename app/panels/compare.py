@@ -43,12 +43,14 @@ def refresh_entries(viewer, ui: dict) -> list:
 
 def frame_images(viewer, ui: dict, entry, k: int) -> dict[str, np.ndarray]:
     """{"render", "target", optionally "truth"} (H, W, 3) float32 for frame k of ``entry``
-    (cached per entry, frame and displayed model)."""
-    key = (entry.key, entry.round, k, viewer.state.gaussians_version)
+    (cached per entry, frame and displayed model). The render is over the run's background, as
+    the pseudo-targets were made, whatever the 3D view shows."""
+    background = viewer.targets_background()
+    key = (entry.key, entry.round, k, viewer.state.gaussians_version, background)
     cache = ui["cache"]
     if key not in cache:
         cam = entry.cameras[k]
-        out = {"render": viewer.gaussians_render_fn()(cam, entry.time)["rgb"], "target": entry.rgb()[k]}
+        out = {"render": viewer.gaussians_render_fn(background)(cam, entry.time)["rgb"], "target": entry.rgb()[k]}
         weight = supervision_map(entry)
         if weight is not None:
             out["supervised"] = supervised_overlay(out["target"], weight[k])

@@ -89,7 +89,7 @@ def queue_restore(viewer, k: int, frame: int):
         key = viewer_clip_key(f"t{frame:04d}_" + re.sub(r"[^A-Za-z0-9_-]+", "_", spec.name), spec)
     if spec.reverse:
         ref_ids = ref_ids[::-1]
-    render_fn = viewer.gaussians_render_fn()
+    render_fn = viewer.gaussians_render_fn(viewer.targets_background())
     meta = {"source": "viewer", "trajectory": spec_meta(spec)}
     return src.restore.queue(key, spec.name, frame,
                              lambda: restore_request(render_fn, scene, cams, frame, ref_ids, spec_meta(spec)), meta)

@@ -1,6 +1,6 @@
-"""View and edit: orbit/fly, snap to any train or held-out camera, frusta and paths on/off,
-selection tools (box, brush), delete/isolate the selection, save as a new model version,
-undo/redo."""
+"""View and edit: orbit/fly, snap to any train or held-out camera, frusta and paths on/off, the
+background (black, white, the run's colour), selection tools (box, brush), delete/isolate the
+selection, save as a new model version, undo/redo."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,6 +8,7 @@ from imgui_bundle import imgui
 
 from app.panels._layout import (button_width, combo_fit, leave_room_for_label, one_line, panel, same_line_if_fits,
                                 tip, toggle_width)
+from app.state import BACKGROUNDS
 
 TOOLS = ("navigate", "box", "brush")
 
@@ -49,6 +50,25 @@ def _camera_section(viewer) -> None:
     same_line_if_fits(toggle_width("trajectories"))
     _, st.show_trajectories = imgui.checkbox("trajectories", st.show_trajectories)
     tip("the novel-view trajectories' paths (the selected one in magenta)", viewer)
+    _background_combo(viewer)
+
+
+def _background_combo(viewer) -> None:
+    """What the view shows where no Gaussian lies: black (holes stand out), white, or the colour
+    the run trained over (offered where the source has one)."""
+    st, run_rgb = viewer.state, viewer.source.background
+    modes = [m for m in BACKGROUNDS if m != "run" or run_rgb is not None]
+    names = ["run's colour" if m == "run" else m for m in modes]
+    hint = "shown where no Gaussian lies: black makes holes stand out"
+    if run_rgb is not None:
+        hint += ("; the run's colour (RGB {}) shows the view as the run renders and restores it"
+                 .format(", ".join(str(int(round(255 * x))) for x in run_rgb)))
+    leave_room_for_label("background")
+    changed, idx = combo_fit("background", modes.index(st.background_mode) if st.background_mode in modes else 0,
+                             names, hint, viewer)
+    viewer.record_item("background")
+    if changed:
+        st.choose_background(modes[idx], run_rgb)
 
 
 def _snap_combo(viewer, scene) -> None:
