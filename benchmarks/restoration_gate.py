@@ -24,7 +24,13 @@ these images is summed per pixel class:
 
 over the classes all, unobserved (weight > 0.5), hole (alpha < 0.5), unobserved and solid, and
 observed. It reads held-out images, so it is a diagnostic of validation cameras: never pass test
-cameras to choose a setting with it.
+cameras to choose a setting with it. ``gated`` is stage 2's target with ``stage2.restore_holes=false``,
+``gate_render`` the default's.
+
+    python benchmarks/restoration_gate.py --summarize FILE.json ... --out SUMMARY.json
+
+pairs result files over runs (seeds) by their validation folder: per class and image the mean
+PSNR and the interval (``fixer4d.stats.interval``) of the image's PSNR minus the render's.
 """
 from __future__ import annotations
 
@@ -68,15 +74,59 @@ def images(request, result, visibility, tols: tuple[float, ...] = ()) -> dict[st
     return out
 
 
+def summarize(paths: list[Path]) -> dict[str, dict]:
+    """Per validation folder (the files' ``cameras_from``), class and image: {"fraction", "render"
+    (interval of the render's PSNR), "<image> - render" (interval of the paired differences)}."""
+    from fixer4d.stats import interval
+
+    groups: dict[str, list[dict]] = {}
+    for path in paths:
+        record = json.loads(Path(path).read_text())
+        groups.setdefault(Path(record["cameras_from"]).name, []).append(record)
+    out: dict[str, dict] = {}
+    for name, records in sorted(groups.items()):
+        table = {"runs": [r["run"] for r in records]}
+        for cls in CLASSES:
+            rows = [r["psnr_db"][cls] for r in records]
+            entry = {"fraction": interval([r["fraction"] for r in rows])["mean"],
+                     "render": interval([r["render"] for r in rows])}
+            for image in rows[0]:
+                if image not in ("fraction", "render"):
+                    entry[f"{image} - render"] = interval([None if r[image] is None or r["render"] is None
+                                                           else r[image] - r["render"] for r in rows])
+            table[cls] = entry
+        out[name] = table
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("run", type=Path)
-    parser.add_argument("--cameras-from", required=True, help="a validation folder or bundled spec")
+    parser.add_argument("run", type=Path, nargs="?")
+    parser.add_argument("--summarize", type=Path, nargs="+", metavar="FILE", help="pair result files over runs")
+    parser.add_argument("--cameras-from", help="a validation folder or bundled spec")
     parser.add_argument("--stride", type=int, default=6, help="every S-th frame")
     parser.add_argument("--out", type=Path, default=None, help="write the table as JSON")
     parser.add_argument("--background-tols", default="", help="comma-separated BACKGROUND_DEPTH_TOL values to "
                         "add as fill_tol<T> columns")
     args = parser.parse_args(argv)
+    if args.summarize:
+        summary = summarize(args.summarize)
+        for name, table in summary.items():
+            print(f"{name} ({len(table['runs'])} runs)")
+            for cls in CLASSES:
+                e = table[cls]
+                if e["render"]["mean"] is None:
+                    continue
+                diffs = "  ".join(f"{k.split(' ')[0]} {v['mean']:+.2f}±{v['ci95'] or 0:.2f}"
+                                  for k, v in e.items() if k.endswith("- render") and v["mean"] is not None)
+                print(f"  {cls:17s} {100 * e['fraction']:5.1f} %  render {e['render']['mean']:.2f}  {diffs}")
+        if args.out is not None:
+            from fixer4d.atomic import write_json
+
+            write_json(args.out, summary)
+        return 0
+    if args.run is None or args.cameras_from is None:
+        parser.error("RUN and --cameras-from are needed (or --summarize FILE ...)")
     tols = tuple(float(t) for t in args.background_tols.split(",") if t.strip())
     names = IMAGES + tuple(f"fill_tol{t:g}" for t in tols)
 

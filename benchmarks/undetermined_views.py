@@ -2,7 +2,7 @@
 finished quality-bench runs without re-running stage 1 (docs/decisions/undetermined-views.md).
 
     python benchmarks/undetermined_views.py SET --seeds 0,1,2 --views 4 --runs DIR [--measure] --out FILE
-        [--base-runs runs/quality --base-out benchmarks/results/quality]
+        [--base-runs runs/quality --base-out benchmarks/results/quality] [--set KEY=VALUE --label L]
 
 SET is a quality-bench camera set (panoptic, panoptic_c, demo). ``--measure`` copies each seed's
 run ``runs/quality/SET/seed<S>`` to ``DIR/SET/seed<S>_k<K>``, runs stage 2 there with the views
@@ -46,15 +46,18 @@ def _refined(run: Path) -> bool:
     return stages.is_file() and bool(json.loads(stages.read_text()).get("stage2", {}).get("done"))
 
 
-def measure(name: str, seed: int, views: int, runs: Path, base_runs: Path = REPO_ROOT / DEFAULT_RUNS) -> Path:
-    """Copy the seed's finished run, refine it with ``views`` views (stage 2 forced), evaluate it on
-    the validation cameras; returns the copy."""
-    run = runs / name / f"seed{seed}_k{views}"
+def measure(name: str, seed: int, views: int, runs: Path, base_runs: Path = REPO_ROOT / DEFAULT_RUNS,
+            settings: tuple[str, ...] = (), label: str = "") -> Path:
+    """Copy the seed's finished run, refine it with ``views`` views and ``settings`` (KEY=VALUE;
+    stage 2 forced), evaluate it on the validation cameras; returns the copy
+    (``seed<S>_k<K><label>``)."""
+    run = runs / name / f"seed{seed}_k{views}{label}"
     if not run.exists():
         run.parent.mkdir(parents=True, exist_ok=True)
         shutil.copytree(base_runs / name / f"seed{seed}", run)
     cli = [sys.executable, "-m", "fixer4d.cli"]
-    subprocess.run([*cli, "refine", str(run), "--set", f"trajectories.undetermined_views={views}",
+    extra = [a for kv in settings for a in ("--set", kv)]
+    subprocess.run([*cli, "refine", str(run), "--set", f"trajectories.undetermined_views={views}", *extra,
                     "--set", "self_check.enabled=false", "--quiet"], check=True)
     subprocess.run([*cli, "eval", str(run), "--cameras-from", str(VALIDATION[name]), "--quiet"], check=True)
     return run
@@ -70,21 +73,22 @@ def _stage2(run: Path, report: Path) -> dict[str, Any] | None:
 
 
 def seed_figures(name: str, seed: int, views: int, runs: Path, split: str,
-                 base_out: Path = DEFAULT_OUT) -> dict[str, Any] | None:
+                 base_out: Path = DEFAULT_OUT, label: str = "") -> dict[str, Any] | None:
     """The rows of one seed on ``split`` ("val" or "test"): the baseline's, stage 2 with the views
-    and the k = 0 control (None where not measured)."""
+    (the copy ``seed<S>_k<K><label>``) and the k = 0 control (None where not measured)."""
     suffix = "_val" if split == "val" else ""
     base = json.loads((base_out / f"{name}{suffix}_seed{seed}.json").read_text())
     rows = _rows(base)
 
-    def report(k: int) -> Path:
-        run = runs / name / f"seed{seed}_k{k}"
+    def report(folder: str) -> Path:
+        run = runs / name / folder
         return run / "heldout" / VALIDATION[name].name / "report.json" if split == "val" else run / "report.json"
 
-    with_views = _stage2(runs / name / f"seed{seed}_k{views}", report(views))
+    variant = f"seed{seed}_k{views}{label}"
+    with_views = _stage2(runs / name / variant, report(variant))
     if with_views is None:
         return None
-    control = _stage2(runs / name / f"seed{seed}_k0", report(0))
+    control = _stage2(runs / name / f"seed{seed}_k0", report(f"seed{seed}_k0"))
     if control is None and base.get("self_check", {}).get("decision") == "refine":
         control = {**{m: rows[ROW_FULL].get(m) for m in METRICS}, "seconds": None}  # the baseline's Full is stage 2
     return {"decision": base.get("self_check", {}).get("decision"),
@@ -117,6 +121,9 @@ def main() -> int:
     parser.add_argument("--views", type=int, default=4, help="trajectories.undetermined_views (0 = the control)")
     parser.add_argument("--runs", type=Path, required=True, help="where the copies of the runs go (outside git)")
     parser.add_argument("--measure", action="store_true", help="copy, refine and evaluate before reading")
+    parser.add_argument("--set", dest="settings", action="append", default=[], metavar="KEY=VALUE",
+                        help="a further stage-2 setting of the variant (repeatable); its copies get --label")
+    parser.add_argument("--label", default="", help="suffix of the variant's copies (seed<S>_k<K><label>)")
     parser.add_argument("--out", type=Path, help="the result JSON")
     parser.add_argument("--base-runs", type=Path, default=REPO_ROOT / DEFAULT_RUNS,
                         help="the quality bench's run folders the copies start from (default runs/quality)")
@@ -124,13 +131,16 @@ def main() -> int:
                         help="that bench's result files (default benchmarks/results/quality)")
     args = parser.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
+    if args.settings and not args.label:
+        parser.error("--set needs --label: the variant's copies must not be the k = 0 control's")
     if args.measure:
         for seed in seeds:
-            measure(args.set, seed, args.views, args.runs, args.base_runs)
-    result: dict[str, Any] = {"set": args.set, "views": args.views, "command": " ".join(sys.argv)}
+            measure(args.set, seed, args.views, args.runs, args.base_runs, tuple(args.settings), args.label)
+    result: dict[str, Any] = {"set": args.set, "views": args.views, "settings": args.settings,
+                              "command": " ".join(sys.argv)}
     for split in ("val", "test"):
         per_seed = {str(s): f for s in seeds
-                    if (f := seed_figures(args.set, s, args.views, args.runs, split, args.base_out))}
+                    if (f := seed_figures(args.set, s, args.views, args.runs, split, args.base_out, args.label))}
         result[split] = {"seeds": per_seed, "paired": paired(per_seed)}
     for split in ("val", "test"):
         for label, iv in result[split]["paired"]["psnr"].items():

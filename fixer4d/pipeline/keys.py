@@ -89,7 +89,7 @@ def stage2_key(config: RunConfig) -> str:
 
     d = config.to_dict()
     fill = ("fill_background_tol", BACKGROUND_DEPTH_TOL) if config.stage2.fill_unobserved else ()
-    return stage_key("stage2", stage1_key(config, config.init_method), d["stage2"], restorer_key(config),
+    return stage_key("stage2", stage1_key(config, config.init_method), config.stage2.keyed(), restorer_key(config),
                      *co_fields_weight_key(config),
                      trajectory_settings(d["trajectories"]), *fill)
 

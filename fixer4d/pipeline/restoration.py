@@ -161,7 +161,8 @@ def make_refresh_callback(run_dir: str | Path, scene, config: RunConfig, *, prog
                         for f, tr, ids in batch]
             results = executor.map(_restore_job, [(restorer, req) for req in requests])
             if gated:  # the pseudo-target: restored where unobserved and trusted, the fallback elsewhere
-                results = [gate_restoration(req, res, config.stage2.visibility, config.stage2.fill_unobserved)
+                results = [gate_restoration(req, res, config.stage2.visibility, config.stage2.fill_unobserved,
+                                            config.stage2.restore_holes)
                            for req, res in zip(requests, results)]
             for (f, tr, ids), req, res in zip(batch, requests, results):
                 cache.write(round_index, clip_key(cache, f, tr, ids), req, res,
@@ -189,7 +190,7 @@ def clip_meta(trajectory, ids: tuple[int, int]) -> dict[str, Any]:
     return meta
 
 
-def gate_restoration(request, result, visibility: VisibilityConfig, fill: bool):
+def gate_restoration(request, result, visibility: VisibilityConfig, fill: bool, restore_holes: bool = True):
     """The restored clip where the restorer may act, a fallback elsewhere: one gate for the
     Restoration rows and stage 2's gated pseudo-targets (``restore.base.blend_with_render`` with
     the request's unobserved map as weight).
@@ -200,8 +201,9 @@ def gate_restoration(request, result, visibility: VisibilityConfig, fill: bool):
     with the render's depth and alpha), and the restorer acts in
     proportion to its confidence x unobserved; the result's confidence is the larger of that
     weight and the fill's (where the target departs from the render). Without it the fallback is
-    the render as it is, which holds only the background colour in a hole, so a hole takes the
-    restored frame whatever the confidence (``restore.visibility.hole_weight``).
+    the render as it is, which holds only the background colour in a hole; with ``restore_holes``
+    (``stage2.restore_holes``) a hole takes the restored frame whatever the confidence
+    (``restore.visibility.hole_weight``), without it a hole is an unobserved pixel like any other.
     """
     from fixer4d.restore.base import RestoreResult, blend_with_render
     from fixer4d.restore.unobserved_fill import UNKNOWN_ABOVE, fill_unobserved
@@ -216,7 +218,8 @@ def gate_restoration(request, result, visibility: VisibilityConfig, fill: bool):
         departs = np.maximum(gated.confidence, np.where(u > UNKNOWN_ABOVE, u, 0.0)).astype(np.float32)
         return RestoreResult(rgb=gated.rgb, confidence=departs,
                              frame_confidence=departs.reshape(len(departs), -1).mean(axis=1))
-    return blend_with_render(request.rgb, result, request.unobserved, hole_weight(request.alpha, visibility))
+    holes = hole_weight(request.alpha, visibility) if restore_holes else None
+    return blend_with_render(request.rgb, result, request.unobserved, holes)
 
 
 def clip_frame(request, result, index: int):

@@ -52,7 +52,7 @@ def training_settings(config: TrainingConfig, stage2: Stage2Config | None) -> di
     """The settings a checkpoint records and a resume must match: "config" (``result_settings``),
     "stage2" (the Stage2Config, None in stage 1) and "device", where the training runs ("cpu" |
     "cuda")."""
-    return {"config": result_settings(config.to_dict()), "stage2": None if stage2 is None else stage2.to_dict(),
+    return {"config": result_settings(config.to_dict()), "stage2": None if stage2 is None else stage2.keyed(),
             "device": device_kind(config.device, config.backend)}
 
 

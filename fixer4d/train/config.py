@@ -246,6 +246,10 @@ class TrainingConfig:
         return cls(**_known(cls, d))
 
 
+# Stage2Config fields added after runs existed, with the behaviour those runs had (``keyed``)
+STAGE2_SETTINGS_BEFORE = (("restore_holes", True),)
+
+
 @dataclass
 class Stage2Config:
     """Stage 2: L = L_STG(observed views) + lambda_gen * L1(render at a pseudo-view, cached target).
@@ -307,13 +311,16 @@ class Stage2Config:
     # for gated, the paper's for restored); against the matched control restored loses up to
     # 0.38 dB, gated at most 0.20.
     pseudo_target: str = "gated"
-    # The gated targets' fallback where the restorer does not act: false, the render of the
-    # refresh (holes restored whatever the confidence); true, the render with its unobserved
-    # pixels filled from the observed ones (restore.unobserved_fill, as the Restoration rows).
-    # Chosen on the validation cameras (docs/decisions/unobserved-fill.md), Full on Panoptic 4/14, split c 2/12,
-    # demo_val: render 18.51 / 20.75 / 25.32 dB, fill 18.29 / 20.60 / 25.38 (the self-check's
-    # decision each time); on split c's fold the fill's stage 2 scored 18.49 dB against 19.00.
-    fill_unobserved: bool = False
+    # The gated targets' fallback where the restorer does not act: true, the render with its
+    # unobserved pixels filled from the observed ones (restore.unobserved_fill, as the Restoration
+    # rows); false, the render of the refresh. Chosen on the validation cameras over the mean-colour
+    # background, stage 2 forced, paired against false over seeds 0-2: Panoptic 4/14 +0.20 dB, split
+    # c 2/12 +0.56 (false without the hole rule: +0.25 / +0.38; docs/decisions/unobserved-fill.md).
+    fill_unobserved: bool = True
+    # With the render as the gated targets' fallback: a hole (alpha under
+    # ``visibility.hole_alpha_low``..``high``) takes the restored frame whatever the restorer's
+    # confidence (true), or only by confidence x unobserved like any unseen pixel (false).
+    restore_holes: bool = True
     visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
 
     def __post_init__(self) -> None:
@@ -341,6 +348,15 @@ class Stage2Config:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+    def keyed(self) -> dict[str, Any]:
+        """The settings as stage keys and checkpoints record them: a setting at the value every
+        stage 2 had before it existed is left out, so those runs keep their keys."""
+        d = self.to_dict()
+        for name, before in STAGE2_SETTINGS_BEFORE:
+            if d.get(name) == before:
+                d.pop(name)
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Stage2Config":

@@ -25,3 +25,15 @@ def test_table_per_pixel_class(benchmark_script, tiny_run, tmp_path):
     for c in gate_bench.CLASSES:
         assert table[c][f"fill_tol{BACKGROUND_DEPTH_TOL:g}"] == table[c]["fill"]
 
+    # two runs' files pair by their validation folder: the differences are image minus render
+    again = tmp_path / "gate2.json"
+    record = json.loads(out.read_text())
+    record["run"] = "other"
+    for row in record["psnr_db"].values():
+        row["gate"] = None if row["gate"] is None else row["gate"] + 1.0
+    again.write_text(json.dumps(record))
+    summary = gate_bench.summarize([out, again])["tiny"]
+    assert summary["runs"] == [str(run_dir), "other"]
+    gain = summary["all"]["gate - render"]
+    assert gain["n"] == 2 and abs(gain["values"][1] - gain["values"][0] - 1.0) < 1e-9
+    assert summary["all"]["render"]["sd"] == 0.0

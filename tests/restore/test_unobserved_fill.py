@@ -187,6 +187,12 @@ def test_the_gate_falls_back_on_the_fill_and_the_restorer_acts_by_its_confidence
     plain = gate_restoration(request, result, VisibilityConfig(), fill=False)
     np.testing.assert_array_equal(plain.rgb[0, 10:20, 20:30], render[0, 10:20, 20:30])
     np.testing.assert_allclose(plain.rgb[0, 25:35, 10:30], 0.5)
+    # stage2.restore_holes=false: a hole is an unobserved pixel like any other, so where the
+    # restorer has no confidence it keeps the render's background colour
+    kept = gate_restoration(request, result, VisibilityConfig(), fill=False, restore_holes=False)
+    np.testing.assert_array_equal(kept.rgb[0, 25:35, 10:30], render[0, 25:35, 10:30])
+    np.testing.assert_allclose(kept.rgb[0, 10:20, 10:20], 0.5)  # the confident restorer still acts
+    np.testing.assert_array_equal(kept.confidence, conf * u)
 
 
 def test_gating_one_frame_of_a_clip_equals_that_frame_of_the_gated_clip():
