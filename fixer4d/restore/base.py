@@ -175,8 +175,9 @@ def blend_with_render(render: np.ndarray, result: RestoreResult, weight: np.ndar
     g = max(hole, weight x confidence); rgb = render + g (restored - render), confidence = g.
     Where the render has content and the restorer has no confidence (its inputs were unreliable)
     or the pixel is observed, the render comes back unchanged: restoration never overwrites what
-    it cannot support. A hole is replaced whatever the confidence: there the render is the
-    background colour, not an estimate of the scene, and any reference-guided guess beats it.
+    it cannot support. Given ``hole``, a hole is replaced whatever the confidence: the render
+    holds only the background colour there (``stage2.restore_holes``; over black any
+    reference-guided guess beat it, over the train views' mean colour it does not).
     """
     render = _as_array(render, "render")
     _check_shape(render, result.rgb.shape, "render")

@@ -300,12 +300,11 @@ class Stage2Config:
     pseudo_mask: str = "all"
     observed_weight: float = 0.0
     # What a pseudo-view frame asks the model to render: "restored" the restorer's output, weighted
-    # by its confidence (the paper); "gated" the restored frame where the render is a hole, or the
-    # train cameras leave a pixel unobserved and the restorer is confident
-    # (``pipeline.restoration.gate_restoration``), and the render of the refresh elsewhere, every
-    # pixel at weight 1: observed pixels of a novel view are held where they were at the last
-    # refresh (a proximal anchor against the drift that more training on four views causes), and
-    # only unobserved ones move towards the restorer. Chosen on the validation cameras
+    # by its confidence (the paper); "gated" the restored frame where the train cameras leave a
+    # pixel unobserved and the restorer is confident (``pipeline.restoration.gate_restoration``),
+    # the fallback (``fill_unobserved``) elsewhere, every pixel at weight 1: observed pixels of a
+    # novel view are held where they were at the last refresh (a proximal anchor against the drift
+    # that more training on four views causes), and only unobserved ones move. Chosen on the validation cameras
     # (docs/decisions/stage2-targets.md), Full - STGS w/ MVS on Panoptic 4/14, split c 2/12, demo_val: restored
     # +0.22 / -0.05 / +0.12 dB, gated +0.11 / +0.48 / +0.03 (both with evidence densification
     # for gated, the paper's for restored); against the matched control restored loses up to

@@ -1,6 +1,7 @@
-"""Stage 2's gated pseudo-targets (``stage2.pseudo_target = "gated"``): the cache holds the
-restored frame only where the render is a hole or the train cameras leave a pixel unobserved and
-the restorer is confident, and the render itself everywhere else."""
+"""Stage 2's gated pseudo-targets (``stage2.pseudo_target = "gated"``) falling back on the render
+(``stage2.fill_unobserved=false``, the hole rule on): the cache holds the restored frame only where
+the render is a hole or the train cameras leave a pixel unobserved and the restorer is confident,
+and the render itself everywhere else. The fill fallback: tests/restore/test_unobserved_fill.py."""
 from __future__ import annotations
 
 import numpy as np
@@ -34,7 +35,7 @@ class Unsure:
 def test_gated_targets_keep_the_render_and_fill_its_holes(tmp_path, small_scene, stage1_run):
     model = stage1_run[0].model
     config = resolve("tiny", overrides={"scene.scale": 0.5, "stage2.pseudo_target": "gated", "trajectories.frames": 3,
-                                        "trajectories.time_stride": 4})
+                                        "trajectories.time_stride": 4, "stage2.fill_unobserved": False})
     refresh = make_refresh_callback(tmp_path, small_scene, config, progress=False, backend="cpu", restorer=Unsure())
     refresh(model, 0)
     entries = RestoreCache(tmp_path / "cache").entries(0)

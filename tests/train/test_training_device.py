@@ -60,9 +60,9 @@ def test_the_config_refuses_an_unknown_device():
         TrainingConfig(device="gpu")
 
 
-# The stage keys of the tiny run on the CPU with the opacity reset and a black background, as every
-# run folder made before the device entered the keys has them: a CPU training keys nothing more, so those folders resume
-# as they were.
+# The stage keys of the tiny run on the CPU with the opacity reset, a black background and stage 2's
+# targets falling back on the render, as every run folder made before the device entered the keys
+# has them: a CPU training keys nothing more, so those folders resume as they were.
 TINY_CPU_KEYS = {"stage1": "1c00029558a813f9", "stage2": "0c1352d62b391f77", "matched": "dfe1193473a0a083"}
 
 
@@ -74,7 +74,8 @@ def test_the_device_trained_on_keys_a_cuda_training_only(monkeypatch):
         return {"stage1": keys.stage1_key(config, "mvs"), "stage2": keys.stage2_key(config),
                 "matched": keys.matched_key(config)}
 
-    reset = {"training.opacity_decay.enabled": False, "training.background": [0, 0, 0]}
+    reset = {"training.opacity_decay.enabled": False, "training.background": [0, 0, 0],
+             "stage2.fill_unobserved": False}
     on_cpu = resolve("tiny", overrides={"training.device": "cpu", **reset})
     asked_auto = resolve("tiny", overrides={"training.device": "auto", **reset})
     assert on_cpu.training.device != asked_auto.training.device
