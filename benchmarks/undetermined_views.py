@@ -73,9 +73,10 @@ def _stage2(run: Path, report: Path) -> dict[str, Any] | None:
 
 
 def seed_figures(name: str, seed: int, views: int, runs: Path, split: str,
-                 base_out: Path = DEFAULT_OUT, label: str = "") -> dict[str, Any] | None:
+                 base_out: Path = DEFAULT_OUT, label: str = "", control_label: str = "") -> dict[str, Any] | None:
     """The rows of one seed on ``split`` ("val" or "test"): the baseline's, stage 2 with the views
-    (the copy ``seed<S>_k<K><label>``) and the k = 0 control (None where not measured)."""
+    (the copy ``seed<S>_k<K><label>``) and the control ``seed<S>_k0<control_label>`` (None where
+    not measured)."""
     suffix = "_val" if split == "val" else ""
     base = json.loads((base_out / f"{name}{suffix}_seed{seed}.json").read_text())
     rows = _rows(base)
@@ -88,8 +89,8 @@ def seed_figures(name: str, seed: int, views: int, runs: Path, split: str,
     with_views = _stage2(runs / name / variant, report(variant))
     if with_views is None:
         return None
-    control = _stage2(runs / name / f"seed{seed}_k0", report(f"seed{seed}_k0"))
-    if control is None and base.get("self_check", {}).get("decision") == "refine":
+    control = _stage2(runs / name / f"seed{seed}_k0{control_label}", report(f"seed{seed}_k0{control_label}"))
+    if control is None and not control_label and base.get("self_check", {}).get("decision") == "refine":
         control = {**{m: rows[ROW_FULL].get(m) for m in METRICS}, "seconds": None}  # the baseline's Full is stage 2
     return {"decision": base.get("self_check", {}).get("decision"),
             "mvs": {m: rows[ROW_MVS].get(m) for m in METRICS}, "baseline_full": {m: rows[ROW_FULL].get(m) for m in METRICS},
@@ -124,6 +125,8 @@ def main() -> int:
     parser.add_argument("--set", dest="settings", action="append", default=[], metavar="KEY=VALUE",
                         help="a further stage-2 setting of the variant (repeatable); its copies get --label")
     parser.add_argument("--label", default="", help="suffix of the variant's copies (seed<S>_k<K><label>)")
+    parser.add_argument("--control-label", default="", help="suffix of the control's copies (default: the "
+                        "k = 0 control, seed<S>_k0), e.g. an earlier variant's --label")
     parser.add_argument("--out", type=Path, help="the result JSON")
     parser.add_argument("--base-runs", type=Path, default=REPO_ROOT / DEFAULT_RUNS,
                         help="the quality bench's run folders the copies start from (default runs/quality)")
@@ -137,10 +140,12 @@ def main() -> int:
         for seed in seeds:
             measure(args.set, seed, args.views, args.runs, args.base_runs, tuple(args.settings), args.label)
     result: dict[str, Any] = {"set": args.set, "views": args.views, "settings": args.settings,
+                              "control_label": args.control_label,
                               "command": " ".join(sys.argv)}
     for split in ("val", "test"):
         per_seed = {str(s): f for s in seeds
-                    if (f := seed_figures(args.set, s, args.views, args.runs, split, args.base_out, args.label))}
+                    if (f := seed_figures(args.set, s, args.views, args.runs, split, args.base_out, args.label,
+                                          args.control_label))}
         result[split] = {"seeds": per_seed, "paired": paired(per_seed)}
     for split in ("val", "test"):
         for label, iv in result[split]["paired"]["psnr"].items():
