@@ -24,8 +24,8 @@ these images is summed per pixel class:
 
 over the classes all, unobserved (weight > 0.5), hole (alpha < 0.5), unobserved and solid, and
 observed. It reads held-out images, so it is a diagnostic of validation cameras: never pass test
-cameras to choose a setting with it. ``gated`` is stage 2's target with ``stage2.restore_holes=false``,
-``gate_render`` the default's.
+cameras to choose a setting with it. Stage 2's targets are ``gate`` by default, ``gate_render`` with
+``stage2.fill_unobserved=false`` and ``gated`` with ``stage2.restore_holes=false`` as well.
 
     python benchmarks/restoration_gate.py --summarize FILE.json ... --out SUMMARY.json
 

@@ -3,6 +3,7 @@ finished quality-bench runs without re-running stage 1 (docs/decisions/undetermi
 
     python benchmarks/undetermined_views.py SET --seeds 0,1,2 --views 4 --runs DIR [--measure] --out FILE
         [--base-runs runs/quality --base-out benchmarks/results/quality] [--set KEY=VALUE --label L]
+        [--control-label C]
 
 SET is a quality-bench camera set (panoptic, panoptic_c, demo). ``--measure`` copies each seed's
 run ``runs/quality/SET/seed<S>`` to ``DIR/SET/seed<S>_k<K>``, runs stage 2 there with the views
