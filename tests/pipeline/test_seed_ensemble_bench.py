@@ -1,0 +1,71 @@
+"""benchmarks/seed_ensemble.py: seed groups, their mean renders and the twin-mean pseudo-target."""
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+import torch
+
+
+def test_groups_are_every_seed_neighbouring_pairs_triples_and_all(benchmark_script):
+    bench = benchmark_script("seed_ensemble")
+    groups = bench.combinations([0, 1, 2, 3, 4])
+    assert groups["s3"] == [3] and groups["s4+s0"] == [4, 0] and groups["s3+s4+s0"] == [3, 4, 0]
+    assert groups["all"] == [0, 1, 2, 3, 4]
+    assert sum(len(m) == 2 for m in groups.values()) == 5 and sum(len(m) == 3 for m in groups.values()) == 5
+    assert bench.combinations([7]) == {"s7": [7]}
+
+
+def test_a_group_gain_is_against_the_mean_of_its_members(benchmark_script):
+    bench = benchmark_script("seed_ensemble")
+    groups = {"s0": [0], "s1": [1], "s2": [2], "s0+s1": [0, 1], "s1+s2": [1, 2]}
+    scores = {"s0": {"psnr": 20.0}, "s1": {"psnr": 22.0}, "s2": {"psnr": 24.0},
+              "s0+s1": {"psnr": 21.5}, "s1+s2": {"psnr": 22.5}}
+    gains = bench.group_gains(scores, groups)
+    assert gains["2"]["values"] == pytest.approx([0.5, -0.5])
+
+
+def test_the_mean_render_averages_pixels_and_each_render_is_read_once(benchmark_script):
+    bench = benchmark_script("seed_ensemble")
+    calls = []
+
+    def constant(value):
+        def fn(camera, t):
+            calls.append(value)
+            return np.full((2, 3, 3), value, np.float32)
+        return fn
+
+    a, b = bench.memoized(constant(0.2)), bench.memoized(constant(0.6))
+    cam = object()
+    image = bench.mean_render([a, b])(cam, 0.5)
+    assert image.dtype == np.float32 and np.allclose(image, 0.4)
+    bench.mean_render([a])(cam, 0.5)
+    assert calls == [0.2, 0.6]
+    with pytest.raises(ValueError):
+        bench.mean_render([])
+
+
+def test_a_twin_equal_to_the_model_leaves_the_target_at_the_render(benchmark_script, tiny_run):
+    from fixer4d.model.io import load_ply
+    from fixer4d.pipeline.restoration import make_request
+    from fixer4d.pipeline.run_folder import load_scene_for, read_run_config
+    from fixer4d.render.views import render_views
+
+    bench = benchmark_script("seed_ensemble")
+    run_dir, _ = tiny_run
+    scene = load_scene_for(read_run_config(run_dir))
+    model = load_ply(run_dir / "model_stage1.ply")
+    ids = (scene.train_ids[0], scene.train_ids[1])
+    cams = [scene.cameras[ids[0]], scene.cameras[ids[1]]]
+    request = make_request(model, scene, cams, 0, ids, background=(0.5, 0.5, 0.5))
+    same = bench.TwinMean([model], "auto", (0.5, 0.5, 0.5)).restore(request)
+    assert np.allclose(same.rgb, np.clip(request.rgb, 0, 1), atol=1e-6)
+    assert np.all(same.confidence == 1.0)
+    # another field: the target is the per-pixel mean of the two renders
+    twin = copy.deepcopy(model)
+    twin.prune(torch.arange(twin.num_gaussians) % 2 == 0)
+    mixed = bench.TwinMean([twin], "auto", (0.5, 0.5, 0.5)).restore(request)
+    twin_rgb = render_views(twin, cams, request.time, "auto", (0.5, 0.5, 0.5))[0]
+    assert not np.allclose(twin_rgb, request.rgb, atol=1e-3)
+    assert np.allclose(mixed.rgb, np.clip(0.5 * (request.rgb + twin_rgb), 0, 1), atol=1e-6)
