@@ -26,7 +26,6 @@ twins itself: a diagnostic, never a restorer choice of the method (restorers nev
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import sys
 import tempfile
