@@ -4,6 +4,7 @@ four cameras leave undetermined, and does stage 2 carry it into one model?
 
     python benchmarks/seed_ensemble.py renders SET --seeds 0,1,2,3,4 [--runs runs/quality_bg] --out FILE
     python benchmarks/seed_ensemble.py distil SET --seed S --twins T[,T...] --work DIR --out FILE [--set KEY=VALUE ...]
+    python benchmarks/seed_ensemble.py coreg SET --seed S --out FILE [--weight 0.5]
     python benchmarks/seed_ensemble.py summary FILE ... --out FILE
 
 SET is a quality-bench camera set (demo, panoptic, panoptic_c); the runs are the bench's finished
@@ -21,6 +22,16 @@ DIR) with the mean of the current model's render and the twins' stage-1 renders 
 of every pixel (``stage2.pseudo_target=restored``, confidence 1); it scores Full on the validation
 and test cameras and pairs it with the bench's rows of that seed. The "restorer" here renders the
 twins itself: a diagnostic, never a restorer choice of the method (restorers never render).
+
+``coreg`` trains stage 1 again from RUN's dense init as two fields side by side
+(``train.co_fields``' twin: the same init, the seed moved), co-regularized in CoR-GS's way: from
+step ``COREG_START``, before every ``COREG_CHUNK`` steps of a field, ``COREG_CLIPS`` clips (a pair
+trajectory or arc at a random frame) are rendered by both fields, and their per-pixel mean is that
+field's pseudo-target for the chunk (L1 at ``--weight``, the pseudo-views outside the
+densification statistics; the stage-1 trainers are given stage 2's ``PseudoTargets`` and a schedule
+that draws pseudo-views, which no pipeline stage does). Field A is scored like "STGS w/ MVS" and
+paired with the bench's row.
+
 ``summary`` pairs ``distil`` files by set and twin count over seeds (``fixer4d.stats.interval``).
 """
 from __future__ import annotations
@@ -30,6 +41,7 @@ import json
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -43,6 +55,10 @@ from fixer4d.bench.quality import DEFAULT_OUT, ROW_FULL, ROW_MATCHED, ROW_MVS, c
 from fixer4d.stats import interval  # noqa: E402
 
 DEFAULT_RUNS = ROOT / "runs" / "quality_bg"
+# Co-regularization from the second densification round of the default 1500-step schedule (the
+# fields first grow apart from their shared init), targets renewed every 50 steps of a field from
+# 8 clips: about 60 renders per field and chunk, a quarter of the chunk's own rendering.
+COREG_START, COREG_CHUNK, COREG_CLIPS = 300, 50, 8
 RenderFn = Callable[[Any, float], np.ndarray]
 
 
@@ -205,6 +221,111 @@ def distil(args: argparse.Namespace) -> int:
     return 0
 
 
+@dataclass
+class _ClipTarget:
+    """One pseudo-target clip held in memory (what ``PseudoTargets`` reads from a cache entry)."""
+
+    key: str
+    cameras: list
+    time: float
+    image: np.ndarray
+
+    def rgb(self) -> np.ndarray:
+        return self.image
+
+    def confidence(self) -> np.ndarray:
+        return np.ones(self.image.shape[:3], np.float32)
+
+    def unobserved(self) -> None:
+        return None
+
+
+class _Rounds:
+    """An in-memory pseudo-target cache: round -> clips."""
+
+    def __init__(self) -> None:
+        self.rounds: dict[int, list[_ClipTarget]] = {}
+
+    def entries(self, round: int | None = None) -> list[_ClipTarget]:
+        return self.rounds[round]
+
+    def latest_round(self) -> int | None:
+        return max(self.rounds) if self.rounds else None
+
+
+def coreg(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from benchmarks.stage1_variants import variant_config
+    from fixer4d.init.decompose import DecomposedInit
+    from fixer4d.pipeline.restoration import scene_trajectories_for
+    from fixer4d.pipeline.run_folder import RunFolder, load_scene_for
+    from fixer4d.pipeline.stages import StageContext, evaluate_stage, stage1_trainer
+    from fixer4d.render.views import model_render_fn, render_views
+    from fixer4d.train.co_fields import twin_trainer
+    from fixer4d.train.config import Stage2Config
+    from fixer4d.train.pseudo_targets import PseudoTargets
+
+    run = args.runs / args.set / f"seed{args.seed}"
+    config = variant_config(run, [f"scene.source={_set_paths(args.set)['val']}", "eval.examples=0"])
+    scene = load_scene_for(config)
+    rng = np.random.default_rng(args.seed + 777)
+    with tempfile.TemporaryDirectory(prefix="seed_ensemble_coreg_") as tmp:
+        ctx = StageContext(run=RunFolder(Path(tmp), config), scene=scene, progress=False)
+        a, decision = stage1_trainer(ctx, DecomposedInit.load(run / "init_mvs"), None)
+        b = twin_trainer(a, config.model_terms if decision is not None else None, None)
+        train_scene = ctx.train_scene
+        clips = scene_trajectories_for(train_scene, config.trajectories)
+        pseudo = Stage2Config(lambda_gen=args.weight, batch_pseudo=1, pseudo_target="restored",
+                              densify_stats="observed")
+        caches = {id(a): _Rounds(), id(b): _Rounds()}
+        render_s = 0.0
+
+        def renew(trainer) -> None:
+            nonlocal render_s
+            tic = time.perf_counter()
+            cache = caches[id(trainer)]
+            r = len(cache.rounds)
+            targets = []
+            for k in range(COREG_CLIPS):
+                trajectory, _ = clips[int(rng.integers(len(clips)))]
+                t = train_scene.time(int(rng.integers(train_scene.num_frames)))
+                images = [np.asarray(render_views(f.host_model(), trajectory.cameras, t, ctx.backend, ctx.background)[0])
+                          for f in (a, b)]
+                targets.append(_ClipTarget(f"r{r}_{k}", list(trajectory.cameras), t,
+                                           (0.5 * (images[0] + images[1])).astype(np.float32)))
+            cache.rounds[r] = targets
+            trainer.pseudo.load_round(r)
+            render_s += time.perf_counter() - tic
+
+        wall0 = time.perf_counter()
+        a.train(COREG_START)
+        b.train(COREG_START)
+        for trainer in (a, b):
+            trainer.pseudo = PseudoTargets(pseudo, caches[id(trainer)], None, train_scene.train_cameras,
+                                           device=trainer.device)
+            trainer.schedule = dataclasses.replace(trainer.schedule, lambda_gen=args.weight, pseudo_batch=1, rounds=0,
+                                                   densify_stats="observed")
+        while a.step_count < a.total_iterations:
+            n = min(COREG_CHUNK, a.total_iterations - a.step_count)
+            for trainer in (a, b):
+                renew(trainer)
+                trainer.train(n)
+        wall = time.perf_counter() - wall0
+        scores = {name: evaluate_stage(ctx, ROW_MVS, model_render_fn(t.host_model(), config.training.backend, ctx.background),
+                                       f"field-{name}", {})["mean"]["psnr"] for name, t in (("a", a), ("b", b))}
+    base = {r["method"]: r for r in
+            json.loads((args.base_out / f"{args.set}_val_seed{args.seed}.json").read_text())["rows"]}[ROW_MVS]["psnr"]
+    result = {"set": args.set, "seed": args.seed, "weight": args.weight, "start": COREG_START, "chunk": COREG_CHUNK,
+              "clips": COREG_CLIPS, "field_a": scores["a"], "field_b": scores["b"], "baseline": base,
+              "gain_db": scores["a"] - base, "wall_s": wall, "target_render_s": render_s,
+              "gaussians": [a.model.num_gaussians, b.model.num_gaussians], "command": " ".join(sys.argv)}
+    print(f"{args.set} seed {args.seed}: field A {scores['a']:.3f} dB (STGS w/ MVS {base:.3f}, {result['gain_db']:+.3f}), "
+          f"field B {scores['b']:.3f}; {wall:.0f} s", flush=True)
+    _write(args.out, result)
+    return 0
+
+
 def summary(args: argparse.Namespace) -> int:
     records = [json.loads(p.read_text()) for p in args.files]
     out: dict[str, Any] = {}
@@ -253,6 +374,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE")
     p.add_argument("--out", type=Path, required=True)
     p.set_defaults(fn=distil)
+    p = sub.add_parser("coreg", help="stage 1 as two co-regularized fields, field A scored")
+    p.add_argument("set", choices=sets)
+    p.add_argument("--seed", type=int, required=True)
+    p.add_argument("--weight", type=float, default=0.5, help="weight of the co-regularization L1")
+    p.add_argument("--runs", type=Path, default=DEFAULT_RUNS)
+    p.add_argument("--base-out", type=Path, default=DEFAULT_OUT, help="the bench's result files of those runs")
+    p.add_argument("--out", type=Path, required=True)
+    p.set_defaults(fn=coreg)
     p = sub.add_parser("summary", help="pair distil files over seeds")
     p.add_argument("files", type=Path, nargs="+")
     p.add_argument("--out", type=Path, required=True)

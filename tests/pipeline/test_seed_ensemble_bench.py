@@ -69,3 +69,37 @@ def test_a_twin_equal_to_the_model_leaves_the_target_at_the_render(benchmark_scr
     twin_rgb = render_views(twin, cams, request.time, "auto", (0.5, 0.5, 0.5))[0]
     assert not np.allclose(twin_rgb, request.rgb, atol=1e-3)
     assert np.allclose(mixed.rgb, np.clip(0.5 * (request.rgb + twin_rgb), 0, 1), atol=1e-6)
+
+
+def test_coreg_targets_feed_stage2s_pseudo_views(benchmark_script, tiny_run):
+    """The in-memory clips of ``coreg`` are read by ``PseudoTargets`` as a cache round: only a
+    clip's novel frames are pseudo-views, and the loss against a target equal to the render is 0."""
+    from fixer4d.model.io import load_ply
+    from fixer4d.pipeline.restoration import scene_trajectories_for
+    from fixer4d.pipeline.run_folder import load_scene_for, read_run_config
+    from fixer4d.render.views import render_views
+    from fixer4d.train.config import Stage2Config
+    from fixer4d.train.pseudo_targets import PseudoTargets
+
+    bench = benchmark_script("seed_ensemble")
+    run_dir, _ = tiny_run
+    config = read_run_config(run_dir)
+    scene = load_scene_for(config)
+    model = load_ply(run_dir / "model_stage1.ply")
+    trajectory, _ = scene_trajectories_for(scene, config.trajectories)[0]
+    t = scene.time(0)
+    image = render_views(model, trajectory.cameras, t, "auto")[0].astype(np.float32)
+    cache = bench._Rounds()
+    cache.rounds[0] = [bench._ClipTarget("r0_0", list(trajectory.cameras), t, image)]
+    targets = PseudoTargets(Stage2Config(pseudo_target="restored", batch_pseudo=4), cache, None, scene.train_cameras)
+    targets.load_round(cache.latest_round())
+    assert targets.entry_frames[0].tolist() == list(range(1, len(trajectory.cameras) - 1))
+
+    def render_view(snapshot, camera):
+        from types import SimpleNamespace
+
+        return SimpleNamespace(rgb=torch.from_numpy(render_views(model, [camera], t, "auto")[0][0].astype(np.float32)))
+
+    timing = {"t_at": 0.0, "t_loss": 0.0}
+    loss = targets.loss(model, np.random.default_rng(0), render_view, timing)
+    assert float(loss) == pytest.approx(0.0, abs=1e-6)
