@@ -51,6 +51,7 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 import fixer4d  # noqa: E402,F401  (sets the OpenMP wait policy before torch is imported)
+from fixer4d.atomic import write_json  # noqa: E402
 from fixer4d.bench.quality import DEFAULT_OUT, ROW_FULL, ROW_MATCHED, ROW_MVS, camera_sets  # noqa: E402
 from fixer4d.stats import interval  # noqa: E402
 
@@ -141,7 +142,7 @@ def renders(args: argparse.Namespace) -> int:
                 scores[name] = {"members": members, "psnr": m["psnr"], "lpips": m.get("lpips")}
                 print(f"{args.set} {split} {name}: {m['psnr']:.3f} dB", flush=True)
         result[split] = {"scores": scores, "gain": group_gains(scores, groups)}
-    _write(args.out, result)
+    write_json(args.out, result)
     return 0
 
 
@@ -217,7 +218,7 @@ def distil(args: argparse.Namespace) -> int:
                          "bench_full": base[ROW_FULL]["psnr"], "gain_over_mvs": full["psnr"] - base[ROW_MVS]["psnr"]}
         print(f"{args.set} seed {args.seed} twins {twins} {split}: Full {full['psnr']:.3f} dB, "
               f"STGS w/ MVS {base[ROW_MVS]['psnr']:.3f} ({result[split]['gain_over_mvs']:+.3f})", flush=True)
-    _write(args.out, result)
+    write_json(args.out, result)
     return 0
 
 
@@ -322,7 +323,7 @@ def coreg(args: argparse.Namespace) -> int:
               "gaussians": [a.model.num_gaussians, b.model.num_gaussians], "command": " ".join(sys.argv)}
     print(f"{args.set} seed {args.seed}: field A {scores['a']:.3f} dB (STGS w/ MVS {base:.3f}, {result['gain_db']:+.3f}), "
           f"field B {scores['b']:.3f}; {wall:.0f} s", flush=True)
-    _write(args.out, result)
+    write_json(args.out, result)
     return 0
 
 
@@ -344,14 +345,8 @@ def summary(args: argparse.Namespace) -> int:
             iv = result[key][split]["Full - STGS w/ MVS"]
             print(f"{key} {split}: Full - STGS w/ MVS {iv['mean']:+.2f} ± {iv['ci95'] or float('nan'):.2f} "
                   f"{[round(v, 2) for v in iv['values']]}")
-    _write(args.out, result)
+    write_json(args.out, result)
     return 0
-
-
-def _write(path: Path, data: dict[str, Any]) -> None:
-    from fixer4d.atomic import write_json
-
-    write_json(path, data)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -176,8 +176,9 @@ def blend_with_render(render: np.ndarray, result: RestoreResult, weight: np.ndar
     Where the render has content and the restorer has no confidence (its inputs were unreliable)
     or the pixel is observed, the render comes back unchanged: restoration never overwrites what
     it cannot support. Given ``hole``, a hole is replaced whatever the confidence: the render
-    holds only the background colour there (``stage2.restore_holes``; over black any
-    reference-guided guess beat it, over the train views' mean colour it does not).
+    holds only the background colour there (``stage2.restore_holes``: over black any
+    reference-guided guess beats it; over the train views' mean colour the learned restorer's does
+    not, docs/decisions/unobserved-fill.md).
     """
     render = _as_array(render, "render")
     _check_shape(render, result.rgb.shape, "render")
