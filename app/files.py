@@ -3,7 +3,8 @@ the viewer's own outputs go (never the working directory).
 
 A run folder (``fixer4d run`` / ``reconstruct`` output, with config.json) holds model versions:
 ``model_final.ply``, ``model_stage1.ply`` and the viewer's edits ``model_edit_<k>.ply``; a run
-trained with ``co_fields`` also keeps the second stage-1 field, ``model_stage1_twin.ply``. The
+trained with ``co_fields`` also keeps the second stage-1 field, ``model_stage1_twin.ply``, and a
+run of two fields (``training.fields``) keeps each field before the merge, ``fields/field<k>/``. The
 session remembers the version last shown (``AppState.model_version``), so a saved edit is what
 the run reopens with. A bare model file (.ply or .npz) opens without a scene; when it sits in a
 run folder, that run's scene and cache come with it.
@@ -24,6 +25,9 @@ EDIT_PATTERN = re.compile(r"^model_edit_(\d+)\.ply$")
 # (fixer4d.train.co_fields.TWIN_NAME); a model file outside a run has its twin as <stem>_twin<suffix>.
 RUN_TWIN = "model_stage1_twin.ply"
 TWIN_SUFFIX = "_twin"
+# A run of several stage-1 fields keeps its second field here (fixer4d.train.fields.field_dir):
+# the other seed's guess, the twin where the run has no co_fields twin.
+RUN_SECOND_FIELD = Path("fields") / "field1" / "model.ply"
 
 
 def is_run_folder(path: Path) -> bool:
@@ -50,14 +54,16 @@ def model_versions(run: Path) -> list[Path]:
 def twin_path(model: Path | None) -> Path | None:
     """The twin field the model file ``model`` is compared with, or None when there is none: in a
     run folder the run's ``model_stage1_twin.ply`` (the pipeline compares every later model of the
-    run with it too: stage 2, edits), elsewhere ``<stem>_twin<suffix>`` beside the file; never
-    the file itself."""
+    run with it too: stage 2, edits), else its second stage-1 field (``fields/field1/model.ply``);
+    elsewhere ``<stem>_twin<suffix>`` beside the file; never the file itself."""
     if model is None:
         return None
     model = Path(model)
-    twin = model.parent / RUN_TWIN if is_run_folder(model.parent) else \
-        model.with_name(model.stem + TWIN_SUFFIX + model.suffix)
-    return twin if twin.is_file() and twin != model else None
+    if is_run_folder(model.parent):
+        twins = [model.parent / RUN_TWIN, model.parent / RUN_SECOND_FIELD]
+    else:
+        twins = [model.with_name(model.stem + TWIN_SUFFIX + model.suffix)]
+    return next((t for t in twins if t.is_file() and t != model), None)
 
 
 def next_edit_path(folder: Path) -> Path:

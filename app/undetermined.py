@@ -1,8 +1,8 @@
 """The undetermined overlay: where the shown model and its twin field disagree.
 
 A run trained with ``co_fields`` keeps a second stage-1 field beside its models
-(``model_stage1_twin.ply``, ``app.files.twin_path``); every model of the run is compared with it,
-as the pipeline's stage 2 does. Where the two renders disagree, the train views do not determine
+(``model_stage1_twin.ply``), a run of two fields its second field (``fields/field1/model.ply``;
+``app.files.twin_path``); every model of the run is compared with it. Where the two renders disagree, the train views do not determine
 the scene (``fixer4d.restore.undetermined``). The map is computed
 for the resting view from two torch renders at the same camera, time and background: the shown
 Gaussians (edits included) through ``services.render``, the twin through ``services.render_twin``.
@@ -14,7 +14,7 @@ import numpy as np
 from app.files import RUN_TWIN
 
 # How to get a twin field, for the tooltip and the legend of a model without one.
-HOW_TO_GET_A_TWIN = "fixer4d run ... --set co_fields.enabled=true"
+HOW_TO_GET_A_TWIN = "fixer4d run ... --set training.fields=2"
 # Map value from which a pixel counts in the legend's share: half weight, where the colour
 # difference reaches the library's "different surface" level (COLOUR_LOW..HIGH's centre).
 UNDETERMINED_LEVEL = 0.5

@@ -6,9 +6,9 @@ the option is worth on held-out (validation) cameras, paired with the quality be
     python benchmarks/co_fields.py summary OUT.json ... --out SUMMARY.json
 
 ``run`` builds stage 1 exactly as the pipeline does (``pipeline.stages.stage1_trainer``, RUN's
-config.json with the ``--set`` overrides, ``co_fields.enabled=true`` added), trains field A and its
-twin side by side (``train.co_fields.CoFields``) and scores field A like the "STGS w/ MVS" row
-(``pipeline.stages.evaluate_stage``), field B too. ``--baseline`` is the quality bench's result file
+config.json with the ``--set`` overrides, ``co_fields.enabled=true`` and one field added), trains
+field A and its twin side by side (``train.co_fields.CoFields``) and scores field A like the "STGS
+w/ MVS" row (``pipeline.stages.evaluate_stage``), field B too. ``--baseline`` is the quality bench's result file
 of the same set and seed (its "STGS w/ MVS" row is field A's paired baseline). The cost is each
 field's own training seconds in the same process, and the co-pruning's. ``summary`` pairs the
 runs by set over seeds (``fixer4d.stats``: mean of the paired differences and its 95 % interval).
@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     if not has_decomposed(init_dir):
         print(f"{init_dir}: no decomposed dense init; run `fixer4d run` first", file=sys.stderr)
         return 2
-    sets = args.sets + ["co_fields.enabled=true"]
+    sets = args.sets + ["co_fields.enabled=true", "training.fields=1"]
     config = variant_config(args.run, sets)
     baseline = next(r for r in json.loads(args.baseline.read_text())["rows"] if r["method"] == ROW)
     scene = load_scene_for(config)

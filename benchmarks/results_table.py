@@ -4,8 +4,8 @@
         -> docs/results/<name>.json: the run's report.json rows, its config, the commit, the date,
            the machine (cores, load average when recorded) and the command that produced it
     python benchmarks/results_table.py write
-        -> rewrites the block between the RESULTS markers in README.md and docs/results.md from
-           every docs/results/*.json listed in TABLE (tests/test_results_table.py checks that the
+        -> rewrites the block between the RESULTS markers in docs/results.md from every
+           docs/results/*.json listed in TABLE (tests/test_results_table.py checks that the
            published block equals what this script generates from the committed files)
 
 A figure in a published table is one of these files' numbers, never typed by hand.
@@ -25,10 +25,10 @@ END = "<!-- RESULTS:END -->"
 # runs refined with the paper's stage 2 (`--paper-stage2`: restored targets on every pixel, no
 # self-check, restoration rows ungated); "_val" ones score a run on the validation cameras
 # (fixer4d eval --cameras-from); "_seedS" ones are the run with `--seed S`. A stem "mean:A,B,C"
-# is a row of the means of those files' figures. Each row's label links its result file(s). The
-# README shows the rows in README_ROWS (the real splits' single runs; the demo's rows there are the
-# quality bench's seed means, fixer4d.bench.quality); docs/results.md shows them all. Result files of the
-# studies behind each default are cited by their records in docs/decisions/.
+# is a row of the means of those files' figures. Each row's label links its result file(s). These
+# are single runs of older commits; the README's table is the quality bench's seed means
+# (fixer4d.bench.quality). Result files of the studies behind each default are cited by their
+# records in docs/decisions/.
 TABLE = (("demo", "demo (test: 12 held-out cameras)"),
          ("demo_paper", "demo, paper's stage 2"),
          ("demo_seed1", "demo, seed 1"),
@@ -47,7 +47,6 @@ TABLE = (("demo", "demo (test: 12 held-out cameras)"),
          ("panoptic_paper_val", "*validation*: Panoptic cameras 4, 14, paper's stage 2"),
          ("panoptic_c_val", "*validation*: split c cameras 2, 12"),
          ("panoptic_c_paper_val", "*validation*: split c cameras 2, 12, paper's stage 2"))
-README_ROWS = ("panoptic", "panoptic_paper", "panoptic_c", "panoptic_c_paper", "panoptic_val", "panoptic_c_val")
 COLUMNS = (("STGS w/ COLMAP", "psnr"), ("STGS w/ MVS", "psnr"), ("STGS w/ MVS (matched iterations)", "psnr"),
            ("Blur (init)", "psnr"), ("Restoration (init)", "psnr"), ("Full", "psnr"))
 
@@ -103,13 +102,13 @@ def _linked(stem: str, label: str, prefix: str) -> str:
     return f"[{label}]({prefix}{stem}.json)"
 
 
-def table(stems: tuple[str, ...] | None = None, prefix: str = "docs/results/") -> str:
-    """The headline table (markdown) from the committed result files: the rows of ``stems``
-    (default: all of TABLE), in TABLE's order, each label linked to its file under ``prefix``."""
+def table(prefix: str = "docs/results/") -> str:
+    """The table (markdown) of every row of TABLE from the committed result files, in TABLE's
+    order, each label linked to its file under ``prefix``."""
     lines = ["| scene | " + " | ".join(m for m, _ in COLUMNS) + " | self-check | commit, date |",
              "|---|" + "---|" * (len(COLUMNS) + 2)]
     for stem, label in TABLE:
-        data = _read(stem) if stems is None or stem in stems else None
+        data = _read(stem)
         if data is None:
             continue
         rows = {r["method"]: r for r in data["rows"]}
@@ -120,11 +119,9 @@ def table(stems: tuple[str, ...] | None = None, prefix: str = "docs/results/") -
     return "\n".join(lines)
 
 
-def block(page: str = "docs/results.md") -> str:
-    """The generated block of ``page`` (README.md: README_ROWS; docs/results.md: every row)."""
-    readme = Path(page).name == "README.md"
-    body = table(README_ROWS, "docs/results/") if readme else table(None, "results/")
-    return f"{BEGIN}\n{body}\n{END}"
+def block() -> str:
+    """The generated block of docs/results.md: every row of TABLE."""
+    return f"{BEGIN}\n{table('results/')}\n{END}"
 
 
 def write(paths: list[Path]) -> None:
@@ -134,7 +131,7 @@ def write(paths: list[Path]) -> None:
             raise SystemExit(f"{path}: no {BEGIN!r} ... {END!r} block to fill")
         head, rest = text.split(BEGIN, 1)
         _, tail = rest.split(END, 1)
-        path.write_text(head + block(str(path)) + tail)
+        path.write_text(head + block() + tail)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -145,12 +142,12 @@ def main(argv: list[str] | None = None) -> int:
     rec.add_argument("--name", required=True)
     rec.add_argument("--command", required=True, help="the command that produced the run")
     rec.add_argument("--note", default=None)
-    sub.add_parser("write", help="regenerate the tables in README.md and docs/results.md")
+    sub.add_parser("write", help="regenerate the table in docs/results.md")
     args = parser.parse_args(argv)
     if args.verb == "record":
         print(record(args.run, args.name, args.command, args.note))
     else:
-        write([ROOT / "README.md", ROOT / "docs" / "results.md"])
+        write([ROOT / "docs" / "results.md"])
         print(table())
     return 0
 

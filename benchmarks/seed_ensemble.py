@@ -5,6 +5,7 @@ four cameras leave undetermined, and does stage 2 carry it into one model?
     python benchmarks/seed_ensemble.py renders SET --seeds 0,1,2,3,4 [--runs runs/quality_bg] --out FILE
     python benchmarks/seed_ensemble.py distil SET --seed S --twins T[,T...] --work DIR --out FILE [--set KEY=VALUE ...]
     python benchmarks/seed_ensemble.py coreg SET --seed S --out FILE [--weight 0.5]
+    python benchmarks/seed_ensemble.py merge SET --seeds 0,1,2,3,4 --out FILE
     python benchmarks/seed_ensemble.py summary FILE ... --out FILE
 
 SET is a quality-bench camera set (demo, panoptic, panoptic_c); the runs are the bench's finished
@@ -32,6 +33,12 @@ densification statistics; the stage-1 trainers are given stage 2's ``PseudoTarge
 that draws pseudo-views, which no pipeline stage does). Field A is scored like "STGS w/ MVS" and
 paired with the bench's row.
 
+``merge`` scores, for each neighbouring pair of seeds, one model made of both stage-1 models'
+Gaussians under three opacity rules: ``halved`` (``train.fields.merge_fields``: each opacity / 2,
+what ``training.fields=2`` does), ``transmittance`` (1 − sqrt(1 − opacity): a Gaussian seen
+through its twin lets through what it alone would) and ``kept`` (the opacities as they were), on
+the validation and test cameras, beside the pair's mean render and its members.
+
 ``summary`` pairs ``distil`` files by set and twin count over seeds (``fixer4d.stats.interval``).
 """
 from __future__ import annotations
@@ -52,10 +59,13 @@ import numpy as np  # noqa: E402
 
 import fixer4d  # noqa: E402,F401  (sets the OpenMP wait policy before torch is imported)
 from fixer4d.atomic import write_json  # noqa: E402
-from fixer4d.bench.quality import DEFAULT_OUT, ROW_FULL, ROW_MATCHED, ROW_MVS, camera_sets  # noqa: E402
+from fixer4d.bench.quality import ROW_FULL, ROW_MATCHED, ROW_MVS, camera_sets  # noqa: E402
 from fixer4d.stats import interval  # noqa: E402
 
 DEFAULT_RUNS = ROOT / "runs" / "quality_bg"
+# the quality bench's result files of those runs (one stage-1 field each, as before two fields
+# became the default)
+BASE_OUT = ROOT / "benchmarks" / "results" / "quality_one_field"
 # Co-regularization from the second densification round of the default 1500-step schedule (the
 # fields first grow apart from their shared init), targets renewed every 50 steps of a field from
 # 8 clips: about 60 renders per field and chunk, a quarter of the chunk's own rendering.
@@ -109,6 +119,69 @@ def group_gains(scores: dict[str, dict[str, Any]], groups: dict[str, list[int]])
                  for name, members in groups.items() if len(members) == size]
         out[str(size)] = interval(gains)
     return out
+
+
+MERGE_RULES = ("halved", "transmittance", "kept")
+
+
+def union(models: Sequence[Any], rule: str):
+    """One model of ``models``' Gaussians with their opacities under ``rule`` (``MERGE_RULES``)."""
+    import torch
+
+    from fixer4d.model.spacetime import SpacetimeGaussians
+    from fixer4d.train.fields import merge_fields
+
+    if rule == "halved":
+        return merge_fields(models)
+    tensors = {k: torch.cat([m.tensors()[k].detach() for m in models]) for k in models[0].tensors()}
+    if rule == "transmittance":
+        alpha = torch.sigmoid(tensors["opacity_logits"].double())
+        alpha = (1.0 - (1.0 - alpha).clamp_min(1e-12) ** (1.0 / len(models))).clamp(1e-12, 1 - 1e-12)
+        tensors["opacity_logits"] = (torch.log(alpha) - torch.log1p(-alpha)).float()
+    elif rule != "kept":
+        raise ValueError(f"union: rule {rule!r} is not one of {MERGE_RULES}")
+    return SpacetimeGaussians.from_tensors(models[0].config, tensors, source="union")
+
+
+def merge(args: argparse.Namespace) -> int:
+    from benchmarks.stage1_variants import variant_config
+    from fixer4d.model.io import load_ply
+    from fixer4d.pipeline.run_folder import RunFolder, load_scene_for
+    from fixer4d.pipeline.stages import StageContext, evaluate_stage
+    from fixer4d.render.views import model_render_fn
+    from fixer4d.train.background import resolve_background
+
+    seeds = [int(s) for s in args.seeds.split(",")]
+    runs = {s: args.runs / args.set / f"seed{s}" for s in seeds}
+    models = {s: load_ply(runs[s] / "model_stage1.ply") for s in seeds}
+    pairs = [(seeds[i], seeds[(i + 1) % len(seeds)]) for i in range(len(seeds))]
+    result: dict[str, Any] = {"set": args.set, "seeds": seeds, "runs": str(args.runs), "rules": list(MERGE_RULES),
+                              "command": " ".join(sys.argv)}
+    for split, source in _set_paths(args.set).items():
+        config = variant_config(runs[seeds[0]], [f"scene.source={source}", "eval.examples=0"])
+        scene = load_scene_for(config)
+        background = resolve_background(config.training.background, scene)
+        fns = {s: memoized(model_render_fn(models[s], config.training.backend, background)) for s in seeds}
+        rows: dict[str, Any] = {}
+        with tempfile.TemporaryDirectory(prefix="seed_ensemble_merge_") as tmp:
+            ctx = StageContext(run=RunFolder(Path(tmp), config), scene=scene, progress=False)
+
+            def psnr(fn, name: str) -> float:
+                return float(evaluate_stage(ctx, ROW_MVS, fn, name, {})["mean"]["psnr"])
+
+            alone = {s: psnr(fns[s], f"s{s}") for s in seeds}
+            for a, b in pairs:
+                row = {"members": float(np.mean([alone[a], alone[b]])),
+                       "mean_render": psnr(mean_render([fns[a], fns[b]]), f"s{a}+s{b}")}
+                for rule in MERGE_RULES:
+                    fn = model_render_fn(union([models[a], models[b]], rule), config.training.backend, background)
+                    row[rule] = psnr(fn, f"s{a}+s{b}_{rule}")
+                rows[f"s{a}+s{b}"] = row
+                print(f"{args.set} {split} s{a}+s{b}: " + ", ".join(f"{k} {v:.3f}" for k, v in row.items()), flush=True)
+        gains = {k: interval([r[k] - r["members"] for r in rows.values()]) for k in ("mean_render", *MERGE_RULES)}
+        result[split] = {"alone": alone, "pairs": rows, "gain_over_members": gains}
+    write_json(args.out, result)
+    return 0
 
 
 def _set_paths(name: str) -> dict[str, str]:
@@ -353,18 +426,20 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     sets = ["demo", "panoptic", "panoptic_c"]
-    p = sub.add_parser("renders", help="score seed groups' mean renders")
-    p.add_argument("set", choices=sets)
-    p.add_argument("--seeds", default="0,1,2,3,4")
-    p.add_argument("--runs", type=Path, default=DEFAULT_RUNS)
-    p.add_argument("--out", type=Path, required=True)
-    p.set_defaults(fn=renders)
+    for name, fn, what in (("renders", renders, "score seed groups' mean renders"),
+                           ("merge", merge, "score one model of two seeds' Gaussians under each opacity rule")):
+        p = sub.add_parser(name, help=what)
+        p.add_argument("set", choices=sets)
+        p.add_argument("--seeds", default="0,1,2,3,4")
+        p.add_argument("--runs", type=Path, default=DEFAULT_RUNS)
+        p.add_argument("--out", type=Path, required=True)
+        p.set_defaults(fn=fn)
     p = sub.add_parser("distil", help="stage 2 forced with the twins' mean as pseudo-target")
     p.add_argument("set", choices=sets)
     p.add_argument("--seed", type=int, required=True)
     p.add_argument("--twins", required=True, help="the twin seeds, comma-separated")
     p.add_argument("--runs", type=Path, default=DEFAULT_RUNS)
-    p.add_argument("--base-out", type=Path, default=DEFAULT_OUT, help="the bench's result files of those runs")
+    p.add_argument("--base-out", type=Path, default=BASE_OUT, help="the bench's result files of those runs")
     p.add_argument("--work", type=Path, required=True, help="new run folder for the forced stage 2 (outside git)")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE")
     p.add_argument("--out", type=Path, required=True)
@@ -374,7 +449,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, required=True)
     p.add_argument("--weight", type=float, default=0.5, help="weight of the co-regularization L1")
     p.add_argument("--runs", type=Path, default=DEFAULT_RUNS)
-    p.add_argument("--base-out", type=Path, default=DEFAULT_OUT, help="the bench's result files of those runs")
+    p.add_argument("--base-out", type=Path, default=BASE_OUT, help="the bench's result files of those runs")
     p.add_argument("--out", type=Path, required=True)
     p.set_defaults(fn=coreg)
     p = sub.add_parser("summary", help="pair distil files over seeds")

@@ -4,8 +4,9 @@ is worth on held-out views, without re-running the rest of the pipeline.
     python benchmarks/stage1_variants.py RUN [--set training.KEY=VALUE ...] [--average-from STEP ...] [--out FILE.json]
 
 The base is RUN's own configuration (config.json), with the ``--set`` overrides applied as
-`fixer4d run --set` would. Stage 1 is built exactly as the pipeline builds it
-(`pipeline.stages.stage1_trainer`) from RUN/init_mvs, trained in a temporary run folder and
+`fixer4d run --set` would. Stage 1 is one field (``training.fields``: the variants are of one
+field's training), built exactly as the pipeline builds each (`pipeline.stages.stage1_trainer`)
+from RUN/init_mvs, trained in a temporary run folder and
 evaluated there like the "STGS w/ MVS" row (`pipeline.stages.evaluate_stage`: held-out cameras
 every `eval.stride` frames, all / moving / static pixels). It also reports the PSNR on the train
 views (same frames), which tells over- from under-fitting. RUN itself is only read.
@@ -95,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     if not has_decomposed(init_dir):
         print(f"{init_dir}: no decomposed dense init; run `fixer4d run` first", file=sys.stderr)
         return 2
-    config = variant_config(args.run, args.sets)
+    config = variant_config(args.run, ["training.fields=1", *args.sets])
     scene = load_scene_for(config)
     init = DecomposedInit.load(init_dir)
     with tempfile.TemporaryDirectory(prefix="stage1_variant_") as tmp:

@@ -48,10 +48,11 @@ DEFAULT_SWEEP: list[dict[str, Any]] = [
     # the model-terms axis: decided by evidence (the base), every term on every Gaussian, static only
     {"name": "model-terms-all", "model_terms.mode": "all"},
     {"name": "model-terms-static", "model_terms.mode": "static"},
-    # stage 1's opacity reset in place of the learned opacity decay (train.opacity_decay), and two
-    # stage-1 fields with co-pruning (train.co_fields)
+    # stage 1's opacity reset in place of the learned opacity decay (train.opacity_decay), one
+    # stage-1 field in place of two merged (train.fields), and two with co-pruning (train.co_fields)
     {"name": "opacity-reset", "training.opacity_decay.enabled": False},
-    {"name": "co-fields", "co_fields.enabled": True},
+    {"name": "one-field", "training.fields": 1},
+    {"name": "co-fields", "co_fields.enabled": True, "training.fields": 1},
     {"name": "res-0.5", "scene.scale": 0.5},
     {"name": "iters-0.5x", "training.iterations": 0.5},
     {"name": "iters-2x", "training.iterations": 2.0},

@@ -45,7 +45,7 @@ def test_a_terminated_run_says_so_and_resumes(tmp_path):
     # wait until stage 1 has started (the init is done), then stop it
     deadline = time.monotonic() + 240
     while time.monotonic() < deadline and proc.poll() is None:
-        if (run / "init_mvs" / "init_report.json").exists() and (run / "checkpoints").exists():
+        if (run / "init_mvs" / "init_report.json").exists() and any(run.rglob("checkpoints")):
             break
         time.sleep(0.2)
     assert proc.poll() is None, proc.communicate()[1][-2000:]

@@ -53,6 +53,9 @@ FORMAT_VERSION = 4
 # -> name. The stage keys hash the sections' contents, not their names, so a renamed section
 # leaves every finished stage of an older run reusable.
 RENAMED_SECTIONS = {"stage1": "training", "effects": "model_terms"}
+# Settings whose default changed after run folders were saved without them: a run's config.json
+# that lacks one was run with the value here, not with today's default.
+SAVED_BEFORE = {("training", "fields"): 1}
 
 # The paper's stage 2 (`--paper-stage2`): every pseudo-view pixel supervised by the restored
 # frame with the restorer's confidence as weight, densified from every render, stage 2 run
@@ -235,6 +238,17 @@ def resolve(source: str | None = None, *, config_file: str | Path | dict[str, An
             value = _scaled(tree, key, value)
         config_tree.set_dotted(tree, key, value)
     return RunConfig.from_dict(tree)
+
+
+def as_saved(tree: dict[str, Any]) -> dict[str, Any]:
+    """A run folder's saved config ``tree`` with every setting of ``SAVED_BEFORE`` it lacks set to
+    the value its run had."""
+    tree = copy.deepcopy(tree)
+    for (section, name), value in SAVED_BEFORE.items():
+        held = [k for k in (section, *(old for old, new in RENAMED_SECTIONS.items() if new == section)) if k in tree]
+        for key in held or [section]:
+            tree.setdefault(key, {}).setdefault(name, value)
+    return tree
 
 
 def current_names(tree: dict[str, Any], source: str) -> dict[str, Any]:

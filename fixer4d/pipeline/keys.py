@@ -140,4 +140,6 @@ def self_check_key(config: RunConfig) -> str:
             fold.pop(name)
     # a learned restorer is trained again inside the fold, on the fold's cameras only
     own_restorer = ("fold_restorer",) if config.restorer.kind == "learned" else ()
-    return stage_key("self_check", stage2_key(config), fold, config.init_frame_stride, *own_restorer)
+    # the fold trains stage 1 as the run's fields merged (train.fields)
+    fields = ("fold_fields", config.training.fields) if config.training.fields > 1 else ()
+    return stage_key("self_check", stage2_key(config), fold, config.init_frame_stride, *own_restorer, *fields)

@@ -24,7 +24,7 @@ from fixer4d.errors import InputError
 from fixer4d.jsonfile import read_json_object
 from fixer4d.pipeline import config_tree
 from fixer4d.pipeline.capture_rig import RUN_RIG_NAME
-from fixer4d.pipeline.config import FORMAT_VERSION, RunConfig, migrate_v1
+from fixer4d.pipeline.config import FORMAT_VERSION, RunConfig, as_saved, migrate_v1
 
 log = logging.getLogger("fixer4d.pipeline")
 
@@ -210,11 +210,11 @@ def _read_config(path: Path) -> tuple[RunConfig, int | None]:
     if version is None:
         if "scene" not in data:
             raise InputError(f"{cfg_path}: not a fixer4d run config (no format_version, no scene)")
-        return RunConfig.from_dict(migrate_v1(data)), None
+        return RunConfig.from_dict(as_saved(migrate_v1(data))), None
     if not isinstance(version, int) or version > FORMAT_VERSION:
         raise InputError(f"{path}: run folder format {version!r} is newer than this fixer4d understands "
                          f"({FORMAT_VERSION}); update fixer4d")
-    return RunConfig.from_dict(data.get("config") or {}, str(cfg_path)), version
+    return RunConfig.from_dict(as_saved(data.get("config") or {}), str(cfg_path)), version
 
 
 def load_scene_for(config: RunConfig):

@@ -4,6 +4,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import logging
+import shutil
 import time
 from pathlib import Path
 from typing import Any
@@ -63,8 +64,6 @@ class _Parts:
 def _train(trainer, progress: bool):
     """Train ``trainer`` from its newest checkpoint under its run_dir (if any) to the end; returns
     (its model, seconds of training over every attempt); the checkpoints are removed after."""
-    import shutil
-
     prior = trainer.train_seconds if trainer.resume() else 0.0
     t0 = time.perf_counter()
     trainer.train(progress=progress)
@@ -169,6 +168,7 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
     from fixer4d.scene.train_view import TrainOnlyView
     from fixer4d.train.background import resolve_background
     from fixer4d.train.config import matched_config
+    from fixer4d.train.fields import field_seed, train_fields
     from fixer4d.train.model_init import model_from_init
     from fixer4d.train.trainer import Trainer
 
@@ -190,17 +190,30 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
     cfg1 = dataclasses.replace(sc.fold_training(config.training), progress=progress)
     if "stage1" not in parts.seconds:
         init = DecomposedInit.load(init_dir) if has_decomposed(init_dir) else load_frame_clouds(init_dir)
-        model, terms_decision = model_from_init(init, views, cfg1, config.model_terms)
-        response = (CameraResponse(len(views.train_ids))
-                    if terms_decision is not None and terms_decision.camera_response else None)
-        trainer = Trainer(model, views, cfg1, run_dir=out_dir / "stage1",
-                          terms=config.model_terms if terms_decision is not None else None, camera_response=response,
-                          depth_init=init)
-        model, seconds = _train(trainer, progress)
+
+        def make_trainer(k: int, directory: Path) -> Trainer:
+            cfg = dataclasses.replace(cfg1, seed=field_seed(cfg1.seed, k))
+            model, terms_decision = model_from_init(init, views, cfg, config.model_terms)
+            response = (CameraResponse(len(views.train_ids))
+                        if terms_decision is not None and terms_decision.camera_response else None)
+            return Trainer(model, views, cfg, run_dir=directory,
+                           terms=config.model_terms if terms_decision is not None else None,
+                           camera_response=response, depth_init=init)
+
+        if cfg1.fields > 1:  # the run's stage 1 as fields merged: the fold's too
+            t0 = time.perf_counter()
+            fields = train_fields(make_trainer, cfg1.fields, out_dir / "stage1", label="self-check fold")
+            model, response = fields.model, fields.response
+            seconds = time.perf_counter() - t0 + fields.prior_seconds
+            shutil.rmtree(out_dir / "stage1", ignore_errors=True)
+        else:
+            trainer = make_trainer(0, out_dir / "stage1")
+            model, seconds = _train(trainer, progress)
+            response = trainer.response
         save_ply(model, out_dir / FOLD_MODEL)
-        atomic.write_json(out_dir / FOLD_RESPONSE, None if trainer.response is None else trainer.response.to_json())
+        atomic.write_json(out_dir / FOLD_RESPONSE, None if response is None else response.to_json())
         parts.finish("stage1", seconds)
-        del init, trainer, model
+        del init, model
     # every part continues from the model as stored, so a resumed check starts where an
     # uninterrupted one did
     base = load_ply(out_dir / FOLD_MODEL)
@@ -221,12 +234,15 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
         score = _held_back_psnr(model, scored, held, eval_frames, backend, background)
         parts.finish(name, seconds + time.perf_counter() - t0, frames=score)
 
+    # the candidates continue the fold's model: the Gaussian budget of all its fields
+    refine_cfg = dataclasses.replace(cfg1, max_gaussians=cfg1.max_gaussians * cfg1.fields)
     if sc.allow_continue and "continue" not in parts.psnr:
-        candidate("continue", Trainer(copy.deepcopy(base), views, matched_config(cfg1, config.stage2),
+        candidate("continue", Trainer(copy.deepcopy(base), views, matched_config(refine_cfg, config.stage2),
                                       run_dir=out_dir / "continue", camera_response=copy.deepcopy(response)))
     if "refine" not in parts.psnr:
         refresh = make_refresh_callback(out_dir, views, config, progress=progress, backend=backend, restorer=restorer)
-        candidate("refine", Trainer(copy.deepcopy(base), views, cfg1, stage2=config.stage2, run_dir=out_dir / "refine",
+        candidate("refine", Trainer(copy.deepcopy(base), views, refine_cfg, stage2=config.stage2,
+                                    run_dir=out_dir / "refine",
                                     cache=RestoreCache(out_dir / "cache", fingerprint=stage2_key(config)),
                                     refresh_cache=refresh, camera_response=copy.deepcopy(response)))
 

@@ -109,6 +109,12 @@ class StageContext:
     def training_config(self, **changes: Any):
         return dataclasses.replace(self.config.training, progress=self.progress, **changes)
 
+    def refine_training_config(self):
+        """The TrainingConfig of the trainings that continue the main stage-1 model (stage 2, the
+        matched control): the Gaussian budget of all its ``training.fields`` merged fields."""
+        t = self.config.training
+        return self.training_config(max_gaussians=t.max_gaussians * t.fields)
+
 
 # ---------------------------------------------------------------------------------------------
 # stages
@@ -151,60 +157,99 @@ def init_stage(ctx: StageContext, method: str):
 
 
 def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
-    """Stage 1 (STGS on the observed views) from ``clouds`` -> ``model_path``; resumes mid-stage."""
+    """Stage 1 (STGS on the observed views) from ``clouds`` -> ``model_path``; resumes mid-stage.
+    The main init's stage 1 trains ``training.fields`` fields and merges them (train/fields.py)."""
     from fixer4d.model.io import load_ply, save_ply
     from fixer4d.model.terms import terms_report
     from fixer4d.train.co_fields import TWIN_DIR, TWIN_NAME
+    from fixer4d.train.fields import FIELDS_DIR
 
     key = stage1_key(ctx.config, method)
-    twin = ctx.config.co_fields.enabled and method == ctx.config.init_method
+    main = method == ctx.config.init_method
+    twin = ctx.config.co_fields.enabled and main
+    fields = ctx.config.training.fields if main else 1
     outputs = [model_path] + ([model_path.parent / TWIN_NAME] if twin else [])
     if ctx.run.records.done(name, key) and all(p.exists() for p in outputs):
         return load_ply(model_path)
     if ctx.run.records.begin(name, key):
         _drop_checkpoints(model_path.parent, 1)
         _drop_checkpoints(model_path.parent / TWIN_DIR, 1)
+        if main:
+            _clear(model_path.parent / FIELDS_DIR, keep_aside=False)
     if ctx.cache is not None and (seconds := ctx.cache.fetch(key, model_path.parent)) is not None:
         ctx.run.records.finish(name, key, seconds)
         return load_ply(model_path)
     t0 = time.perf_counter()
-    trainer, decision = stage1_trainer(ctx, clouds, model_path.parent, depth_prior=method == ctx.config.init_method)
-    if twin:
-        from fixer4d.train.co_fields import CoFields, twin_trainer
-
-        co = CoFields(trainer, twin_trainer(trainer, ctx.config.model_terms if decision is not None else None,
-                                            model_path.parent), ctx.config.co_fields)
-        prior = co.train_seconds if co.resume() else 0.0
-        co.train()
-        save_ply(co.b.host_model(), outputs[1])
+    if fields > 1:
+        model, decision, revisions, response, prior = _stage1_fields(ctx, clouds, model_path.parent, fields)
     else:
-        prior = trainer.train_seconds if trainer.resume() else 0.0
-        trainer.train()
-    model = trainer.host_model()
+        trainer, decision = stage1_trainer(ctx, clouds, model_path.parent, depth_prior=main)
+        if twin:
+            from fixer4d.train.co_fields import CoFields, twin_trainer
+
+            co = CoFields(trainer, twin_trainer(trainer, ctx.config.model_terms if decision is not None else None,
+                                                model_path.parent), ctx.config.co_fields)
+            prior = co.train_seconds if co.resume() else 0.0
+            co.train()
+            save_ply(co.b.host_model(), outputs[1])
+        else:
+            prior = trainer.train_seconds if trainer.resume() else 0.0
+            trainer.train()
+        model, revisions, response = trainer.host_model(), trainer.revisions, trainer.response
     save_ply(model, model_path)
-    report = terms_report(model, decision, trainer.revisions)
-    if trainer.response is not None:
-        report["camera_response"] = trainer.response.to_json()
+    report = terms_report(model, decision, revisions)
+    if fields > 1:
+        report["fields"] = fields
+    if response is not None:
+        report["camera_response"] = response.to_json()
     atomic.write_json(model_path.parent / TERMS_NAME, report)
     ctx.run.records.finish(name, key, time.perf_counter() - t0 + prior)
     _finished(ctx, model_path.parent, 1)
     _finished(ctx, model_path.parent / TWIN_DIR, 1)
     if ctx.cache is not None:
-        ctx.cache.store(key, outputs + [model_path.parent / TERMS_NAME], ctx.run.records.seconds(name))
+        fields_dir = [model_path.parent / FIELDS_DIR] if fields > 1 else []
+        ctx.cache.store(key, outputs + [model_path.parent / TERMS_NAME] + fields_dir, ctx.run.records.seconds(name))
     return model
 
 
-def stage1_trainer(ctx: StageContext, init, run_dir: Path | None, depth_prior: bool = True):
+def _stage1_fields(ctx: StageContext, clouds, run_dir: Path, fields: int):
+    """The main init's stage 1 as ``fields`` fields merged (``train.fields.train_fields``, in
+    RUN/fields/). Returns (model, terms decision, revisions, camera response, seconds trained
+    before this call)."""
+    from fixer4d.train.fields import train_fields
+
+    if ctx.config.co_fields.enabled:
+        raise InputError("training.fields > 1 trains stage 1's fields apart and merges them; co_fields trains a "
+                         "twin beside one field: set training.fields=1 or co_fields.enabled=false")
+    decisions = []
+
+    def make_trainer(k: int, out: Path):
+        trainer, decision = stage1_trainer(ctx, clouds, out, field=k)
+        decisions.append(decision)
+        return trainer
+
+    done = train_fields(make_trainer, fields, run_dir, finished=lambda out: _finished(ctx, out, 1))
+    if not decisions:  # every field was finished: the decision is the init's, whatever the seed
+        _, decision = stage1_trainer(ctx, clouds, None)
+        decisions.append(decision)
+    return done.model, decisions[0], done.revisions, done.response, done.prior_seconds
+
+
+def stage1_trainer(ctx: StageContext, init, run_dir: Path | None, depth_prior: bool = True, field: int = 0):
     """(Trainer, model-terms decision) exactly as ``stage1`` builds them: the model from ``init`` (a
     decomposed init -> terms decided by evidence under ``config.model_terms``; per-frame clouds ->
     every term on), the run's TrainingConfig with its scaled schedule, term revisions during
     training. For callers that step the trainer themselves too (the viewer's live training).
     run_dir: where checkpoints go (None: none). depth_prior: ``init``'s points are depth targets
-    when ``training.depth_prior`` is on (False: the sparse baseline, which stays the paper's STGS)."""
+    when ``training.depth_prior`` is on (False: the sparse baseline, which stays the paper's STGS).
+    field: which of ``training.fields`` this trainer trains (its seed, train/fields.py)."""
+    from fixer4d.train.fields import field_seed
     from fixer4d.train.model_init import model_from_init
     from fixer4d.train.trainer import Trainer
 
     cfg = ctx.training_config()
+    if field:
+        cfg = dataclasses.replace(cfg, seed=field_seed(cfg.seed, field))
     model, decision = model_from_init(init, ctx.train_scene, cfg, ctx.config.model_terms)
     if ctx.config.segments.static_from is not None:
         from fixer4d.pipeline.shared_static import add_shared_static, load_shared
@@ -309,7 +354,7 @@ def stage2(ctx: StageContext, model, refresh: Callable[[Any, int], None] | None 
         refresh = make_refresh_callback(ctx.path, ctx.train_scene, ctx.config, progress=ctx.progress, backend=ctx.backend,
                                         executor=executor_for(ctx.config.executor),
                                         twin=twin_weight_for(ctx.config, ctx.path))
-    trainer = Trainer(model, ctx.train_scene, ctx.training_config(), run_dir=ctx.path, stage2=ctx.config.stage2,
+    trainer = Trainer(model, ctx.train_scene, ctx.refine_training_config(), run_dir=ctx.path, stage2=ctx.config.stage2,
                       cache=RestoreCache(ctx.path / "cache", fingerprint=key), refresh_cache=refresh,
                       camera_response=stage1_response(ctx))
     prior = trainer.train_seconds if trainer.resume() else 0.0
@@ -337,7 +382,7 @@ def matched_stage1(ctx: StageContext, model):
         _drop_checkpoints(out, 1)
     from fixer4d.train.config import matched_config
 
-    cfg = matched_config(ctx.training_config(), ctx.config.stage2)
+    cfg = matched_config(ctx.refine_training_config(), ctx.config.stage2)
     t0 = time.perf_counter()
     # a copy: the Trainer updates its model in place, and stage 2 must start from the stage-1 model
     trainer = Trainer(copy.deepcopy(model), ctx.train_scene, cfg, run_dir=out, camera_response=stage1_response(ctx))

@@ -96,6 +96,13 @@ class TrainingConfig:
     # view; a larger budget fits the train views better and generalizes worse at 1500 iterations
     # (docs/decisions/stage1-budget.md).
     max_gaussians: int = 20_000
+    # Stage 1 trains this many fields from the same init with other seeds (the init's subsample
+    # draw and the training's draws) and merges them into one model (train.fields): stage 1 is
+    # chaotic in its seed, and the merged model keeps what the fields agree on at full strength
+    # and what one guessed at half. Each field has the budget above; stage 2 and the matched
+    # control get fields x the budget. 2 against 1 on the validation cameras, paired over seeds
+    # 0-2: docs/decisions/two-fields.md.
+    fields: int = 2
 
     # -- observed loss ---------------------------------------------------------------------
     # Extra per-pixel weight of L_STG on the pixels each train camera's own moving-content mask
@@ -188,6 +195,8 @@ class TrainingConfig:
             raise InputError("TrainingConfig: densify_every, checkpoint_every and opacity_reset_every must be >= 1")
         if self.moving_loss_weight < 0:
             raise InputError(f"TrainingConfig.moving_loss_weight must be >= 0, got {self.moving_loss_weight}")
+        if self.fields < 1:
+            raise InputError(f"TrainingConfig.fields must be >= 1, got {self.fields}")
         if self.max_gaussians < 1 or self.init_max_points < 1:
             raise InputError("TrainingConfig: max_gaussians and init_max_points must be >= 1")
         for name in ("prune_world_scale", "prune_screen_fraction"):

@@ -143,6 +143,8 @@ class Trainer:
                        PseudoTargets(stage2, cache, refresh_cache, scene.train_cameras, device=self.device))
         self.run_dir = Path(run_dir) if run_dir is not None else None
         self.stage = self.schedule.stage
+        # what the progress bar calls this training (e.g. one of stage 1's fields)
+        self.label = f"stage {self.stage}"
         self.train_ids = list(scene.train_ids)
         self.extent = scene_extent(scene.train_cameras, model.means)
         self.background = torch.tensor(resolve_background(config.background, scene), dtype=torch.float32,
@@ -573,7 +575,7 @@ class Trainer:
         from tqdm import tqdm
 
         bar = tqdm(total=self.total_iterations, initial=self.step_count, disable=not show,
-                   desc=f"stage {self.stage}", unit="it", dynamic_ncols=True)
+                   desc=self.label, unit="it", dynamic_ncols=True)
         rec: dict[str, float] = {}
         tic = last = time.perf_counter()
         try:

@@ -79,6 +79,12 @@ def test_every_model_of_a_run_has_the_runs_twin(tmp_path):
     for name in ("model_stage1.ply", "model_final.ply", "model_edit_1.ply"):  # as the pipeline's stage 2
         assert twin_path(run / name) == run / "model_stage1_twin.ply"
     assert twin_path(run / "model_stage1_twin.ply") is None  # not its own twin
+    second = run / "fields" / "field1" / "model.ply"  # a run of two stage-1 fields: its second field
+    second.parent.mkdir(parents=True)
+    second.write_bytes(b"ply")
+    assert twin_path(run / "model_final.ply") == run / "model_stage1_twin.ply"  # co_fields' twin first
+    (run / "model_stage1_twin.ply").unlink()
+    assert twin_path(run / "model_final.ply") == second and twin_path(second) is None
     (tmp_path / "bare.ply").write_bytes(b"ply")  # outside a run: <stem>_twin beside it
     assert twin_path(tmp_path / "bare.ply") is None
     (tmp_path / "bare_twin.ply").write_bytes(b"ply")
@@ -96,7 +102,7 @@ def test_without_a_twin_the_mode_is_greyed_out_and_says_how_to_get_one(make_view
         if v.tooltip_shown:
             break
     assert v.tooltip_shown == f"model_stage1.ply has no twin field; a run trained with\n{HOW_TO_GET_A_TWIN} has one"
-    assert HOW_TO_GET_A_TWIN == "fixer4d run ... --set co_fields.enabled=true"
+    assert HOW_TO_GET_A_TWIN == "fixer4d run ... --set training.fields=2"
     d.click(x, y)
     assert v.state.debug_mode == "color"  # disabled: nothing chosen
     # a session that left the mode on shows the colours, and the legend the way to a twin

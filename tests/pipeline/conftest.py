@@ -27,3 +27,12 @@ def tiny_spied_run(tmp_path_factory, stage_cache):
 def tiny_run(tiny_spied_run):
     """(run folder, report) of the whole pipeline on the tiny scene."""
     return tiny_spied_run[:2]
+
+
+@pytest.fixture(scope="session")
+def one_field_run(tmp_path_factory, stage_cache):
+    """(run folder, report) of the tiny pipeline with one stage-1 field (``training.fields=1``):
+    the base of the benches that study one field's training."""
+    run_dir = tmp_path_factory.mktemp("run") / "one_field"
+    report, _ = run_spied(tiny_config(**{"training.fields": 1}), run_dir, stage_cache)
+    return run_dir, report

@@ -11,11 +11,12 @@ def bench(benchmark_script):
     return benchmark_script("co_fields")
 
 
-def test_field_a_without_co_pruning_is_the_runs_stage1_and_the_weights_pair_on_it(bench, tiny_run, tmp_path):
+def test_field_a_without_co_pruning_is_the_runs_stage1_and_the_weights_pair_on_it(bench, one_field_run, tmp_path):
     """With no co-pruning step the twin trains beside field A without touching it: field A scores
     the run's "STGS w/ MVS" row exactly; the visibility weight's row is the run's "Restoration
-    (init)" row, and the summary pairs field A with the baseline file."""
-    run_dir, report = tiny_run
+    (init)" row, and the summary pairs field A with the baseline file (a one-field run: co_fields
+    trains its twin beside one field)."""
+    run_dir, report = one_field_run
     rows = {r["method"]: r for r in report["rows"]}
     baseline = tmp_path / "baseline.json"
     baseline.write_text(json.dumps({"rows": report["rows"]}))

@@ -44,7 +44,7 @@ def test_a_run_with_co_fields_saves_the_twin_and_gates_by_the_combined_weight(tm
     from fixer4d.pipeline.run_folder import read_run_config
 
     run_dir = tmp_path / "co"
-    report, spy = run_spied(tiny_config(**{"co_fields.enabled": True, "co_fields.weight": "max",
+    report, spy = run_spied(tiny_config(**{"co_fields.enabled": True, "co_fields.weight": "max", "training.fields": 1,
                                            "self_check.enabled": False}), run_dir, stage_cache)
     assert (run_dir / "model_stage1.ply").is_file() and (run_dir / "model_stage1_twin.ply").is_file()
     assert read_run_config(run_dir).co_fields.enabled

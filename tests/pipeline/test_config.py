@@ -248,3 +248,19 @@ def test_stage1config_is_a_deprecated_name_of_trainingconfig():
 
     with pytest.deprecated_call(match="Stage1Config is now TrainingConfig"):
         assert train_config.Stage1Config is TrainingConfig
+
+
+def test_a_saved_run_config_without_a_later_setting_reads_as_its_run_had_it(tmp_path):
+    """training.fields came after run folders were written: one without it ran one field, whatever
+    today's default; a new run gets the default."""
+    import json
+
+    from fixer4d.pipeline.config import SAVED_BEFORE, RunConfig, resolve
+    from fixer4d.pipeline.run_folder import RunFolder, read_run_config
+
+    folder = RunFolder.create(tmp_path / "run", resolve("tiny"))
+    data = json.loads((folder.path / "config.json").read_text())
+    assert data["config"]["training"]["fields"] == RunConfig().training.fields
+    del data["config"]["training"]["fields"]
+    (folder.path / "config.json").write_text(json.dumps(data))
+    assert read_run_config(folder.path).training.fields == SAVED_BEFORE[("training", "fields")] == 1

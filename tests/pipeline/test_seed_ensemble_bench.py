@@ -103,3 +103,22 @@ def test_coreg_targets_feed_stage2s_pseudo_views(benchmark_script, tiny_run):
     timing = {"t_at": 0.0, "t_loss": 0.0}
     loss = targets.loss(model, np.random.default_rng(0), render_view, timing)
     assert float(loss) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_the_merge_rules_set_each_opacity_as_named(benchmark_script):
+    from fixer4d.model.spacetime import SpacetimeGaussians
+
+    bench = benchmark_script("seed_ensemble")
+    rng = np.random.default_rng(0)
+    fields = [SpacetimeGaussians.from_points(rng.normal(size=(4, 3)), rng.uniform(size=(4, 3)), rng.uniform(size=4))
+              for _ in range(2)]
+    alpha = torch.cat([torch.sigmoid(f.opacity_logits.detach().double()) for f in fields])
+
+    def opacities(rule):
+        return torch.sigmoid(bench.union(fields, rule).opacity_logits.detach().double())
+
+    torch.testing.assert_close(opacities("halved"), alpha / 2, rtol=1e-6, atol=1e-9)
+    torch.testing.assert_close(opacities("transmittance"), 1 - (1 - alpha).sqrt(), rtol=1e-5, atol=1e-7)
+    torch.testing.assert_close(opacities("kept"), alpha, rtol=1e-6, atol=1e-7)
+    with pytest.raises(ValueError):
+        bench.union(fields, "doubled")

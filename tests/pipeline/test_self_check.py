@@ -277,7 +277,12 @@ def test_the_fold_budget_and_the_key_of_the_new_settings():
     # a check at the settings every check had before cameras / scale_budget existed keeps its key
     before = {k: v for k, v in config.to_dict()["self_check"].items()
               if k not in ("tie_db", "allow_skip", "margin", "cameras", "scale_budget", "allow_continue")}
-    assert self_check_key(config) == stage_key("self_check", stage2_key(config), before, config.init_frame_stride)
+    one_field = tiny_config(**{"training.fields": 1})
+    assert self_check_key(one_field) == stage_key("self_check", stage2_key(one_field), before,
+                                                  one_field.init_frame_stride)
+    # a fold of several fields (the run's stage 1 merged) has its own key
+    assert self_check_key(config) == stage_key("self_check", stage2_key(config), before, config.init_frame_stride,
+                                               "fold_fields", config.training.fields)
     assert len({self_check_key(config), self_check_key(scaled),
                 self_check_key(tiny_config(**{"self_check.cameras": 2}))}) == 3
     assert self_check_key(tiny_config(**{"self_check.allow_continue": True})) == self_check_key(config)

@@ -29,10 +29,10 @@ def test_overrides_apply_on_the_run_config(variants, tiny_run):
     assert longer.training.opacity_reset_every == derived.opacity_reset_every
 
 
-def test_reproduces_the_runs_stage1_row_and_leaves_the_run_alone(variants, tiny_run, tmp_path):
-    """With no override the variant is the run's own stage 1: the same held-out PSNR as the
-    run's "STGS w/ MVS" row (training is deterministic), and RUN is only read."""
-    run_dir, report = tiny_run
+def test_reproduces_the_runs_stage1_row_and_leaves_the_run_alone(variants, one_field_run, tmp_path):
+    """With no override the variant is a one-field run's own stage 1: the same held-out PSNR as
+    the run's "STGS w/ MVS" row (training is deterministic), and RUN is only read."""
+    run_dir, report = one_field_run
     before = {p: p.stat().st_mtime_ns for p in run_dir.rglob("*")}
     out = tmp_path / "variant.json"
     assert variants.main([str(run_dir), "--out", str(out)]) == 0
@@ -43,10 +43,10 @@ def test_reproduces_the_runs_stage1_row_and_leaves_the_run_alone(variants, tiny_
     assert {p: p.stat().st_mtime_ns for p in run_dir.rglob("*")} == before
 
 
-def test_tail_averages_leave_the_last_iterate_as_it_was(variants, tiny_run, tmp_path):
+def test_tail_averages_leave_the_last_iterate_as_it_was(variants, one_field_run, tmp_path):
     """--average-from scores the mean of the iterates after a step beside the last iterate, whose
     figures stay those of plain training (the averages are scored on a copy of the state)."""
-    run_dir, report = tiny_run
+    run_dir, report = one_field_run
     out = tmp_path / "averaged.json"
     assert variants.main([str(run_dir), "--average-from", "20", "--average-from", "30", "--out", str(out)]) == 0
     doc = json.loads(out.read_text())

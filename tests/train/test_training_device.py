@@ -75,7 +75,7 @@ def test_the_device_trained_on_keys_a_cuda_training_only(monkeypatch):
                 "matched": keys.matched_key(config)}
 
     reset = {"training.opacity_decay.enabled": False, "training.background": [0, 0, 0],
-             "stage2.fill_unobserved": False}
+             "stage2.fill_unobserved": False, "training.fields": 1}
     on_cpu = resolve("tiny", overrides={"training.device": "cpu", **reset})
     asked_auto = resolve("tiny", overrides={"training.device": "auto", **reset})
     assert on_cpu.training.device != asked_auto.training.device

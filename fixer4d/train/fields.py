@@ -1,0 +1,173 @@
+"""Stage 1 as several fields, merged into one model (``training.fields``).
+
+Stage 1 is chaotic in its seed: two seeds' models (the init's subsample draw and the training's
+draws) read up to 1 dB apart on held-out cameras, and the per-pixel mean of their renders beats
+both (docs/decisions/seed-ensemble.md, two-fields.md). A mean of renders is not a model the viewer, the exports
+or stage 2 can use; the union of the fields' Gaussians with every opacity divided by the field
+count is. Where the fields agree on a surface the union composites the same colour at about the
+same coverage as either field; where only one field has a Gaussian (a floater, a guess about a
+region no camera determines) it shows at 1/n of its opacity, as in the mean of the renders.
+
+    train_fields(make_trainer, n, dir) -> field k trains with seed + k x FIELD_SEED_OFFSET under
+                                 dir/fields/field<k>/ (its model and record, training seconds,
+                                 revisions and camera response, written there when done; a resumed stage 1 reads
+                                 the finished fields back and resumes the one in progress), then
+                                 the fields are merged:
+    merge_fields(models)      -> the union, opacities / n                (N_1 + ... + N_n rows)
+    mean_response(responses)  -> the camera response of the merged model (the fields' mean)
+
+The pipeline's stage 1 (RUN/fields/) and the self-check's fold (its stage1/fields/) train the
+same way, so that the fold checks stage 2 on the kind of model the run refines.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable, Sequence
+
+import torch
+
+from fixer4d.errors import InputError
+from fixer4d.model.camera_response import CameraResponse
+from fixer4d.model.spacetime import SpacetimeGaussians
+
+if TYPE_CHECKING:
+    from fixer4d.train.trainer import Trainer
+
+# Field k's seed is the run's plus k times this: far from the seeds a study sweeps (0, 1, 2, ...),
+# so that a field of one run never repeats another run's first field.
+FIELD_SEED_OFFSET = 1_000_003
+# The fields' folder in the run folder, a field's finished model there, and its record (training
+# seconds over every attempt, term revisions, camera response).
+FIELDS_DIR = "fields"
+FIELD_MODEL = "model.ply"
+FIELD_RECORD = "field.json"
+
+
+def field_seed(seed: int, field: int) -> int:
+    """The training seed of field ``field`` (0-based) of a run with ``seed``; field 0 keeps it."""
+    return int(seed) + int(field) * FIELD_SEED_OFFSET
+
+
+def field_dir(run_dir: str | Path, field: int) -> Path:
+    """RUN/fields/field<k>/: field ``field``'s checkpoints and finished files."""
+    return Path(run_dir) / FIELDS_DIR / f"field{int(field)}"
+
+
+def merge_fields(models: Sequence[SpacetimeGaussians]) -> SpacetimeGaussians:
+    """One model from n fields: every field's rows, each opacity sigmoid(o) replaced by
+    sigmoid(o) / n (in logit space, float64 on the way, finite for every finite logit). The fields must share their model terms
+    (the same init decides them); the ``dynamic`` and ``frozen`` buffers follow their rows.
+    Frozen rows (a later segment's shared static Gaussians, the same in every field) are kept
+    once, from field 0, at their own opacity."""
+    if not models:
+        raise InputError("merge_fields: no fields to merge")
+    config = models[0].config
+    for k, m in enumerate(models[1:], 1):
+        if m.config != config:
+            raise InputError(f"merge_fields: field {k} has the model terms {m.config.to_dict()}, field 0 "
+                             f"{config.to_dict()}; the fields of one stage 1 share their init's terms")
+        if m.num_frozen != models[0].num_frozen:
+            raise InputError(f"merge_fields: field {k} has {m.num_frozen} frozen rows, field 0 "
+                             f"{models[0].num_frozen}; the fields of one stage 1 share their frozen rows")
+    n = len(models)
+    if n == 1:
+        return SpacetimeGaussians.from_tensors(config, models[0].tensors(), source="merge_fields")
+    rows = [m.tensors() for m in models]
+    keep = [torch.ones(m.num_gaussians, dtype=torch.bool) if k == 0 else ~m.frozen.cpu()
+            for k, m in enumerate(models)]
+    tensors = {name: torch.cat([r[name].detach().cpu()[kept] for r, kept in zip(rows, keep)])
+               for name in rows[0]}
+    logits = tensors["opacity_logits"]
+    # log(sigmoid(o) / n) through softplus: finite for any finite logit (a plain sigmoid underflows
+    # to 0 below o = -745, whose log is -inf); then logit(p) = log p - log(1 - p)
+    log_alpha = -math.log(n) - torch.nn.functional.softplus(-logits.double())
+    merged = (log_alpha - torch.log1p(-torch.exp(log_alpha))).to(logits.dtype)
+    tensors["opacity_logits"] = torch.where(tensors["frozen"], logits, merged)
+    return SpacetimeGaussians.from_tensors(config, tensors, source="merge_fields")
+
+
+def mean_response(responses: Sequence[CameraResponse | None]) -> CameraResponse | None:
+    """The merged model's camera response: the mean of the fields' log gains and biases (both
+    centred over the rig, so the mean is too); None when the fields have none."""
+    present = [r for r in responses if r is not None]
+    if not present:
+        return None
+    if len(present) != len(responses):
+        raise InputError("mean_response: some fields have a camera response and some do not")
+    out = CameraResponse(present[0].log_gain.shape[0])
+    with torch.no_grad():
+        out.log_gain.copy_(torch.stack([r.log_gain.detach().cpu() for r in present]).mean(0))
+        out.bias.copy_(torch.stack([r.bias.detach().cpu() for r in present]).mean(0))
+    return out
+
+
+@dataclass
+class TrainedFields:
+    """``train_fields``' result: the merged model and camera response, the term revisions summed
+    over the fields, and the training seconds of earlier attempts (fields read
+    back, resumed fields' checkpoints) that the call's own wall time does not hold."""
+
+    model: SpacetimeGaussians
+    response: CameraResponse | None
+    revisions: dict[str, int]
+    prior_seconds: float
+
+
+def train_fields(make_trainer: Callable[[int, Path], "Trainer"], fields: int, run_dir: str | Path,
+                 finished: Callable[[Path], None] | None = None, label: str = "stage 1") -> TrainedFields:
+    """Train ``fields`` fields one after the other and merge them (``merge_fields``).
+
+    make_trainer(k, directory): field k's untrained Trainer (seed ``field_seed(seed, k)``, its
+    model drawn from the init with that seed), checkpointing under ``directory``
+    (``field_dir(run_dir, k)``). A field whose model is already in its folder is read back, the
+    one in progress resumes from its checkpoints; each finished field writes its model and record
+    there, then ``finished(directory)`` runs (e.g. to drop the field's checkpoints).
+    label: what the progress bars call the training ("<label>, field k/n")."""
+    from fixer4d.model.io import load_ply, save_ply
+
+    models, responses, revisions, prior = [], [], {}, 0.0
+    for k in range(fields):
+        out = field_dir(run_dir, k)
+        if (out / FIELD_MODEL).exists() and (out / FIELD_RECORD).exists():
+            seconds, response, counts = _load_record(out)
+            models.append(load_ply(out / FIELD_MODEL))
+            responses.append(response)
+            prior += seconds
+            for what, count in counts.items():
+                revisions[what] = revisions.get(what, 0) + count
+            continue
+        trainer = make_trainer(k, out)
+        trainer.label = f"{label}, field {k + 1}/{fields}"
+        prior += trainer.train_seconds if trainer.resume() else 0.0
+        trainer.train()
+        models.append(trainer.host_model())
+        responses.append(trainer.response)
+        for what, count in trainer.revisions.items():
+            revisions[what] = revisions.get(what, 0) + count
+        save_ply(models[-1], out / FIELD_MODEL)
+        _save_record(out, trainer.train_seconds, trainer.response, trainer.revisions)
+        if finished is not None:
+            finished(out)
+    return TrainedFields(merge_fields(models), mean_response(responses), revisions, prior)
+
+
+def _save_record(directory: Path, seconds: float, response: CameraResponse | None, revisions: dict[str, int]) -> None:
+    """A finished field's record beside its model (written last: a field is finished when both are)."""
+    from fixer4d.atomic import write_json
+
+    write_json(Path(directory) / FIELD_RECORD, {"train_seconds": float(seconds), "revisions": dict(revisions),
+                                                "camera_response": None if response is None else response.to_json()})
+
+
+def _load_record(directory: Path) -> tuple[float, CameraResponse | None, dict[str, int]]:
+    saved = json.loads((Path(directory) / FIELD_RECORD).read_text())
+    response = saved.get("camera_response")
+    return (float(saved["train_seconds"]), None if response is None else CameraResponse.from_json(response),
+            dict(saved.get("revisions") or {}))
+
+
+__all__ = ["FIELD_SEED_OFFSET", "FIELDS_DIR", "FIELD_MODEL", "FIELD_RECORD", "field_seed", "field_dir",
+           "merge_fields", "mean_response", "train_fields", "TrainedFields"]

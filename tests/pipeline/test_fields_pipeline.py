@@ -1,0 +1,103 @@
+"""training.fields in the pipeline: the main init's stage 1 as two fields, merged into the model
+every later stage continues from; the sparse baseline stays one field."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import torch
+
+from pipeline_tiny import run_spied, tiny_config
+
+TWO = {"training.fields": 2, "self_check.enabled": False}
+
+
+def test_two_fields_are_trained_apart_and_merged(tmp_path, stage_cache, one_field_run):
+    from fixer4d.model.io import load_ply
+    from fixer4d.train.fields import FIELD_MODEL, field_dir, merge_fields
+
+    run_dir = tmp_path / "two"
+    report, spy = run_spied(tiny_config(**TWO), run_dir, stage_cache)  # stage 1 may come from the cache
+    assert not spy.violations
+    fields = [load_ply(field_dir(run_dir, k) / FIELD_MODEL) for k in range(2)]
+    one_field = load_ply(one_field_run[0] / "model_stage1.ply")
+    # field 0 is the one-field run's stage 1 (the same seed); field 1 another seed's
+    torch.testing.assert_close(fields[0].means, one_field.means, rtol=0, atol=0)
+    assert fields[1].num_gaussians != fields[0].num_gaussians or not torch.equal(fields[1].means, fields[0].means)
+    merged = load_ply(run_dir / "model_stage1.ply")
+    want = merge_fields(fields)
+    assert merged.num_gaussians == fields[0].num_gaussians + fields[1].num_gaussians
+    torch.testing.assert_close(merged.opacity_logits, want.opacity_logits)
+    terms = json.loads((run_dir / "model_terms.json").read_text())
+    assert terms["fields"] == 2 and terms["gaussians"] == merged.num_gaussians
+    for k in range(2):  # a finished stage drops the fields' checkpoints
+        assert not list(field_dir(run_dir, k).rglob("*.pt"))
+    baseline = load_ply(run_dir / "baseline_sparse" / "model_stage1.ply")
+    assert baseline.num_gaussians <= tiny_config().training.max_gaussians
+    rows = {r["method"]: r for r in report["rows"]}
+    assert rows["Full"]["status"] == "ok" and rows["STGS w/ MVS"]["status"] == "ok"
+
+
+def test_the_self_checks_fold_trains_fields_as_the_run_does(tmp_path, stage_cache):
+    """The fold checks stage 2 on the kind of model the run refines: two fields merged, whose
+    opacities are at most 1/2 (each field's sigmoid halved)."""
+    from fixer4d.model.io import load_ply
+    from fixer4d.pipeline.self_check_run import FOLD_MODEL
+
+    run_dir = tmp_path / "checked"
+    report, spy = run_spied(tiny_config(**{"training.fields": 2}), run_dir, stage_cache)
+    assert not spy.violations
+    folds = sorted(run_dir.glob(f"self_check/**/{FOLD_MODEL}"))
+    assert folds
+    for path in folds + [run_dir / "model_stage1.ply"]:
+        assert float(torch.sigmoid(load_ply(path).opacity_logits.detach()).max()) <= 0.5 + 1e-6, path
+    assert not list((run_dir / "self_check").rglob("*.pt"))
+    assert report["self_check"]["decision"] in ("skip", "refine")
+
+
+def test_a_stage1_killed_between_fields_resumes_from_the_finished_field(tmp_path, stage_cache):
+    from fixer4d.model.io import load_ply
+    from fixer4d.pipeline.run import open_context, run_stages
+    from fixer4d.train.fields import FIELD_MODEL, FIELD_RECORD, field_dir
+
+    config = tiny_config(**TWO, **{"stage2.rounds": 0, "baseline_sparse": False})
+    done = tmp_path / "done"
+    run_stages(open_context(config, done, progress=False))
+    killed = tmp_path / "killed"
+    shutil.copytree(done, killed)
+    # as if killed while field 1 trained: field 0 written, nothing after it
+    (killed / "model_stage1.ply").unlink()
+    shutil.rmtree(field_dir(killed, 1))
+    records = json.loads((killed / "stages.json").read_text())
+    records["stage1"]["done"] = False
+    for name in [n for n in records if n not in ("init_mvs", "stage1")]:
+        del records[name]
+    (killed / "stages.json").write_text(json.dumps(records))
+    field0 = field_dir(killed, 0) / FIELD_MODEL
+    written = field0.stat().st_mtime_ns
+    run_stages(open_context(config, killed, progress=False))
+    assert field0.stat().st_mtime_ns == written  # read back, not trained again
+    field0_seconds = json.loads((field_dir(killed, 0) / FIELD_RECORD).read_text())["train_seconds"]
+    assert json.loads((killed / "stages.json").read_text())["stage1"]["seconds"] > field0_seconds > 0
+    torch.testing.assert_close(load_ply(killed / "model_stage1.ply").means, load_ply(done / "model_stage1.ply").means,
+                               rtol=0, atol=0)
+
+
+def test_a_later_segment_merges_its_fields_around_the_shared_static_rows(tmp_path):
+    """share_static with two fields: each field of the second segment trains beside the first
+    segment's static rows; the merged model holds them once, frozen, bit for bit."""
+    from fixer4d.model.io import load_ply
+    from fixer4d.pipeline.run import run_pipeline
+
+    base = {"segments.frames": 3, "segments.overlap": 2, "baseline_sparse": False, "eval.restoration_rows": False,
+            "eval.matched_row": False, "init_frame_stride": 1, "eval.stride": 1, "restorer.kind": "warp",
+            "training.iterations": 30, "stage2.rounds": 0, "segments.share_static": True,
+            "self_check.enabled": False, **TWO}
+    run_pipeline(tiny_config(**base), tmp_path / "run", progress=False)
+    seg = tmp_path / "run" / "segments"
+    rows = load_ply(seg / "shared_static" / "stage1.ply")
+    later = load_ply(seg / "seg01_00001-00004" / "model_stage1.ply")
+    assert later.num_frozen == rows.num_gaussians > 0
+    assert torch.equal(later.means[later.frozen], rows.means)
+    assert torch.equal(later.opacity_logits[later.frozen], rows.opacity_logits)
+    assert float(torch.sigmoid(later.opacity_logits[~later.frozen].detach()).max()) <= 0.5 + 1e-6
