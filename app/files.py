@@ -25,8 +25,9 @@ EDIT_PATTERN = re.compile(r"^model_edit_(\d+)\.ply$")
 # (fixer4d.train.co_fields.TWIN_NAME); a model file outside a run has its twin as <stem>_twin<suffix>.
 RUN_TWIN = "model_stage1_twin.ply"
 TWIN_SUFFIX = "_twin"
-# A run of several stage-1 fields keeps its second field here (fixer4d.train.fields.field_dir):
-# the other seed's guess, the twin where the run has no co_fields twin.
+# A run of several stage-1 fields keeps its first two fields here (fixer4d.train.fields.field_dir):
+# two seeds' guesses, compared with each other where the run has no co_fields twin.
+RUN_FIRST_FIELD = Path("fields") / "field0" / "model.ply"
 RUN_SECOND_FIELD = Path("fields") / "field1" / "model.ply"
 
 
@@ -51,19 +52,25 @@ def model_versions(run: Path) -> list[Path]:
     return named + edits + others
 
 
-def twin_path(model: Path | None) -> Path | None:
-    """The twin field the model file ``model`` is compared with, or None when there is none: in a
-    run folder the run's ``model_stage1_twin.ply`` (the pipeline compares every later model of the
-    run with it too: stage 2, edits), else its second stage-1 field (``fields/field1/model.ply``);
-    elsewhere ``<stem>_twin<suffix>`` beside the file; never the file itself."""
+def twin_pair(model: Path | None) -> tuple[Path | None, Path] | None:
+    """What the undetermined map compares for the model file ``model``: (first, twin), where
+    first None is the shown model itself; None when there is no twin. In a run folder: the shown
+    model and the run's ``model_stage1_twin.ply`` (co_fields; the pipeline compares every later
+    model of the run with it too: stage 2, edits), else the run's two stage-1 fields with each
+    other (``fields/field0``, ``fields/field1``: every model of the run shows their
+    disagreement); elsewhere the model and ``<stem>_twin<suffix>`` beside the file. A model is
+    never its own twin."""
     if model is None:
         return None
     model = Path(model)
     if is_run_folder(model.parent):
-        twins = [model.parent / RUN_TWIN, model.parent / RUN_SECOND_FIELD]
-    else:
-        twins = [model.with_name(model.stem + TWIN_SUFFIX + model.suffix)]
-    return next((t for t in twins if t.is_file() and t != model), None)
+        run = model.parent
+        if (run / RUN_TWIN).is_file() and run / RUN_TWIN != model:
+            return None, run / RUN_TWIN
+        first, second = run / RUN_FIRST_FIELD, run / RUN_SECOND_FIELD
+        return (first, second) if first.is_file() and second.is_file() else None
+    twin = model.with_name(model.stem + TWIN_SUFFIX + model.suffix)
+    return (None, twin) if twin.is_file() and twin != model else None
 
 
 def next_edit_path(folder: Path) -> Path:

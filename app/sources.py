@@ -236,20 +236,23 @@ class TorchRenders:
 
 
 class TwinRenders:
-    """Torch renders of a model file beside the shown model, the twin field of a run trained
-    with ``co_fields`` (``app.files.twin_path``); the file is loaded once per path."""
+    """Torch renders of the model files the undetermined map compares (``app.files.twin_pair``:
+    a co_fields twin, or a run's two stage-1 fields); each file is loaded once while the map's
+    files stay the same."""
 
     def __init__(self) -> None:
-        self._path: Path | None = None
-        self._model: Any = None
+        self._models: dict[Path, Any] = {}
 
     def __call__(self, path: Path, background: tuple[float, float, float], backend: str) -> GaussiansRenderFn:
         """``fn(camera, t) -> {"rgb", "depth", "alpha"}`` of the model in ``path`` at clip time t."""
         from fixer4d.model.io import load_model
 
-        if self._path != Path(path) or self._model is None:
-            self._model, self._path = load_model(path), Path(path)
-        return model_renders(self._model, background, backend)
+        path = Path(path)
+        if path not in self._models:
+            if len(self._models) >= 2:  # a map compares two files at most: another run's files
+                self._models.clear()
+            self._models[path] = load_model(path)
+        return model_renders(self._models[path], background, backend)
 
 
 def model_renders(model: Any, background: tuple[float, float, float], backend: str) -> GaussiansRenderFn:

@@ -160,7 +160,7 @@ class View3D:
         self._draw_ms += stats.draw_ms
         self.depth_range = self._depth_range(rcam)
         mode = st.debug_mode
-        if mode == "undetermined" and self.twin_path() is None:
+        if mode == "undetermined" and self.twin_pair() is None:
             mode = "color"  # no twin field: the legend says how to train one
         if mode in UNCACHED_MODES and self.map_stale:
             if self.adaptive.final:  # the view rests: recompute for it
@@ -209,11 +209,12 @@ class View3D:
 
             compute_undetermined(self)
 
-    def twin_path(self) -> Path | None:
-        """The twin field beside the shown model file (a run trained with ``co_fields``), or None."""
-        from app.files import twin_path
+    def twin_pair(self) -> tuple[Path | None, Path] | None:
+        """What the undetermined map compares (``app.files.twin_pair``; first None: the shown
+        Gaussians), or None."""
+        from app.files import twin_pair
 
-        return twin_path(self.source.model_path)
+        return twin_pair(self.source.model_path)
 
     def masks(self) -> tuple | None:
         """(masks (V,F,H,W) bool, camera ids, frames) from the run's RUN/init_*/masks.npz (the

@@ -52,8 +52,10 @@ def draw(viewer) -> None:
                 same_line_if_fits(imgui.calc_text_size(f"vs {ui['ref']}").x)
                 imgui.text(f"vs {ui['ref']}")
         if st.debug_mode == "undetermined" and not no_twin:
-            imgui.text(f"vs {viewer.twin_path().name}")
-            tip("the twin field the shown model is compared with (the second field co_fields trained)", viewer)
+            first, twin = viewer.twin_pair()
+            imgui.text(f"vs {twin.name}" if first is None else "stage-1 field 1 vs field 2")
+            tip("the twin field the shown model is compared with (the second field co_fields trained)" if first is None
+                else "the run's two stage-1 fields (other seeds) compared with each other", viewer)
         imgui.text("Gaussians")
         tip("colour each Gaussian by its colour, speed or temporal opacity", viewer)
         # depth and holes replace the splats' colours: a Gaussian colour mode would change nothing

@@ -27,8 +27,9 @@ def tiny():
     return load_scene("tiny")
 
 
-def _run(tmp_path, tiny, twin=None):
-    """A run folder of the tiny scene with model_stage1.ply and, given, its twin field."""
+def _run(tmp_path, tiny, twin=None, fields=None):
+    """A run folder of the tiny scene with model_stage1.ply and, given, its twin field, or its two
+    stage-1 fields (``fields(g)`` -> the second; the first is ``g``)."""
     run = tmp_path / "run"
     run.mkdir()
     (run / "config.json").write_text(json.dumps({"scene": {"source": "tiny"}}))
@@ -36,6 +37,10 @@ def _run(tmp_path, tiny, twin=None):
     save_ply(g.to_model(), run / "model_stage1.ply")
     if twin is not None:
         save_ply(twin(g).to_model(), run / "model_stage1_twin.ply")
+    if fields is not None:
+        for k, field in enumerate((g, fields(g))):
+            (run / "fields" / f"field{k}").mkdir(parents=True)
+            save_ply(field.to_model(), run / "fields" / f"field{k}" / "model.ply")
     return run
 
 
@@ -67,35 +72,35 @@ def _counting(renders):
 
 
 def test_every_model_of_a_run_has_the_runs_twin(tmp_path):
-    from app.files import twin_path
+    from app.files import twin_pair
 
     run = tmp_path / "run"
     run.mkdir()
     (run / "config.json").write_text("{}")
     for name in ("model_stage1.ply", "model_final.ply", "model_edit_1.ply"):
         (run / name).write_bytes(b"ply")
-    assert twin_path(run / "model_final.ply") is None and twin_path(None) is None
+    assert twin_pair(run / "model_final.ply") is None and twin_pair(None) is None
+    first, second = (run / "fields" / f"field{k}" / "model.ply" for k in range(2))
+    for path in (first, second):  # a run of two stage-1 fields: they are compared with each other
+        path.parent.mkdir(parents=True)
+        path.write_bytes(b"ply")
+    for name in ("model_stage1.ply", "model_final.ply", "model_edit_1.ply"):
+        assert twin_pair(run / name) == (first, second)
     (run / "model_stage1_twin.ply").write_bytes(b"ply")
-    for name in ("model_stage1.ply", "model_final.ply", "model_edit_1.ply"):  # as the pipeline's stage 2
-        assert twin_path(run / name) == run / "model_stage1_twin.ply"
-    assert twin_path(run / "model_stage1_twin.ply") is None  # not its own twin
-    second = run / "fields" / "field1" / "model.ply"  # a run of two stage-1 fields: its second field
-    second.parent.mkdir(parents=True)
-    second.write_bytes(b"ply")
-    assert twin_path(run / "model_final.ply") == run / "model_stage1_twin.ply"  # co_fields' twin first
-    (run / "model_stage1_twin.ply").unlink()
-    assert twin_path(run / "model_final.ply") == second and twin_path(second) is None
+    for name in ("model_stage1.ply", "model_final.ply", "model_edit_1.ply"):  # co_fields' twin first, as stage 2
+        assert twin_pair(run / name) == (None, run / "model_stage1_twin.ply")
+    assert twin_pair(run / "model_stage1_twin.ply") == (first, second)  # not its own twin
     (tmp_path / "bare.ply").write_bytes(b"ply")  # outside a run: <stem>_twin beside it
-    assert twin_path(tmp_path / "bare.ply") is None
+    assert twin_pair(tmp_path / "bare.ply") is None
     (tmp_path / "bare_twin.ply").write_bytes(b"ply")
-    assert twin_path(tmp_path / "bare.ply") == tmp_path / "bare_twin.ply"
+    assert twin_pair(tmp_path / "bare.ply") == (None, tmp_path / "bare_twin.ply")
 
 
 def test_without_a_twin_the_mode_is_greyed_out_and_says_how_to_get_one(make_viewer, tiny, tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "cfg"))
     d = _open(make_viewer, _run(tmp_path, tiny))
     v = d.viewer
-    assert v.twin_path() is None
+    assert v.twin_pair() is None
     x, y = _radio(d, monkeypatch)
     for _ in range(30):  # rest on it: its tooltip says why and how
         d.move(x, y)
@@ -119,7 +124,7 @@ def test_an_identical_twin_gives_an_all_zero_map(make_viewer, tiny, tmp_path, mo
     render_twin, calls = _counting(TwinRenders())
     d = _open(make_viewer, _run(tmp_path, tiny, twin=lambda g: g), render_twin)
     v = d.viewer
-    assert v.twin_path().name == "model_stage1_twin.ply"
+    assert v.twin_pair()[1].name == "model_stage1_twin.ply"
     d.click(*_radio(d, monkeypatch))
     assert v.state.debug_mode == "undetermined"
     d.settle()
@@ -130,6 +135,23 @@ def test_an_identical_twin_gives_an_all_zero_map(make_viewer, tiny, tmp_path, mo
     lg = legend(v)
     assert (lg.lo, lg.hi, lg.title) == (0.0, 1.0, UNDETERMINED_TITLE)
     assert lg.note == "0.0% of the view undetermined (map >= 0.5)"
+
+
+def test_a_run_of_two_fields_maps_where_its_fields_disagree(make_viewer, tiny, tmp_path, monkeypatch):
+    """Both fields are rendered through the injected twin renderer, whatever model is shown."""
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "cfg"))
+    seen = []
+
+    def render_twin(path, background, backend):
+        seen.append(path.parent.name)
+        return TwinRenders()(path, background, backend)
+
+    d = _open(make_viewer, _run(tmp_path, tiny, fields=_half_recoloured), render_twin, snap=False)
+    v = d.viewer
+    v.state.debug_mode = "undetermined"
+    d.settle()
+    assert set(seen) == {"field0", "field1"}
+    assert 0.2 < v.undetermined_share < 0.8
 
 
 def _half_recoloured(g):
