@@ -101,7 +101,7 @@ class TrainingConfig:
     # chaotic in its seed, and the merged model keeps what the fields agree on at full strength
     # and what one guessed at half. Each field has the budget above; stage 2 and the matched
     # control get fields x the budget. 2 against 1 on the validation cameras, paired over seeds
-    # 0-2: docs/decisions/two-fields.md.
+    # 0-4: docs/decisions/two-fields.md.
     fields: int = 2
 
     # -- observed loss ---------------------------------------------------------------------
