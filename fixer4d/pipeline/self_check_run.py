@@ -168,7 +168,7 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
     from fixer4d.scene.train_view import TrainOnlyView
     from fixer4d.train.background import resolve_background
     from fixer4d.train.config import matched_config
-    from fixer4d.train.fields import field_seed, train_fields
+    from fixer4d.train.fields import field_seed, merged_training, train_fields
     from fixer4d.train.model_init import model_from_init
     from fixer4d.train.trainer import Trainer
 
@@ -234,8 +234,7 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
         score = _held_back_psnr(model, scored, held, eval_frames, backend, background)
         parts.finish(name, seconds + time.perf_counter() - t0, frames=score)
 
-    # the candidates continue the fold's model: the Gaussian budget of all its fields
-    refine_cfg = dataclasses.replace(cfg1, max_gaussians=cfg1.max_gaussians * cfg1.fields)
+    refine_cfg = merged_training(cfg1)  # the candidates continue the fold's merged model
     if sc.allow_continue and "continue" not in parts.psnr:
         candidate("continue", Trainer(copy.deepcopy(base), views, matched_config(refine_cfg, config.stage2),
                                       run_dir=out_dir / "continue", camera_response=copy.deepcopy(response)))

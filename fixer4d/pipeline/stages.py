@@ -111,9 +111,10 @@ class StageContext:
 
     def refine_training_config(self):
         """The TrainingConfig of the trainings that continue the main stage-1 model (stage 2, the
-        matched control): the Gaussian budget of all its ``training.fields`` merged fields."""
-        t = self.config.training
-        return self.training_config(max_gaussians=t.max_gaussians * t.fields)
+        matched control): ``train.fields.merged_training``."""
+        from fixer4d.train.fields import merged_training
+
+        return merged_training(self.training_config())
 
 
 # ---------------------------------------------------------------------------------------------

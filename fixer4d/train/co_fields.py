@@ -38,13 +38,13 @@ from fixer4d.model.term_revisions import TemporalStats
 from fixer4d.model.terms import ModelTermsConfig
 from fixer4d.train.checkpoints import list_checkpoints, read_checkpoint, remove_partial_checkpoints
 from fixer4d.train.co_fields_config import CoFieldsConfig
+from fixer4d.train.fields import FIELD_SEED_OFFSET
 from fixer4d.train.trainer import Trainer
 
 log = logging.getLogger("fixer4d.train")
 
-# Field B's seed is field A's plus this: far from the seeds a study sweeps (0, 1, 2, ...), so that
-# the twin of one run never repeats the field A of another.
-TWIN_SEED_OFFSET = 1_000_003
+# Field B's seed is field A's plus this: the offset of a second stage-1 field (train.fields).
+TWIN_SEED_OFFSET = FIELD_SEED_OFFSET
 # Field B's folder inside the run folder (its checkpoints), and field B itself beside field A's
 # model_stage1.ply.
 TWIN_DIR = "twin"

@@ -34,6 +34,7 @@ from fixer4d.model.camera_response import CameraResponse
 from fixer4d.model.spacetime import SpacetimeGaussians
 
 if TYPE_CHECKING:
+    from fixer4d.train.config import TrainingConfig
     from fixer4d.train.trainer import Trainer
 
 # Field k's seed is the run's plus k times this: far from the seeds a study sweeps (0, 1, 2, ...),
@@ -49,6 +50,14 @@ FIELD_RECORD = "field.json"
 def field_seed(seed: int, field: int) -> int:
     """The training seed of field ``field`` (0-based) of a run with ``seed``; field 0 keeps it."""
     return int(seed) + int(field) * FIELD_SEED_OFFSET
+
+
+def merged_training(training: "TrainingConfig") -> "TrainingConfig":
+    """``training`` for the trainings that continue a merged model (stage 2, the matched control,
+    the self-check's candidates): the Gaussian budget of all its ``training.fields`` fields."""
+    import dataclasses
+
+    return dataclasses.replace(training, max_gaussians=training.max_gaussians * training.fields)
 
 
 def field_dir(run_dir: str | Path, field: int) -> Path:
@@ -170,4 +179,4 @@ def _load_record(directory: Path) -> tuple[float, CameraResponse | None, dict[st
 
 
 __all__ = ["FIELD_SEED_OFFSET", "FIELDS_DIR", "FIELD_MODEL", "FIELD_RECORD", "field_seed", "field_dir",
-           "merge_fields", "mean_response", "train_fields", "TrainedFields"]
+           "merged_training", "merge_fields", "mean_response", "train_fields", "TrainedFields"]
