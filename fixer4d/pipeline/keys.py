@@ -9,6 +9,7 @@ from typing import Any
 
 from fixer4d.pipeline.config import RunConfig
 from fixer4d.pipeline.run_folder import stage_key
+from fixer4d.pipeline.self_check import fold_fields
 from fixer4d.train.checkpoints import result_settings
 from fixer4d.train.device import device_kind
 
@@ -122,7 +123,8 @@ def matched_key(config: RunConfig) -> str:
     from fixer4d.train.config import matched_config
 
     continued = matched_config(config.training, config.stage2).to_dict()
-    return stage_key("matched", stage1_key(config, config.init_method), training_settings(continued))
+    apart = ("fields_apart",) if config.stage2.fields == "apart" and config.training.fields > 1 else ()
+    return stage_key("matched", stage1_key(config, config.init_method), training_settings(continued), *apart)
 
 
 # The self-check's settings that only decide from the fold's figures: changing them re-decides
@@ -140,6 +142,7 @@ def self_check_key(config: RunConfig) -> str:
             fold.pop(name)
     # a learned restorer is trained again inside the fold, on the fold's cameras only
     own_restorer = ("fold_restorer",) if config.restorer.kind == "learned" else ()
-    # the fold trains stage 1 as the run's fields merged (train.fields)
-    fields = ("fold_fields", config.training.fields) if config.training.fields > 1 else ()
+    # the fold's stage 1: the run's fields merged (train.fields), or one field (pipeline.self_check.fold_fields)
+    n = fold_fields(config)
+    fields = ("fold_fields", n) if n > 1 else ()
     return stage_key("self_check", stage2_key(config), fold, config.init_frame_stride, *own_restorer, *fields)

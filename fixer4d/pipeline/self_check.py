@@ -129,6 +129,14 @@ class SelfCheckConfig:
         return [int(train_ids[(self.fold + k) % n]) for k in range(min(self.cameras, n))]
 
 
+def fold_fields(config) -> int:
+    """How many fields the fold's stage 1 trains: the run's ``training.fields``, merged, when stage 2
+    continues the merged model; one when it continues each field apart (``stage2.fields=apart``),
+    since the run then refines every field as one field's model, which is what one field's fold
+    checks, at half the fold's training."""
+    return 1 if config.stage2.fields == "apart" else config.training.fields
+
+
 def gains(frames: dict[str, Sequence[float]], baseline: str = "skip") -> dict[str, dict[str, float | None]]:
     """{candidate: {"gain_db", "se_db"}}: each other candidate's paired gain over ``baseline``
     (``frames``: candidate -> PSNR per unit, dB: per scored frame of one fold, or per fold), mean

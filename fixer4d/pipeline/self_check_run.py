@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from fixer4d.pipeline.self_check import DECISION_FILE, decide, gains
+from fixer4d.pipeline.self_check import DECISION_FILE, decide, fold_fields, gains
 
 log = logging.getLogger("fixer4d.pipeline")
 
@@ -187,7 +187,7 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
         run_init(views, config.init.method, init_dir, frames=frames, config=config.init, progress=False)
         parts.finish("init", time.perf_counter() - t0)
 
-    cfg1 = dataclasses.replace(sc.fold_training(config.training), progress=progress)
+    cfg1 = dataclasses.replace(sc.fold_training(config.training), fields=fold_fields(config), progress=progress)
     if "stage1" not in parts.seconds:
         init = DecomposedInit.load(init_dir) if has_decomposed(init_dir) else load_frame_clouds(init_dir)
 

@@ -326,17 +326,44 @@ def restorer_summary(ctx: StageContext) -> dict[str, Any]:
     return out
 
 
+# A field's own stage 2 and matched control, when they continue the fields apart: RUN/fields/field<k>/<dir>/
+STAGE2_DIR = "stage2"
+MATCHED_DIR = "matched"
+
+
+def refines_apart(ctx: StageContext) -> bool:
+    """Stage 2 and the matched control continue each of stage 1's fields apart (``stage2.fields``)."""
+    return ctx.config.stage2.fields == "apart" and ctx.config.training.fields > 1
+
+
+def field_refine_configs(ctx: StageContext, field: int):
+    """(TrainingConfig, Stage2Config) of field ``field``'s own continuation: one field's budget,
+    the field's seeds (``train.fields.field_seed``) for training and for stage 2's draws."""
+    from fixer4d.train.fields import field_seed
+
+    cfg = ctx.training_config()
+    return (dataclasses.replace(cfg, seed=field_seed(cfg.seed, field)),
+            dataclasses.replace(ctx.config.stage2, seed=field_seed(ctx.config.stage2.seed, field)))
+
+
 def stage2(ctx: StageContext, model, refresh: Callable[[Any, int], None] | None = None):
     """Restoration-guided refinement of the stage-1 ``model`` -> RUN/model_final.ply.
 
     refresh: the cache refresh (default: the pipeline's, restoring the configured trajectories).
+    With ``stage2.fields=apart`` each of stage 1's fields is refined on its own (RUN/fields/
+    field<k>/stage2/; field 0's pseudo-targets in RUN/cache) and the refined fields are merged.
     When the stage's settings changed since an earlier attempt, that attempt's cache and
     checkpoints are moved aside (RUN/stale/) so no stale pseudo-target is reused."""
     from fixer4d.model.io import load_ply, save_ply
     from fixer4d.pipeline.restoration import make_refresh_callback, twin_weight_for
     from fixer4d.restore.cache import RestoreCache
+    from fixer4d.train.fields import field_dir, load_field, train_fields
     from fixer4d.train.trainer import Trainer
 
+    if refines_apart(ctx) and (refresh is not None or ctx.config.segments.static_from is not None):
+        raise InputError("stage2.fields=apart refines stage 1's fields one by one; a given cache refresh or a segment "
+                         "sharing another's static Gaussians (segments.static_from) refines the merged model: set "
+                         "stage2.fields=merged")
     final = ctx.path / "model_final.ply"
     key = stage2_key(ctx.config)
     if ctx.run.records.done("stage2", key) and final.exists():
@@ -344,23 +371,43 @@ def stage2(ctx: StageContext, model, refresh: Callable[[Any, int], None] | None 
     if ctx.run.records.begin("stage2", key):
         _clear(ctx.path / "cache")
         _drop_checkpoints(ctx.path, 2)
+        for k in range(ctx.config.training.fields):
+            _clear(field_dir(ctx.path, k, STAGE2_DIR), keep_aside=False)
     t0 = time.perf_counter()
     if ctx.config.segments.static_from is not None:  # beside the first segment's refined static rows
         from fixer4d.pipeline.shared_static import load_shared, swap_shared_static
 
         model = swap_shared_static(model, load_shared(ctx.config.segments.static_from, "final"))
-    if refresh is None:
+    def refresh_for(cache_dir: Path, restorer=None):
         from fixer4d.pipeline.executors import executor_for
 
-        refresh = make_refresh_callback(ctx.path, ctx.train_scene, ctx.config, progress=ctx.progress, backend=ctx.backend,
-                                        executor=executor_for(ctx.config.executor),
-                                        twin=twin_weight_for(ctx.config, ctx.path))
-    trainer = Trainer(model, ctx.train_scene, ctx.refine_training_config(), run_dir=ctx.path, stage2=ctx.config.stage2,
-                      cache=RestoreCache(ctx.path / "cache", fingerprint=key), refresh_cache=refresh,
-                      camera_response=stage1_response(ctx))
-    prior = trainer.train_seconds if trainer.resume() else 0.0
-    trainer.train()
-    model = trainer.host_model()
+        return make_refresh_callback(cache_dir, ctx.train_scene, ctx.config, progress=ctx.progress, backend=ctx.backend,
+                                     executor=executor_for(ctx.config.executor), restorer=restorer,
+                                     twin=twin_weight_for(ctx.config, ctx.path))
+    if refines_apart(ctx):
+        from fixer4d.pipeline.restoration import run_restorer
+
+        restorer = run_restorer(ctx.config, ctx.path)
+
+        def make_trainer(k: int, out: Path):
+            field_model, response = load_field(ctx.path, k)
+            cfg, stage2_cfg = field_refine_configs(ctx, k)
+            # field 0's pseudo-targets are the run's cache (RUN/cache, what the viewer shows)
+            cache_dir = ctx.path if k == 0 else out
+            return Trainer(field_model, ctx.train_scene, cfg, run_dir=out, stage2=stage2_cfg,
+                           cache=RestoreCache(cache_dir / "cache", fingerprint=key),
+                           refresh_cache=refresh_for(cache_dir, restorer), camera_response=response)
+
+        done = train_fields(make_trainer, ctx.config.training.fields, ctx.path, label="stage 2", step=STAGE2_DIR,
+                            finished=lambda out: _finished(ctx, out, 2))
+        model, prior = done.model, done.prior_seconds
+    else:
+        trainer = Trainer(model, ctx.train_scene, ctx.refine_training_config(), run_dir=ctx.path,
+                          stage2=ctx.config.stage2, cache=RestoreCache(ctx.path / "cache", fingerprint=key),
+                          refresh_cache=refresh or refresh_for(ctx.path), camera_response=stage1_response(ctx))
+        prior = trainer.train_seconds if trainer.resume() else 0.0
+        trainer.train()
+        model = trainer.host_model()
     save_ply(model, final)
     ctx.run.records.finish("stage2", key, time.perf_counter() - t0 + prior)
     _finished(ctx, ctx.path, 2)
@@ -372,6 +419,8 @@ def matched_stage1(ctx: StageContext, model):
     densification window but no pseudo-views -> RUN/matched/model.ply: the control that shows the
     gain of stage 2 is the restorer's, not extra training."""
     from fixer4d.model.io import load_ply, save_ply
+    from fixer4d.train.config import matched_config
+    from fixer4d.train.fields import field_dir, load_field, train_fields
     from fixer4d.train.trainer import Trainer
 
     out = ctx.path / "matched"
@@ -381,15 +430,26 @@ def matched_stage1(ctx: StageContext, model):
         return load_ply(path)
     if ctx.run.records.begin("matched", key):
         _drop_checkpoints(out, 1)
-    from fixer4d.train.config import matched_config
-
-    cfg = matched_config(ctx.refine_training_config(), ctx.config.stage2)
+        for k in range(ctx.config.training.fields):
+            _clear(field_dir(ctx.path, k, MATCHED_DIR), keep_aside=False)
     t0 = time.perf_counter()
-    # a copy: the Trainer updates its model in place, and stage 2 must start from the stage-1 model
-    trainer = Trainer(copy.deepcopy(model), ctx.train_scene, cfg, run_dir=out, camera_response=stage1_response(ctx))
-    prior = trainer.train_seconds if trainer.resume() else 0.0
-    trainer.train()
-    model = trainer.host_model()
+    if refines_apart(ctx):
+        def make_trainer(k: int, directory: Path):
+            field_model, response = load_field(ctx.path, k)
+            cfg, stage2_cfg = field_refine_configs(ctx, k)
+            return Trainer(field_model, ctx.train_scene, matched_config(cfg, stage2_cfg), run_dir=directory,
+                           camera_response=response)
+
+        done = train_fields(make_trainer, ctx.config.training.fields, ctx.path, label="matched control",
+                            step=MATCHED_DIR, finished=lambda directory: _finished(ctx, directory, 1))
+        model, prior = done.model, done.prior_seconds
+    else:
+        cfg = matched_config(ctx.refine_training_config(), ctx.config.stage2)
+        # a copy: the Trainer updates its model in place, and stage 2 must start from the stage-1 model
+        trainer = Trainer(copy.deepcopy(model), ctx.train_scene, cfg, run_dir=out, camera_response=stage1_response(ctx))
+        prior = trainer.train_seconds if trainer.resume() else 0.0
+        trainer.train()
+        model = trainer.host_model()
     save_ply(model, path)
     ctx.run.records.finish("matched", key, time.perf_counter() - t0 + prior)
     _finished(ctx, out, 1)

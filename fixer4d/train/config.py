@@ -256,7 +256,10 @@ class TrainingConfig:
 
 
 # Stage2Config fields added after runs existed, with the behaviour those runs had (``keyed``)
-STAGE2_SETTINGS_BEFORE = (("restore_holes", True),)
+STAGE2_SETTINGS_BEFORE = (("restore_holes", True), ("fields", "merged"))
+# How stage 2 and the matched control continue a stage 1 of several fields (``training.fields``):
+# "merged" trains the merged model, "apart" trains each field on its own and merges after.
+STAGE2_FIELDS = ("merged", "apart")
 
 
 @dataclass
@@ -329,6 +332,13 @@ class Stage2Config:
     # ``visibility.hole_alpha_low``..``high``) takes the restored frame whatever the restorer's
     # confidence (true), or only by confidence x unobserved like any unseen pixel (false).
     restore_holes: bool = True
+    # With ``training.fields`` > 1: "merged" continues the merged model (one training, the fields'
+    # budgets summed); "apart" continues each field with its own seeds and budget and merges the
+    # refined fields (train/fields.py), so that training after the merge cannot undo the
+    # averaging of the fields' independent errors. "merged": apart lost 0.23 dB to it on demo_val
+    # at each of seeds 0-2, gaining 0.1-0.3 on the real splits' at three of four
+    # (docs/decisions/stage2-two-fields.md).
+    fields: str = "merged"
     visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
 
     def __post_init__(self) -> None:
@@ -340,6 +350,8 @@ class Stage2Config:
         if self.densify_stats not in DENSIFY_STATS:
             raise InputError(f"Stage2Config.densify_stats must be one of {', '.join(DENSIFY_STATS)}, "
                              f"got {self.densify_stats!r}")
+        if self.fields not in STAGE2_FIELDS:
+            raise InputError(f"Stage2Config.fields must be one of {', '.join(STAGE2_FIELDS)}, got {self.fields!r}")
         if not 0.0 <= self.observed_weight <= 1.0:
             raise InputError(f"Stage2Config.observed_weight must be in [0, 1], got {self.observed_weight}")
         if isinstance(self.visibility, dict):

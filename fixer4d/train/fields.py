@@ -60,9 +60,11 @@ def merged_training(training: "TrainingConfig") -> "TrainingConfig":
     return dataclasses.replace(training, max_gaussians=training.max_gaussians * training.fields)
 
 
-def field_dir(run_dir: str | Path, field: int) -> Path:
-    """RUN/fields/field<k>/: field ``field``'s checkpoints and finished files."""
-    return Path(run_dir) / FIELDS_DIR / f"field{int(field)}"
+def field_dir(run_dir: str | Path, field: int, step: str | None = None) -> Path:
+    """RUN/fields/field<k>/: field ``field``'s stage-1 checkpoints and finished files; with
+    ``step``, its subfolder of a later training that continues the field apart (e.g. "stage2")."""
+    out = Path(run_dir) / FIELDS_DIR / f"field{int(field)}"
+    return out if step is None else out / step
 
 
 def merge_fields(models: Sequence[SpacetimeGaussians]) -> SpacetimeGaussians:
@@ -126,20 +128,22 @@ class TrainedFields:
 
 
 def train_fields(make_trainer: Callable[[int, Path], "Trainer"], fields: int, run_dir: str | Path,
-                 finished: Callable[[Path], None] | None = None, label: str = "stage 1") -> TrainedFields:
+                 finished: Callable[[Path], None] | None = None, label: str = "stage 1",
+                 step: str | None = None) -> TrainedFields:
     """Train ``fields`` fields one after the other and merge them (``merge_fields``).
 
     make_trainer(k, directory): field k's untrained Trainer (seed ``field_seed(seed, k)``, its
-    model drawn from the init with that seed), checkpointing under ``directory``
-    (``field_dir(run_dir, k)``). A field whose model is already in its folder is read back, the
-    one in progress resumes from its checkpoints; each finished field writes its model and record
-    there, then ``finished(directory)`` runs (e.g. to drop the field's checkpoints).
-    label: what the progress bars call the training ("<label>, field k/n")."""
+    model drawn from the init with that seed, or for a later ``step`` the field's stage-1 model,
+    ``load_field``), checkpointing under ``directory`` (``field_dir(run_dir, k, step)``). A field whose
+    model is already in its folder is read back, the one in progress resumes from its checkpoints;
+    each finished field writes its model and record there, then ``finished(directory)`` runs (e.g.
+    to drop the field's checkpoints). label: what the progress bars call the training
+    ("<label>, field k/n")."""
     from fixer4d.model.io import load_ply, save_ply
 
     models, responses, revisions, prior = [], [], {}, 0.0
     for k in range(fields):
-        out = field_dir(run_dir, k)
+        out = field_dir(run_dir, k, step)
         if (out / FIELD_MODEL).exists() and (out / FIELD_RECORD).exists():
             seconds, response, counts = _load_record(out)
             models.append(load_ply(out / FIELD_MODEL))
@@ -163,6 +167,17 @@ def train_fields(make_trainer: Callable[[int, Path], "Trainer"], fields: int, ru
     return TrainedFields(merge_fields(models), mean_response(responses), revisions, prior)
 
 
+def load_field(run_dir: str | Path, field: int, step: str | None = None) -> tuple[SpacetimeGaussians, CameraResponse | None]:
+    """Field ``field``'s finished model and camera response (of stage 1, or of ``step``)."""
+    from fixer4d.model.io import load_ply
+
+    out = field_dir(run_dir, field, step)
+    if not ((out / FIELD_MODEL).is_file() and (out / FIELD_RECORD).is_file()):
+        raise InputError(f"{out} holds no finished field ({FIELD_MODEL} and {FIELD_RECORD}); run stage 1 again "
+                         f"(fixer4d run ... resumes it)")
+    return load_ply(out / FIELD_MODEL), _load_record(out)[1]
+
+
 def _save_record(directory: Path, seconds: float, response: CameraResponse | None, revisions: dict[str, int]) -> None:
     """A finished field's record beside its model (written last: a field is finished when both are)."""
     from fixer4d.atomic import write_json
@@ -179,4 +194,4 @@ def _load_record(directory: Path) -> tuple[float, CameraResponse | None, dict[st
 
 
 __all__ = ["FIELD_SEED_OFFSET", "FIELDS_DIR", "FIELD_MODEL", "FIELD_RECORD", "field_seed", "field_dir",
-           "merged_training", "merge_fields", "mean_response", "train_fields", "TrainedFields"]
+           "merged_training", "merge_fields", "load_field", "mean_response", "train_fields", "TrainedFields"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 
+import pytest
 import torch
 
 from pipeline_tiny import run_spied, tiny_config
@@ -101,3 +102,69 @@ def test_a_later_segment_merges_its_fields_around_the_shared_static_rows(tmp_pat
     assert torch.equal(later.means[later.frozen], rows.means)
     assert torch.equal(later.opacity_logits[later.frozen], rows.opacity_logits)
     assert float(torch.sigmoid(later.opacity_logits[~later.frozen].detach()).max()) <= 0.5 + 1e-6
+
+
+def test_stage2_fields_keys_a_run_only_when_apart():
+    from fixer4d.pipeline.keys import matched_key, stage2_key
+    from fixer4d.train.config import Stage2Config
+
+    from fixer4d.errors import InputError
+
+    assert "fields" not in Stage2Config().keyed()
+    with pytest.raises(InputError, match="merged, apart"):
+        Stage2Config(fields="both")
+    merged, apart = tiny_config(**TWO), tiny_config(**TWO, **{"stage2.fields": "apart"})
+    assert stage2_key(apart) != stage2_key(merged) and matched_key(apart) != matched_key(merged)
+    # one field has nothing to refine apart: the matched control is the same training
+    one = tiny_config(**{"training.fields": 1})
+    assert matched_key(tiny_config(**{"training.fields": 1, "stage2.fields": "apart"})) == matched_key(one)
+
+
+def test_stage2_apart_refines_each_field_and_merges_the_refined_fields(tmp_path, stage_cache):
+    """stage2.fields=apart: stage 2 and the matched control continue each field on its own (its
+    own budget, seeds and camera response) and the final model is the merge of the refined fields."""
+    from fixer4d.model.io import load_ply
+    from fixer4d.pipeline.stages import MATCHED_DIR, STAGE2_DIR
+    from fixer4d.train.fields import FIELD_MODEL, field_dir, merge_fields
+
+    run_dir = tmp_path / "apart"
+    config = tiny_config(**TWO, **{"stage2.fields": "apart"})
+    report, spy = run_spied(config, run_dir, stage_cache)
+    assert not spy.violations
+    for step, merged_path in ((STAGE2_DIR, run_dir / "model_final.ply"), (MATCHED_DIR, run_dir / "matched" / "model.ply")):
+        refined = [load_ply(field_dir(run_dir, k, step) / FIELD_MODEL) for k in range(2)]
+        stage1 = [load_ply(field_dir(run_dir, k) / FIELD_MODEL) for k in range(2)]
+        for r, s in zip(refined, stage1):  # each field was trained on, within one field's budget
+            assert r.num_gaussians <= config.training.max_gaussians
+            assert r.num_gaussians != s.num_gaussians or not torch.equal(r.means, s.means)
+        merged = load_ply(merged_path)
+        torch.testing.assert_close(merged.opacity_logits, merge_fields(refined).opacity_logits)
+        torch.testing.assert_close(merged.means, merge_fields(refined).means)
+        assert not list(field_dir(run_dir, 0, step).glob("*.pt"))  # a finished stage drops its checkpoints
+    from fixer4d.restore.cache import RestoreCache
+
+    # field 0's pseudo-targets are the run's cache (the viewer's), field 1's its own
+    assert RestoreCache(run_dir / "cache").entries() and RestoreCache(field_dir(run_dir, 1, STAGE2_DIR) / "cache").entries()
+    rows = {r["method"]: r for r in report["rows"]}
+    assert rows["Full"]["status"] == "ok" and rows["STGS w/ MVS (matched iterations)"]["status"] == "ok"
+
+
+def test_with_fields_refined_apart_the_fold_checks_one_field(tmp_path, stage_cache, monkeypatch):
+    """stage2.fields=apart refines every field as one field's model, so the fold trains one field."""
+    import fixer4d.train.fields as fields_module
+    from fixer4d.pipeline.self_check import fold_fields
+
+    apart = tiny_config(**{"training.fields": 2, "stage2.fields": "apart"})
+    assert fold_fields(apart) == 1 and fold_fields(tiny_config(**{"training.fields": 2})) == 2
+    labels = []
+    train_fields = fields_module.train_fields
+
+    def spy(*args, **kwargs):
+        labels.append(kwargs.get("label"))
+        return train_fields(*args, **kwargs)
+
+    monkeypatch.setattr(fields_module, "train_fields", spy)
+    report, spy_access = run_spied(apart, tmp_path / "apart_checked", stage_cache)
+    assert not spy_access.violations
+    assert "self-check fold" not in labels and report["self_check"]["decision"] in ("skip", "refine")
+    assert (tmp_path / "apart_checked" / "self_check" / "parts.json").is_file()

@@ -12,7 +12,7 @@ from fixer4d.pipeline.restoration import make_refresh_callback
 from fixer4d.pipeline.run_folder import load_scene_for
 from fixer4d.restore.cache import RestoreCache
 from fixer4d.train.checkpoints import training_settings
-from fixer4d.train.config import Stage2Config
+from fixer4d.train.config import STAGE2_SETTINGS_BEFORE, Stage2Config
 from pipeline_tiny import tiny_config
 
 
@@ -23,7 +23,7 @@ def test_the_default_enters_no_key_and_the_other_value_does():
     off = tiny_config(**{"restorer.kind": "warp", "stage2.restore_holes": False})
     assert stage2_key(off) != stage2_key(base) and self_check_key(off) != self_check_key(base)
     assert training_settings(base.training, base.stage2)["stage2"] == {
-        k: v for k, v in base.stage2.to_dict().items() if k != "restore_holes"}
+        k: v for k, v in base.stage2.to_dict().items() if k not in dict(STAGE2_SETTINGS_BEFORE)}
 
 
 def test_the_targets_differ_only_in_holes(tmp_path):
