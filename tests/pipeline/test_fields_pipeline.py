@@ -125,6 +125,7 @@ def test_stage2_apart_refines_each_field_and_merges_the_refined_fields(tmp_path,
     own budget, seeds and camera response) and the final model is the merge of the refined fields."""
     from fixer4d.model.io import load_ply
     from fixer4d.pipeline.stages import MATCHED_DIR, STAGE2_DIR
+    from fixer4d.restore.cache import RestoreCache
     from fixer4d.train.fields import FIELD_MODEL, field_dir, merge_fields
 
     run_dir = tmp_path / "apart"
@@ -141,8 +142,6 @@ def test_stage2_apart_refines_each_field_and_merges_the_refined_fields(tmp_path,
         torch.testing.assert_close(merged.opacity_logits, merge_fields(refined).opacity_logits)
         torch.testing.assert_close(merged.means, merge_fields(refined).means)
         assert not list(field_dir(run_dir, 0, step).glob("*.pt"))  # a finished stage drops its checkpoints
-    from fixer4d.restore.cache import RestoreCache
-
     # field 0's pseudo-targets are the run's cache (the viewer's), field 1's its own
     assert RestoreCache(run_dir / "cache").entries() and RestoreCache(field_dir(run_dir, 1, STAGE2_DIR) / "cache").entries()
     rows = {r["method"]: r for r in report["rows"]}
