@@ -121,9 +121,10 @@ def matched_key(config: RunConfig) -> str:
     """The matched-iterations control: the stage-1 model and the training it continues with
     (``matched_config``), so stage-2 settings it never reads (the pseudo-targets') leave it as it is."""
     from fixer4d.train.config import matched_config
+    from fixer4d.train.fields import refined_apart
 
     continued = matched_config(config.training, config.stage2).to_dict()
-    apart = ("fields_apart",) if config.stage2.fields == "apart" and config.training.fields > 1 else ()
+    apart = ("fields_apart",) if refined_apart(config.training, config.stage2) else ()
     return stage_key("matched", stage1_key(config, config.init_method), training_settings(continued), *apart)
 
 

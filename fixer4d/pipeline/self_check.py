@@ -134,7 +134,9 @@ def fold_fields(config) -> int:
     continues the merged model; one when it continues each field apart (``stage2.fields=apart``),
     since the run then refines every field as one field's model, which is what one field's fold
     checks, at half the fold's training."""
-    return 1 if config.stage2.fields == "apart" else config.training.fields
+    from fixer4d.train.fields import refined_apart
+
+    return 1 if refined_apart(config.training, config.stage2) else config.training.fields
 
 
 def gains(frames: dict[str, Sequence[float]], baseline: str = "skip") -> dict[str, dict[str, float | None]]:

@@ -333,7 +333,9 @@ MATCHED_DIR = "matched"
 
 def refines_apart(ctx: StageContext) -> bool:
     """Stage 2 and the matched control continue each of stage 1's fields apart (``stage2.fields``)."""
-    return ctx.config.stage2.fields == "apart" and ctx.config.training.fields > 1
+    from fixer4d.train.fields import refined_apart
+
+    return refined_apart(ctx.config.training, ctx.config.stage2)
 
 
 def field_refine_configs(ctx: StageContext, field: int):

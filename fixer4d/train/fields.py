@@ -34,7 +34,7 @@ from fixer4d.model.camera_response import CameraResponse
 from fixer4d.model.spacetime import SpacetimeGaussians
 
 if TYPE_CHECKING:
-    from fixer4d.train.config import TrainingConfig
+    from fixer4d.train.config import Stage2Config, TrainingConfig
     from fixer4d.train.trainer import Trainer
 
 # Field k's seed is the run's plus k times this: far from the seeds a study sweeps (0, 1, 2, ...),
@@ -58,6 +58,11 @@ def merged_training(training: "TrainingConfig") -> "TrainingConfig":
     import dataclasses
 
     return dataclasses.replace(training, max_gaussians=training.max_gaussians * training.fields)
+
+
+def refined_apart(training: "TrainingConfig", stage2: "Stage2Config") -> bool:
+    """Stage 2 and the matched control continue each of several fields apart (``stage2.fields``)."""
+    return stage2.fields == "apart" and training.fields > 1
 
 
 def field_dir(run_dir: str | Path, field: int, step: str | None = None) -> Path:
@@ -194,4 +199,4 @@ def _load_record(directory: Path) -> tuple[float, CameraResponse | None, dict[st
 
 
 __all__ = ["FIELD_SEED_OFFSET", "FIELDS_DIR", "FIELD_MODEL", "FIELD_RECORD", "field_seed", "field_dir",
-           "merged_training", "merge_fields", "load_field", "mean_response", "train_fields", "TrainedFields"]
+           "merged_training", "refined_apart", "merge_fields", "load_field", "mean_response", "train_fields", "TrainedFields"]
