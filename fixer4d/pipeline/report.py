@@ -35,10 +35,11 @@ def metrics_row(method: str, metrics: dict[str, Any], seconds: float | None) -> 
     return row
 
 
-def copied_row(method: str, metrics: dict[str, Any]) -> dict[str, Any]:
-    """A row whose images are another row's (the identity baseline is the stage-1 render): its
-    metrics, under ``method``, with no time of its own."""
-    row = metrics_row(method, metrics, None)
+def copied_row(method: str, metrics: dict[str, Any], seconds: float | None = None) -> dict[str, Any]:
+    """A row whose images are another row's (the identity baseline is the stage-1 render; the final
+    model where the self-check kept stage 1): its metrics, under ``method``, with ``seconds``
+    (None: no time of its own)."""
+    row = metrics_row(method, metrics, seconds)
     row["same_as"] = metrics.get("method")
     return row
 

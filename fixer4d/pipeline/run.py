@@ -70,6 +70,9 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
     torch.manual_seed(config.seed)
     if ctx.progress:
         print(f"[fixer4d] {ctx.scene.describe()}", flush=True)
+        note = numerics.lock_note(numerics.lock_differences())
+        if note:
+            print(f"[fixer4d] note: {note}", flush=True)
     rec = ctx.run.records
     report = _Report(ctx)
     method = config.init_method
@@ -94,8 +97,9 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
     # restored renders replace the render only where the train cameras leave a pixel unobserved
     # (eval.gate_restoration; None: the paper's restoration rows, every pixel)
     gate = config.stage2.visibility if config.eval.gate_restoration else None
+    restored_init = None
     if restorer is not None and config.eval.restoration_rows:
-        _stage1_restoration_rows(ctx, report, model, restorer, gate, unobserved, m, s1_key)
+        restored_init = _stage1_restoration_rows(ctx, report, model, restorer, gate, unobserved, m, s1_key)
 
     # -- stage 2: (restore -> refine) x R, checked on a held-back train camera, and its matched-
     # iterations control
@@ -107,7 +111,10 @@ def run_stages(ctx: S.StageContext) -> dict[str, Any]:
         model = S.final_stage(ctx, model, check["decision"])
         if check["decision"] == "refine":
             report.checks["pseudo_views"] = pseudo_view_summary(ctx.path / "cache")
-        final_metrics = _final_rows(ctx, report, model, check["decision"], restorer, gate, unobserved)
+        if check["decision"] == "skip":  # the final model is the stage-1 model: its rows are those rows
+            final_metrics = _skipped_final_rows(ctx, report, m, restored_init)
+        else:
+            final_metrics = _final_rows(ctx, report, model, check["decision"], restorer, gate, unobserved)
     else:
         S.retire_stage2(ctx)
     atomic.write_json(ctx.path / "metrics.json", final_metrics)
@@ -167,9 +174,9 @@ def _baseline_sparse_row(ctx: S.StageContext, report: _Report) -> None:
 
 
 def _stage1_restoration_rows(ctx: S.StageContext, report: _Report, model, restorer, gate, unobserved,
-                             stage1_metrics: dict[str, Any], s1_key: str) -> None:
+                             stage1_metrics: dict[str, Any], s1_key: str) -> dict[str, Any]:
     """The rows around the restorer on the stage-1 model: identity (the render itself), a blur
-    of it, and its restoration."""
+    of it, and its restoration; returns the restoration's metrics."""
     config, rec = ctx.config, ctx.run.records
     method = config.init_method
     report.add(R.copied_row(R.ROW_IDENTITY, stage1_metrics))
@@ -185,6 +192,7 @@ def _stage1_restoration_rows(ctx: S.StageContext, report: _Report, model, restor
                          report.seconds("stage1", "restorer"), unobserved)
     report.add(R.metrics_row(R.ROW_RESTORED_INIT, m, rec.seconds(f"init_{method}", "stage1", "restorer")
                              + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_INIT)}")))
+    return m
 
 
 def _matched_row(ctx: S.StageContext, report: _Report, model, unobserved) -> None:
@@ -218,6 +226,20 @@ def _final_rows(ctx: S.StageContext, report: _Report, model, decision: str, rest
         report.add(R.metrics_row(R.ROW_RESTORED_REFINED, m, full_secs
                                  + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_REFINED)}")))
     return final
+
+
+def _skipped_final_rows(ctx: S.StageContext, report: _Report, stage1_metrics: dict[str, Any],
+                        restored_init: dict[str, Any] | None) -> dict[str, Any]:
+    """The final rows where the self-check kept the stage-1 model: its rows under the final rows'
+    names (the same images, not rendered again), with what the final model cost (the check
+    included); returns the final model's metrics."""
+    rec = ctx.run.records
+    full_secs = rec.seconds(f"init_{ctx.config.init_method}", "stage1", "restorer", "self_check", "stage2")
+    report.add(R.copied_row(R.ROW_FULL, stage1_metrics, full_secs))
+    if restored_init is not None:
+        report.add(R.copied_row(R.ROW_RESTORED_REFINED, restored_init, full_secs
+                                + rec.seconds(f"eval:{S.eval_slug(R.ROW_RESTORED_INIT)}")))
+    return {**stage1_metrics, "method": R.ROW_FULL}
 
 
 def _twin(ctx: S.StageContext, gate) -> TwinWeight | None:

@@ -2,7 +2,9 @@
 this one machine by forcing each library's choice the way another CPU would make it (numba's CPU
 name and features, ATen's capability, MKL's and OpenBLAS's code paths, numpy's dispatch): in host
 mode the choices reach the bytes, in portable mode (the default) they do not, down to a whole
-tiny pipeline's model and report."""
+tiny pipeline's model and report. And across real hosts: ``fingerprint.json`` holds those bytes' hashes
+as one host made them with the locked packages; on any other host with the same packages the test
+below compares its own (``FIXER4D_UPDATE_FINGERPRINT=1`` writes the file anew)."""
 from __future__ import annotations
 
 import json
@@ -16,6 +18,8 @@ import pytest
 from fixer4d import numerics
 
 PROBE = Path(__file__).with_name("numerics_probe.py")
+FINGERPRINT = Path(__file__).with_name("fingerprint.json")
+UPDATE_FINGERPRINT = os.environ.get("FIXER4D_UPDATE_FINGERPRINT") == "1"
 # What an AVX-512 Intel Xeon's libraries pick, and what an AVX2-only AMD EPYC's (Zen 3) pick.
 INTEL_AVX512 = {"NUMBA_CPU_NAME": "skylake-avx512",
                 "NUMBA_CPU_FEATURES": "+avx512f,+avx512dq,+avx512bw,+avx512vl,+avx512cd,+avx2,+fma,-prefer-256-bit",
@@ -45,10 +49,43 @@ def _probe(mode: str, host: dict[str, str]) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+def _sha1(data: bytes) -> str:
+    import hashlib
+
+    return hashlib.sha1(data).hexdigest()
+
+
+def _check_fingerprint(part: str, hashes: dict[str, str]) -> None:
+    """Compare ``hashes`` with the committed fingerprint's ``part``, made on another host (or write
+    them there with FIXER4D_UPDATE_FINGERPRINT=1). Skips where this host's packages or thread count
+    are not the fingerprint's: other library versions give other digits on any CPU."""
+    import torch
+
+    from fixer4d.bench.machine import cpu_topology
+
+    here = {"packages": numerics.packages(), "torch_threads": torch.get_num_threads()}
+    committed = json.loads(FINGERPRINT.read_text()) if FINGERPRINT.is_file() else {}
+    if UPDATE_FINGERPRINT:
+        cpu = cpu_topology()
+        made_on = f"{cpu['cpu']} (family {cpu.get('cpu_family')}, model {cpu.get('model')})"
+        FINGERPRINT.write_text(json.dumps({**committed, **here, "made_on": made_on, part: hashes}, indent=1,
+                                          sort_keys=True) + "\n")
+        return
+    if part not in committed:
+        pytest.skip(f"{FINGERPRINT.name} has no {part!r}: write it with FIXER4D_UPDATE_FINGERPRINT=1")
+    for key in here:
+        if here[key] != committed[key]:
+            pytest.skip(f"this host's {key} ({here[key]}) is not the fingerprint's ({committed[key]}): "
+                        f"install the locked set (constraints.txt) to compare digits across hosts")
+    differ = sorted(k for k in hashes if hashes[k] != committed[part].get(k))
+    assert not differ, f"the same packages give other bytes here than on {committed['made_on']}: {differ}"
+
+
 def test_portable_mode_gives_the_same_bytes_under_every_emulated_host():
     intel, amd = _probe("portable", INTEL_AVX512), _probe("portable", AMD_AVX2)
     assert intel["portable"] and amd["portable"]
     assert intel["hashes"] == amd["hashes"]
+    _check_fingerprint("probe", intel["hashes"])
 
 
 @pytest.mark.skipif(not _avx512_host(), reason="emulating an AVX-512 host's code paths needs an AVX-512 CPU")
@@ -106,6 +143,9 @@ def test_a_tiny_pipeline_gives_the_same_model_and_report_on_two_emulated_hosts(t
     assert outputs[0][3] and outputs[1][3]
     assert outputs[0][0] == outputs[1][0] and outputs[0][1] == outputs[1][1]
     assert outputs[0][2] == outputs[1][2]
+    psnr = json.dumps({r["method"]: r.get("psnr") for r in outputs[0][2]}, sort_keys=True)
+    _check_fingerprint("tiny_pipeline", {"model_final.ply": _sha1(outputs[0][0]),
+                                         "model_stage1.ply": _sha1(outputs[0][1]), "rows_psnr": _sha1(psnr.encode())})
 
 
 def test_a_host_mode_child_of_a_portable_process_gets_the_environment_back(monkeypatch):
@@ -131,3 +171,27 @@ def test_the_command_line_switches_numerics_in_a_fresh_process(tmp_path):
     quiet = subprocess.run([sys.executable, "-m", "fixer4d.cli", "eval", str(tmp_path / "none")], env=env,
                            capture_output=True, text=True, timeout=300)
     assert quiet.returncode == 2 and "numerics" not in quiet.stderr
+
+
+def test_the_lock_pins_every_package_that_reaches_the_digits():
+    lock = numerics.read_lock()
+    assert lock is not None, "constraints.txt is missing at the repository's root"
+    wheels = {"opencv-python", "opencv-python-headless"}  # not installed by make setup: they overwrite cv2
+    assert {n for n in numerics.DIGIT_PACKAGES if n not in wheels} <= set(lock)
+    assert not wheels & set(lock)
+
+
+def test_the_lock_differences_name_each_package_off_the_lock(tmp_path):
+    constraints = tmp_path / "constraints.txt"
+    constraints.write_text("# a comment\nnumpy==2.4.6  # pinned\ntorch==2.13.0\n"
+                           "OpenCV_Contrib.Python-Headless==5.0.0.93\n")
+    lock = numerics.read_lock(constraints)
+    assert lock == {"numpy": "2.4.6", "torch": "2.13.0", "opencv-contrib-python-headless": "5.0.0.93"}
+    installed = {"numpy": "2.5.5", "torch": "2.13.0+cpu", "opencv-contrib-python-headless": "5.0.0.93",
+                 "opencv-python": "5.0.0.93"}
+    differences = numerics.lock_differences(installed, lock)
+    assert differences == {"numpy": ["2.5.5", "2.4.6"], "opencv-python": ["5.0.0.93", None]}
+    note = numerics.lock_note(differences)
+    assert "numpy 2.5.5 (locked: 2.4.6)" in note and "opencv-python 5.0.0.93 (locked: not installed)" in note
+    assert numerics.lock_differences(installed, {k: v.split("+")[0] for k, v in installed.items()}) == {}
+    assert numerics.lock_note({}) is None and numerics.read_lock(tmp_path / "absent.txt") is None

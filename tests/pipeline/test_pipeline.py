@@ -17,14 +17,28 @@ def test_report_contract(tiny_run):
     run_dir, report = tiny_run
     on_disk = json.loads((run_dir / "report.json").read_text())
     assert [r["method"] for r in on_disk["rows"]] == list(R.ROW_NAMES)
+    rows = {r["method"]: r for r in on_disk["rows"]}
+    decision = on_disk["self_check"]["decision"]
+    # rows whose images are another row's: the stage-1 render itself (no time of its own), and where
+    # the check kept stage 1 the final rows (what the final model cost, the check included)
+    copied = {R.ROW_IDENTITY: R.ROW_MVS}
+    if decision == "skip":
+        copied.update({R.ROW_FULL: R.ROW_MVS, R.ROW_RESTORED_REFINED: R.ROW_RESTORED_INIT})
+        assert not (run_dir / "eval" / "full").exists()  # not rendered again
+    metric_keys = {"psnr", "dssim1", "dssim2", "lpips", "psnr_dynamic", "psnr_static", "psnr_unobserved",
+                   "psnr_aligned", "unobserved_fraction"}
     for r in on_disk["rows"]:
         assert r["status"] == "ok"
-        keys = {"method", "status", "psnr", "dssim1", "dssim2", "lpips", "psnr_dynamic", "psnr_static",
-                "psnr_unobserved", "psnr_aligned", "unobserved_fraction", "seconds"}
-        if r["method"] == R.ROW_IDENTITY:  # the stage-1 render itself: the MVS row's figures, no time of its own
-            assert set(r) == keys | {"same_as"} and r["same_as"] == R.ROW_MVS and r["seconds"] is None
-            continue
-        assert set(r) == keys
+        keys = {"method", "status", "seconds"} | metric_keys
+        if r["method"] in copied:
+            source = rows[copied[r["method"]]]
+            assert set(r) == keys | {"same_as"} and r["same_as"] == source["method"]
+            assert all(r[k] == source[k] for k in metric_keys)
+            if r["method"] == R.ROW_IDENTITY:
+                assert r["seconds"] is None
+                continue
+        else:
+            assert set(r) == keys
         assert r["psnr"] > 5.0 and 0.0 <= r["dssim1"] <= 1.0 and r["seconds"] > 0
         assert r["psnr_aligned"] >= r["psnr"] - 1e-6  # an affine colour fit never raises the squared error
     assert on_disk["self_check"]["decision"] in ("skip", "continue", "refine")
@@ -33,8 +47,6 @@ def test_report_contract(tiny_run):
                  "baseline_sparse/model_stage1.ply", "matched/model.ply", "init_mvs/init_report.json",
                  "init_sparse/init_report.json"):
         assert (run_dir / name).exists(), name
-    rows = {r["method"]: r for r in on_disk["rows"]}
-    decision = on_disk["self_check"]["decision"]
     if decision == "refine":
         # the cache holds the 6 pairs + 2 arcs at the one restored timestamp, in round 0
         keys = sorted(p.name for p in (run_dir / "cache" / "round_0").iterdir() if not p.name.startswith("."))

@@ -137,6 +137,12 @@ def test_a_changed_tie_decides_again_from_the_finished_fold(tiny_run, tmp_path, 
     assert (run_dir / "self_check" / "parts.json").read_bytes() == parts
     rows = {r["method"]: r for r in report["rows"]}
     assert rows["Full"]["psnr"] == rows["STGS w/ MVS"]["psnr"]
+    # the kept stage-1 model's rows are copied under the final rows' names, not rendered again
+    for final, source in (("Full", "STGS w/ MVS"), ("Restoration (refined)", "Restoration (init)")):
+        assert rows[final]["same_as"] == source and rows[final]["seconds"] > rows[source]["seconds"]
+        assert {k: v for k, v in rows[final].items() if k not in ("method", "same_as", "seconds")} == \
+            {k: v for k, v in rows[source].items() if k not in ("method", "seconds")}
+    assert json.loads((run_dir / "metrics.json").read_text())["method"] == "Full"
     assert "more than 100 dB" in (run_dir / "report.md").read_text()
 
 
