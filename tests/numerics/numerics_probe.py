@@ -1,7 +1,9 @@
 """Prints a JSON object {probe: sha1 of its bytes} for ops whose last bits follow the CPU code path
 each library picks at run time (tests/numerics/test_portable_numerics.py runs it under emulated
 hosts): ATen's vectorized exp and sums, MKL's matmul, oneDNN's convolution, OpenBLAS's matmul,
-numpy's SIMD exp and sin, a numba ``reassoc`` reduction, OpenCV's area resize."""
+numpy's SIMD exp and sin, a numba ``reassoc`` reduction, OpenCV's area resize, and (where pycolmap
+is installed) the sparse baseline's SIFT + triangulation on the demo's frame 0, whose OpenBLAS and
+SIMD paths are pycolmap's own."""
 import hashlib
 import json
 
@@ -39,5 +41,16 @@ out = {
     "numba_reassoc": np.float32(_sum(v32)),
     "opencv_resize": cv2.resize(rng.random((181, 243, 3), dtype=np.float32), (97, 61), interpolation=cv2.INTER_AREA),
 }
+try:
+    import pycolmap  # noqa: F401
+except ImportError:
+    pass
+else:
+    from fixer4d.init.sparse import sparse_cloud
+    from fixer4d.scene import load_scene
+
+    scene = load_scene("demo")
+    cloud, _ = sparse_cloud([scene.frame(0, i) for i in scene.train_ids], scene.train_cameras, 0, 0.0)
+    out["pycolmap_sparse"] = np.concatenate([cloud.points, cloud.colors], axis=1)
 print(json.dumps({"hashes": {k: hashlib.sha1(np.ascontiguousarray(v).tobytes()).hexdigest() for k, v in out.items()},
                   "portable": numerics.status()["portable"]}))
