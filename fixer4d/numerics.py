@@ -221,9 +221,7 @@ def describe() -> str:
     if s["mode"] == "host":
         return "numerics: host (the libraries' fastest code paths for this CPU; digits depend on the CPU)"
     if s["portable"]:
-        line = "numerics: portable (AVX2 code paths pinned in ATen, MKL, oneDNN, OpenBLAS, numpy, numba, OpenCV)"
-        note = lock_note(s["lock_differences"])
-        return f"{line}; {note}" if note else line
+        return "numerics: portable (AVX2 code paths pinned in ATen, MKL, oneDNN, OpenBLAS, numpy, numba, OpenCV)"
     late = [k for k in ("aten_cpu_capability", "numpy_avx512", "numba", "opencv_avx512") if k in s]
     return (f"numerics: portable asked for but not in effect ({', '.join(f'{k}={s[k]}' for k in late)}): a library "
             f"was imported before fixer4d; import fixer4d first")
