@@ -60,9 +60,10 @@ def _background(background, dtype: torch.dtype, device: torch.device) -> torch.T
     return bg
 
 
-def _check_inputs(snapshot: Snapshot, camera: Camera) -> None:
+def _check_inputs(snapshot: Snapshot, camera: Camera) -> dict[str, tuple[float, float]]:
     """InputError for a non-Camera, a non-Snapshot, mismatched field shapes, non-float fields or
-    opacities outside [0, 1]; NumericalError (Snapshot.check) for NaN/inf parameters."""
+    opacities outside [0, 1]; NumericalError (Snapshot.check) for NaN/inf parameters. Returns the
+    snapshot's ``ranges()`` (one read-back serves every check and ``guard_extremes``)."""
     if not isinstance(camera, Camera):
         raise InputError(f"render: camera must be a fixer4d Camera, got {type(camera).__name__}")
     if not isinstance(snapshot, Snapshot):
@@ -74,11 +75,13 @@ def _check_inputs(snapshot: Snapshot, camera: Camera) -> None:
         if not torch.is_tensor(t) or tuple(t.shape) != shape or not t.is_floating_point():
             raise InputError(f"render: Snapshot.{name} must be a float tensor of shape {shape}, got "
                              f"{getattr(t, 'dtype', type(t).__name__)} {tuple(getattr(t, 'shape', ()))}")
-    snapshot.check()
+    ranges = snapshot.ranges()
+    snapshot.check(ranges)
     if n > 0:
-        low, high = (float(v) for v in snapshot.opacities.detach().aminmax())
+        low, high = ranges["opacities"]
         if low < 0.0 or high > 1.0:
             raise InputError(f"render: opacities must be in [0, 1], got values in [{low}, {high}]")
+    return ranges
 
 
 def render(snapshot: Snapshot, camera: Camera, background: torch.Tensor | tuple | None = None,
@@ -93,12 +96,12 @@ def render(snapshot: Snapshot, camera: Camera, background: torch.Tensor | tuple 
     gradients: Gaussians too far or too large to project in float32 are culled, huge colours
     clamped, huge quaternions rescaled (``project.guard_extremes``), in every dtype alike.
     """
-    _check_inputs(snapshot, camera)
+    ranges = _check_inputs(snapshot, camera)
     device = snapshot.means.device
     name = resolve_backend(backend, device)
     float64 = name == "reference" and snapshot.means.dtype == torch.float64
     bg = _background(background, torch.float64 if float64 else torch.float32, device)  # checked before any work
-    snapshot = guard_extremes(snapshot, camera)
+    snapshot = guard_extremes(snapshot, camera, ranges)
     if name == "gsplat":
         import fixer4d.render.gsplat_backend as gsplat_backend
 

@@ -6,6 +6,7 @@ autograd of this module.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -40,18 +41,24 @@ QUAT_RESCALE_ABOVE = 1e15
 COLOR_LIMIT = 1e4
 
 
-def guard_extremes(snapshot: Snapshot, camera: Camera) -> Snapshot:
+def _peak(low: float, high: float) -> float:
+    """The largest |value| of a field from its (min, max); NaN when either is NaN."""
+    return math.nan if math.isnan(low) or math.isnan(high) else max(-low, high)
+
+
+def guard_extremes(snapshot: Snapshot, camera: Camera,
+                   ranges: dict[str, tuple[float, float]] | None = None) -> Snapshot:
     """``snapshot`` made safe to project in float32, unchanged (the same object) when no value is
     extreme. Gaussians with |mean| > MEAN_LIMIT or |scale| > SCALE_LIMIT are culled (mean moved
     to the camera centre, behind the near plane; zero gradient); quaternions with a component
     above QUAT_RESCALE_ABOVE are rescaled (same rotation); colours are clamped to +-COLOR_LIMIT
     (zero gradient beyond). Runs in the snapshot's dtype, before any cast to float32, so float32
-    and float64 renders cull the same Gaussians."""
+    and float64 renders cull the same Gaussians. ranges: ``snapshot.ranges()`` where the caller
+    has it (else read here)."""
     if len(snapshot) == 0:
         return snapshot
-    with torch.no_grad():
-        peaks = torch.stack([snapshot.means.detach().abs().amax(), snapshot.scales.detach().abs().amax(),
-                             snapshot.quats.detach().abs().amax(), snapshot.colors.detach().abs().amax()]).tolist()
+    ranges = snapshot.ranges() if ranges is None else ranges
+    peaks = [_peak(*ranges[name]) for name in ("means", "scales", "quats", "colors")]
     if (peaks[0] <= MEAN_LIMIT and peaks[1] <= SCALE_LIMIT and peaks[2] <= QUAT_RESCALE_ABOVE
             and peaks[3] <= COLOR_LIMIT):
         return snapshot

@@ -41,3 +41,32 @@ def test_without_forced_files_it_says_so(benchmark_script, tmp_path, capsys):
     bench = benchmark_script("fold_decisions")
     assert bench.main(["--forced", str(tmp_path), "--folds", str(tmp_path), "--out", str(tmp_path / "x.json")]) == 2
     assert "forced_<SET>.json" in capsys.readouterr().out
+
+
+def test_without_forced_runs_only_the_seeds_whose_full_is_known_are_scored(benchmark_script, tmp_path):
+    bench = benchmark_script("fold_decisions")
+    folds, own_folds, quality = tmp_path / "folds", tmp_path / "own", tmp_path / "quality"
+
+    def fold(decision, cpu):
+        return {"decision": decision, "gains": {"refine": {"gain_db": -0.3}}, "check_wall_s": cpu, "check_cpu_s": cpu}
+
+    def record(decision, mvs, full):
+        return {"self_check": {"decision": decision},
+                "rows": [{"method": "STGS w/ MVS", "psnr": mvs}, {"method": "Full", "psnr": full}]}
+
+    # seed 0: both skip; seed 1: the run refined (+0.2), the variant skips; seed 2: the run skipped,
+    # the variant refines (stage 2's gain unknown); seed 3: a config-only folder, both checks as folds
+    for seed, decision in ((0, "skip"), (1, "skip"), (2, "refine"), (3, "skip")):
+        _write(folds / f"demo_seed{seed}.json", fold(decision, 50.0))
+    for seed, own, mvs, full in ((0, "skip", 20.0, 20.0), (1, "refine", 20.0, 20.2), (2, "skip", 21.0, 21.0)):
+        for suffix in ("", "_val"):
+            _write(quality / f"demo{suffix}_seed{seed}.json", record(own, mvs, full))
+    _write(own_folds / "demo_seed3.json", fold("skip", 200.0))
+    out = tmp_path / "scored.json"
+    assert bench.main(["--folds", str(folds), "--own-folds", str(own_folds), "--quality", str(tmp_path / "none"),
+                       "--quality", str(quality), "--out", str(out)]) == 0
+    val = json.loads(out.read_text())["sets"]["demo"]["val"]
+    assert sorted(val["seeds"]) == ["0", "1", "3"] and val["unscored"] == ["2"]
+    assert val["own_full_minus_mvs"]["values"] == pytest.approx([0.0, 0.2, 0.0])
+    assert val["variant_minus_own"]["values"] == pytest.approx([0.0, -0.2, 0.0])
+    assert val["seeds"]["3"]["variant_over_own_cpu"] == pytest.approx(0.25)

@@ -274,22 +274,23 @@ def test_the_fold_budget_and_the_key_of_the_new_settings():
     from fixer4d.pipeline.run_folder import stage_key
 
     config = tiny_config()
-    sc = config.self_check
-    assert sc.fold_training(config.training) is config.training  # the run's budget unless asked
-    scaled = tiny_config(**{"self_check.scale_budget": True, "self_check.scale": 0.5})
-    fold = scaled.self_check.fold_training(scaled.training)
-    assert fold.max_gaussians == round(scaled.training.max_gaussians / 4)
-    assert fold.init_max_points == round(scaled.training.init_max_points / 4)
+    assert config.self_check.scale_budget  # the default: the fold's budget shrinks with its pixels
+    fold = config.self_check.fold_training(config.training)
+    share = config.self_check.scale ** 2
+    assert fold.max_gaussians == round(config.training.max_gaussians * share)
+    assert fold.init_max_points == round(config.training.init_max_points * share)
+    unscaled = tiny_config(**{"self_check.scale_budget": False})
+    assert unscaled.self_check.fold_training(unscaled.training) is unscaled.training  # the run's budget
     # a check at the settings every check had before cameras / scale_budget existed keeps its key
-    before = {k: v for k, v in config.to_dict()["self_check"].items()
+    before = {k: v for k, v in unscaled.to_dict()["self_check"].items()
               if k not in ("tie_db", "allow_skip", "margin", "cameras", "scale_budget", "allow_continue")}
-    one_field = tiny_config(**{"training.fields": 1})
+    one_field = tiny_config(**{"training.fields": 1, "self_check.scale_budget": False})
     assert self_check_key(one_field) == stage_key("self_check", stage2_key(one_field), before,
                                                   one_field.init_frame_stride)
     # a fold of several fields (the run's stage 1 merged) has its own key
-    assert self_check_key(config) == stage_key("self_check", stage2_key(config), before, config.init_frame_stride,
-                                               "fold_fields", config.training.fields)
-    assert len({self_check_key(config), self_check_key(scaled),
+    assert self_check_key(unscaled) == stage_key("self_check", stage2_key(unscaled), before,
+                                                 unscaled.init_frame_stride, "fold_fields", unscaled.training.fields)
+    assert len({self_check_key(config), self_check_key(unscaled),
                 self_check_key(tiny_config(**{"self_check.cameras": 2}))}) == 3
     assert self_check_key(tiny_config(**{"self_check.allow_continue": True})) == self_check_key(config)
 

@@ -85,11 +85,15 @@ def test_zero_quaternion_gradient_is_finite():
 
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("field", ["means", "quats", "scales", "opacities", "colors"])
-def test_nan_input_raises_clear_error(backend, field):
-    snap = random_snapshot(5, dtype=torch.float32)
-    getattr(snap, field).view(-1)[2] = float("nan")
-    with pytest.raises(NumericalError, match=field):
-        render(snap, front_camera(), backend=backend)
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), float("-inf")])
+def test_non_finite_input_raises_clear_error(backend, field, value):
+    # the check reads each field's min and max (Snapshot.ranges): a NaN or an infinity anywhere,
+    # in a SIMD lane or in the tail of a vectorized reduction, must still reach them
+    for index in (0, 2, -1):
+        snap = random_snapshot(37, dtype=torch.float32)
+        getattr(snap, field).view(-1)[index] = value
+        with pytest.raises(NumericalError, match=rf"{field} has non-finite values in 1 of 37"):
+            render(snap, front_camera(), backend=backend)
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
