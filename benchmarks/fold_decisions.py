@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -116,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     args.quality = args.quality or [DEFAULT_OUT]
-    doc: dict[str, Any] = {"command": "python benchmarks/fold_decisions.py " + " ".join(argv or []), "sets": {}}
+    doc: dict[str, Any] = {"command": "python benchmarks/fold_decisions.py " + " ".join(sys.argv[1:] if argv is None else argv), "sets": {}}
     for name in SETS:
         if args.forced is None:
             if any(args.folds.glob(f"{name}_seed*.json")):
