@@ -82,7 +82,7 @@ class SelfCheckConfig:
     scale_budget: the fold's init points and Gaussian cap scale with its pixels (x ``scale`` ^ 2),
       so a fold holds as many Gaussians per pixel as the run. With the run's whole budget a fold at
       scale 0.5 costs 60-80 % of the run's stage 1 (the per-Gaussian work does not shrink with the
-      image) and the check took 29-46 % of a run; scaled, a Panoptic fold takes 0.44-0.48x the
+      image) and the check took 29-43 % of a run; scaled, a Panoptic fold takes 0.44-0.48x the
       CPU, and it decided as the unscaled fold in 11 of 12 runs (docs/decisions/self-check.md).
     """
 

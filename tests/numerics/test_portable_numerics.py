@@ -7,6 +7,7 @@ as one host made them with the locked packages; on any other host with the same 
 below compares its own (``FIXER4D_UPDATE_FINGERPRINT=1`` writes the file anew)."""
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import subprocess
@@ -50,8 +51,6 @@ def _probe(mode: str, host: dict[str, str]) -> dict:
 
 
 def _sha1(data: bytes) -> str:
-    import hashlib
-
     return hashlib.sha1(data).hexdigest()
 
 
