@@ -2,9 +2,12 @@
 and `--iterations 0` ending in numpy tracebacks, and `make-scene --crf -5` in a PyAV one)."""
 from __future__ import annotations
 
+import types
+
 import pytest
 
 from fixer4d.cli import main
+from fixer4d.errors import Fixer4DError, InputError
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -30,7 +33,6 @@ def test_make_scene_names_scales_that_fit_the_llff_layout(tmp_path, capsys):
 def test_bench_all_names_files_like_each_benchmark(monkeypatch, tmp_path, capsys):
     """`bench all --out DIR` wrote train-step.json where the README and the committed results read
     train_step.json; `bench all --help` showed the first benchmark's help."""
-    import types
 
     from fixer4d.cli import bench as bench_cli
 
@@ -62,3 +64,20 @@ def test_the_former_effects_flag_is_read_as_model_terms_with_a_note(capsys):
         main(["run", "--help"])
     shown = capsys.readouterr().out
     assert "--model-terms" in shown and "--effects" not in shown
+
+
+@pytest.mark.parametrize("error, code", [(InputError("bad frame"), 2), (Fixer4DError("failed"), 1)])
+def test_an_error_under_a_progress_bar_gets_a_line_of_its_own(monkeypatch, capsys, error, code):
+    import fixer4d.cli.eval as eval_cli
+    from tqdm import tqdm
+
+    def run(args):
+        bar = tqdm(total=4, desc="calibrate: features and matches")
+        bar.update(2)
+        raise error
+
+    monkeypatch.setattr(eval_cli, "run", run)
+    assert main(["eval", "somewhere"]) == code
+    lines = capsys.readouterr().err.replace("\r", "\n").splitlines()
+    assert lines[-1] == f"fixer4d eval: error: {error}"
+    assert "2/4" in lines[-2]  # the bar's last state stays above the error

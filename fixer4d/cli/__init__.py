@@ -91,10 +91,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(mod.run(args) or 0)
     except InputError as exc:  # bad input or config: the user can fix it; nothing was run
-        print(f"fixer4d {args.verb}: error: {exc}", file=sys.stderr)
+        _error(args.verb, exc)
         return 2
     except Fixer4DError as exc:
-        print(f"fixer4d {args.verb}: error: {exc}", file=sys.stderr)
+        _error(args.verb, exc)
         return 1
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM as errors.Terminated
         return _interrupted(args.verb, exc)
@@ -105,6 +105,16 @@ def main(argv: list[str] | None = None) -> int:
         if inner is None:
             raise
         return _interrupted(args.verb, inner)
+
+
+def _error(verb: str, exc: Exception) -> None:
+    """The one error line, on a line of its own: a progress bar the error stopped is closed first
+    (its last state stays above), so the message never follows a bar's text."""
+    from tqdm import tqdm
+
+    for bar in list(getattr(tqdm, "_instances", ())):
+        bar.close()
+    print(f"fixer4d {verb}: error: {exc}", file=sys.stderr)
 
 
 def _restart_with_numerics(mode: str, argv: list[str]) -> None:

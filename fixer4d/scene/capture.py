@@ -1,7 +1,7 @@
 """A capture as people bring it: one video (or one image folder) per camera, any names.
 
 Layout: a folder holding either videos (``*.mp4 *.mov *.mkv *.avi``; camera name = file stem)
-or one sub-folder of images per camera (``*.jpg *.jpeg *.png``, sorted; camera name = folder
+or one sub-folder of images per camera (``IMAGE_EXTS``, sorted; camera name = folder
 name). Cameras are sorted by name. A folder named ``board`` is never a camera: it holds the
 videos of a calibration board (``fixer4d.calib.board``). A calibration beside them is optional
 (``fixer4d.calib.formats``): without one the rig is calibrated from the board videos or the
@@ -28,7 +28,8 @@ from fixer4d.scene.base import FRAME_CACHE_MB, MultiViewVideo
 from fixer4d.scene.video import VideoReader, probe_video
 
 VIDEO_EXTS = (".mp4", ".mov", ".mkv", ".avi")
-IMAGE_EXTS = (".jpg", ".jpeg", ".png")
+# Read by OpenCV as 8-bit colour: 16-bit frames are scaled down, grey ones repeated, alpha dropped.
+IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
 # Image folders carry no frame rate; playback of the reconstruction uses this one.
 IMAGE_FOLDER_FPS = 30.0
 # Two cameras whose rates differ by more than this drift apart by a frame within ~1000 frames.
@@ -60,6 +61,40 @@ def _image_folders(root: Path) -> list[Path]:
     """The camera image folders of ``root``: not hidden, not the board videos' folder (``BOARD_FOLDER``)."""
     return sorted(p for p in root.iterdir()
                   if p.is_dir() and not p.name.startswith(".") and p.name != BOARD_FOLDER and _image_files(p))
+
+
+def _folders_without_images(root: Path) -> list[Path]:
+    """Sub-folders of ``root`` that look like a camera's image folder with its images missing:
+    not hidden, not ``BOARD_FOLDER``, holding files (or nothing) but no sub-folder and no image of
+    IMAGE_EXTS. A calibration's own folders (COLMAP's ``sparse/0``) hold sub-folders and are not
+    counted."""
+    out = []
+    for p in sorted(root.iterdir()):
+        if not p.is_dir() or p.name.startswith(".") or p.name == BOARD_FOLDER:
+            continue
+        entries = [e for e in p.iterdir() if not e.name.startswith(".")]
+        if not any(e.is_dir() for e in entries) and not _image_files(p):
+            out.append(p)
+    return out
+
+
+def _check_one_kind(root: Path, videos: list[Path], folders: list[Path]) -> None:
+    """InputError when ``root`` mixes camera videos with image folders, or when an image-folder
+    capture has a camera folder without images: either way a camera would silently be left out."""
+    if videos and folders:
+        raise InputError(f"{root}: holds camera videos ({', '.join(p.name for p in videos)}) and image folders "
+                         f"({', '.join(p.name for p in folders)}); a capture is one video per camera or one image "
+                         f"folder per camera, not both: move one kind out (a folder becomes a video with e.g. "
+                         f"ffmpeg -framerate 30 -pattern_type glob -i 'DIR/*.png' DIR.mp4)")
+    if folders:
+        empty = _folders_without_images(root)
+        if empty:
+            found = {p.name: sorted({e.suffix.lower() or e.name for e in p.iterdir() if not e.name.startswith(".")})
+                     for p in empty}
+            raise InputError(f"{root}: camera folder(s) without images: "
+                             + "; ".join(f"{n} (found {v[:4] if v else 'nothing'})" for n, v in found.items())
+                             + f"; the other cameras are image folders of {', '.join(IMAGE_EXTS)}: put that "
+                             f"camera's frames there as {', '.join(IMAGE_EXTS)} or remove the folder")
 
 
 def is_capture(path: str | Path) -> bool:
@@ -124,6 +159,7 @@ class CaptureFiles:
         if not self.root.is_dir():
             raise InputError(f"{self.root}: capture folder not found")
         videos = _videos(self.root)
+        _check_one_kind(self.root, videos, _image_folders(self.root))
         if videos:
             self.sources = [_probe_video(p) for p in videos]
         else:
