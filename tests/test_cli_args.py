@@ -81,3 +81,21 @@ def test_an_error_under_a_progress_bar_gets_a_line_of_its_own(monkeypatch, capsy
     lines = capsys.readouterr().err.replace("\r", "\n").splitlines()
     assert lines[-1] == f"fixer4d eval: error: {error}"
     assert "2/4" in lines[-2]  # the bar's last state stays above the error
+
+
+def test_the_system_refusing_a_write_is_one_line_with_the_path(monkeypatch, capsys):
+    import fixer4d.cli.export as export_cli
+
+    def run(args):
+        raise FileNotFoundError(2, "No such file or directory", "/proc/.out.tmp")
+
+    monkeypatch.setattr(export_cli, "run", run)
+    assert main(["export", "somewhere", "--out", "/proc/out"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == ("fixer4d export: error: No such file or directory: /proc/.out.tmp (FileNotFoundError); "
+                   "check that the folder exists, is writable and has space")
+
+
+def test_render_refuses_an_out_that_is_neither_video_nor_folder(tmp_path, capsys):
+    assert main(["render", str(tmp_path / "no_run"), "--camera", "0", "--out", str(tmp_path / "clip.gif")]) == 2
+    assert ".gif is not a video format" in capsys.readouterr().err and not (tmp_path / "clip.gif").exists()

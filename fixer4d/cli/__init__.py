@@ -96,6 +96,11 @@ def main(argv: list[str] | None = None) -> int:
     except Fixer4DError as exc:
         _error(args.verb, exc)
         return 1
+    except OSError as exc:  # the system refused a read or write: a full disk, a folder that cannot be made
+        where = " -> ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
+        _error(args.verb, f"{exc.strerror or exc}{': ' + where if where else ''} ({type(exc).__name__}); "
+                          "check that the folder exists, is writable and has space")
+        return 1
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM as errors.Terminated
         return _interrupted(args.verb, exc)
     except SystemError as exc:  # an interrupt raised inside a numba kernel arrives wrapped
@@ -107,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
         return _interrupted(args.verb, inner)
 
 
-def _error(verb: str, exc: Exception) -> None:
+def _error(verb: str, exc: Exception | str) -> None:
     """The one error line, on a line of its own: a progress bar the error stopped is closed first
     (its last state stays above), so the message never follows a bar's text."""
     from tqdm import tqdm

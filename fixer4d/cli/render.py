@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 
 from fixer4d.errors import InputError
@@ -88,6 +89,18 @@ def _side_by_side(render_fn, scene, cam_index: int):
     return fn
 
 
+def _check_out(out: str) -> None:
+    """InputError for an --out that is neither a video nor a folder: a file name with another
+    suffix (``clip.gif``) would otherwise become a folder of PNG frames under that name."""
+    from fixer4d.render.video import VIDEO_FORMATS, is_video_path
+
+    path = Path(out)
+    if is_video_path(path) or out.endswith(("/", os.sep)) or path.is_dir() or not path.suffix:
+        return
+    raise InputError(f"--out {out}: {path.suffix} is not a video format fixer4d writes ({', '.join(VIDEO_FORMATS)}); "
+                     f"name a video, or a folder for PNG frames ({path.with_suffix('')}/ or {out}/)")
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -101,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--time must be in [0, 1), got {args.time}")
     if args.scale <= 0:
         raise InputError(f"--scale must be > 0, got {args.scale}")
+    _check_out(args.out)
     src = open_source(args.source, resolve_model_path(args.source))
     fps = None
     if args.camera_path is not None:

@@ -3,20 +3,24 @@ train cameras, saved as fixer4d presets (and optionally as a nerfstudio camera p
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from fixer4d.geometry.trajectory import ARC_AMPLITUDE_RANGE, DEFAULT_FRAMES
 
-    parser.add_argument("scene", metavar="SCENE", help="'demo', a scene spec .json, or a scene folder")
+    parser.add_argument("scene", metavar="SCENE",
+                        help="'demo', a scene spec .json, a scene folder, or a run folder (its scene, and by default "
+                             "the trajectories its stage 2 restored)")
     parser.add_argument("--out", required=True, help="preset JSON to write (fixer4d-trajectories format)")
     parser.add_argument("--nerfstudio", metavar="PATH.json",
                         help="also write a nerfstudio camera_path JSON (all trajectories back to back, or --only)")
-    parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help=f"frames per trajectory (default {DEFAULT_FRAMES})")
+    parser.add_argument("--frames", type=int, default=None,
+                        help=f"frames per trajectory (default: a run's, else {DEFAULT_FRAMES})")
     parser.add_argument("--amplitude", type=float, default=None,
                         help="arc amplitude A in world units (default: drawn in "
                              f"[{ARC_AMPLITUDE_RANGE[0]}, {ARC_AMPLITUDE_RANGE[1]}] x baseline with --seed)")
-    parser.add_argument("--seed", type=int, default=0, help="seed for drawn amplitudes (default 0)")
+    parser.add_argument("--seed", type=int, default=None, help="seed for drawn amplitudes (default: a run's, else 0)")
     parser.add_argument("--no-arcs", action="store_true", help="only the straight pair trajectories")
     parser.add_argument("--only", metavar="NAME", action="append",
                         help="keep only this trajectory (e.g. 0-3_arc0); repeatable")
@@ -27,12 +31,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from fixer4d.errors import InputError
-    from fixer4d.geometry.trajectory import save_nerfstudio, save_presets, scene_trajectories
+    from fixer4d.geometry.trajectory import DEFAULT_FRAMES, save_nerfstudio, save_presets, scene_trajectories
+    from fixer4d.pipeline.config import TrajectoryConfig
+    from fixer4d.pipeline.run_folder import CONFIG_NAME, load_scene_for, read_run_config
     from fixer4d.scene import load_scene
 
-    scene = load_scene(args.scene, scale=args.scale)
-    train = [scene.cameras[i] for i in scene.train_ids]
-    trajs = scene_trajectories(train, args.frames, amplitude=args.amplitude, arcs=not args.no_arcs, seed=args.seed)
+    if args.scale <= 0:
+        raise InputError(f"--scale must be > 0, got {args.scale}")
+    run = Path(args.scene)
+    if run.is_dir() and (run / CONFIG_NAME).is_file():  # a run folder: its scene at its scale, its stage-2 settings
+        config = read_run_config(run)
+        scene, tc = load_scene_for(config), config.trajectories
+        train = [scene.cameras[i].scaled(args.scale) if args.scale != 1.0 else scene.cameras[i] for i in scene.train_ids]
+    else:
+        scene, tc = load_scene(args.scene, scale=args.scale), TrajectoryConfig(frames=DEFAULT_FRAMES)
+        train = [scene.cameras[i] for i in scene.train_ids]
+    frames = tc.frames if args.frames is None else args.frames
+    seed = tc.seed if args.seed is None else args.seed
+    amplitude = tc.amplitude if args.amplitude is None else args.amplitude
+    trajs = scene_trajectories(train, frames, amplitude=amplitude, arcs=tc.arcs and not args.no_arcs, seed=seed)
     if args.only:
         unknown = sorted(set(args.only) - {t.name for t in trajs})
         if unknown:

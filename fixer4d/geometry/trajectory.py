@@ -444,7 +444,9 @@ def load_nerfstudio(path: str | Path, name: str | None = None) -> Trajectory:
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         if isinstance(exc, InputError):
             raise
-        raise InputError(f"{path}: malformed nerfstudio camera path ({type(exc).__name__}: {exc})") from exc
+        what = f"no key {exc}" if isinstance(exc, KeyError) else f"{type(exc).__name__}: {exc}"
+        raise InputError(f"{path}: malformed nerfstudio camera path ({what}); it needs render_width, "
+                         "render_height and camera_path entries with camera_to_world (16 numbers) and fov") from exc
     if len(cameras) < 2:
         raise InputError(f"{path}: a camera path needs at least 2 cameras, got {len(cameras)}")
     has_times = all(t is not None for t in times)

@@ -252,7 +252,7 @@ def test_nerfstudio_bad_files(tmp_path):
     with pytest.raises(InputError, match=r"bad\.json.*camera_path\[0\]"):
         load_nerfstudio(tmp_path / "bad.json")
     (tmp_path / "fields.json").write_text(json.dumps({"camera_path": []}))
-    with pytest.raises(InputError, match="malformed"):
+    with pytest.raises(InputError, match="malformed nerfstudio camera path \\(no key 'render_width'\\)"):
         load_nerfstudio(tmp_path / "fields.json")
     with pytest.raises(InputError, match=r"\[0, 1\)"):
         save_nerfstudio(Trajectory("t", rig([[0, 0, -3.0]]), [0.0]), tmp_path / "x.json", render_time=1.0)
@@ -275,6 +275,24 @@ def test_trajectories_verb_on_the_demo_scene(tmp_path):
         np.testing.assert_array_equal(t.cameras[-1].c2w, train[t.pair[1]].c2w)
     assert load_nerfstudio(ns).frames == 5 * len(trajs)
     assert main(["trajectories", "demo", "--out", str(out), "--only", "nope"]) == 2
+
+
+def test_trajectories_verb_on_a_run_folder_gives_the_runs_stage2_trajectories(tmp_path):
+    pytest.importorskip("fixer4d.scene.synthetic")
+    from fixer4d.cli import main
+    from fixer4d.pipeline.config import RunConfig, SceneConfig, TrajectoryConfig
+    from fixer4d.pipeline.run_folder import RunFolder
+    from fixer4d.scene import load_scene
+
+    config = RunConfig(scene=SceneConfig("tiny", scale=0.5), trajectories=TrajectoryConfig(frames=4, seed=3, arcs=False))
+    RunFolder.create(tmp_path / "run", config)
+    out = tmp_path / "presets.json"
+    assert main(["trajectories", str(tmp_path / "run"), "--out", str(out)]) == 0
+    scene = load_scene("tiny", scale=0.5)
+    want = scene_trajectories([scene.cameras[i] for i in scene.train_ids], 4, arcs=False, seed=3)
+    assert [t.to_dict() for t in load_presets(out)] == [t.to_dict() for t in want]
+    assert main(["trajectories", str(tmp_path / "run"), "--out", str(out), "--frames", "6"]) == 0
+    assert {t.frames for t in load_presets(out)} == {6}
 
 
 def test_bundled_demo_preset_matches_the_demo_rig():
