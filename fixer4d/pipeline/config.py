@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import copy
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
@@ -185,6 +185,9 @@ class RunConfig:
     def __post_init__(self) -> None:
         if self.init_frame_stride < 1:
             raise InputError(f"init_frame_stride must be >= 1, got {self.init_frame_stride}")
+        for key, value in _seeds(self):  # the random generators take whole numbers >= 0 only
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise InputError(f"{key} must be a whole number >= 0, got {value!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return config_tree.to_dict(self)
@@ -197,6 +200,18 @@ class RunConfig:
     @property
     def init_method(self) -> str:
         return self.init.method
+
+
+def _seeds(section: Any, prefix: str = "") -> list[tuple[str, Any]]:
+    """(dotted key, value) of every ``seed`` field in the config tree under ``section``."""
+    out = []
+    for f in fields(section):
+        value = getattr(section, f.name)
+        if f.name == "seed":
+            out.append((prefix + f.name, value))
+        elif is_dataclass(value):
+            out += _seeds(value, f"{prefix}{f.name}.")
+    return out
 
 
 def resolve(source: str | None = None, *, config_file: str | Path | dict[str, Any] | None = None,

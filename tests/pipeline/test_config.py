@@ -64,6 +64,9 @@ def test_round_trip_is_exact():
     ({"eval.stride": 0}, "stride must be >= 1"),
     ({"training.iterations.x": 3}, "training.iterations: expected an integer"),
     ({"seeed": 1}, "did you mean 'seed'"),
+    ({"seed": -1}, "seed must be a whole number >= 0, got -1"),  # numpy's generators raise deep in a run
+    ({"training.seed": -3}, "training.seed must be a whole number >= 0"),
+    ({"restorer.learned.seed": -1}, "restorer.learned.seed must be"),
 ])
 def test_bad_values_name_the_key(overrides, message):
     with pytest.raises(InputError, match=message):
