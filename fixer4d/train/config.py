@@ -114,6 +114,14 @@ class TrainingConfig:
     # overall and +0.6 dB on its moving pixels (docs/dynamic.md at commit 9fd7044; the validation
     # runs: docs/decisions/stage1-defaults.md). 0 = the plain L_STG.
     moving_loss_weight: float = 4.0
+    # PhysGaussian's anisotropy term (train.scale_ratio) with this weight beside L_STG, on every
+    # Gaussian whose longest axis is more than scale_ratio_max x its shortest; 0 = off
+    # (docs/decisions/scale-ratio.md). 10 : 1 is a needle at the render sizes here.
+    scale_ratio_weight: float = 0.0
+    scale_ratio_max: float = 10.0
+    # the axis the longest is measured against: "shortest" (PhysGaussian; flat discs pay too) or
+    # "middle" (needles only)
+    scale_ratio_against: str = "shortest"
 
     # -- learning rates (STGS "lite" values) ------------------------------------------------
     # positions: 1.6e-4 -> 1.6e-6 x extent, exponential decay over the run (3DGS/STGS).
@@ -193,6 +201,12 @@ class TrainingConfig:
             raise InputError(f"TrainingConfig.views_per_step must be >= 1, got {self.views_per_step}")
         if self.densify_every < 1 or self.checkpoint_every < 1 or self.opacity_reset_every < 1:
             raise InputError("TrainingConfig: densify_every, checkpoint_every and opacity_reset_every must be >= 1")
+        if not self.scale_ratio_weight >= 0.0 or not self.scale_ratio_max >= 1.0:
+            raise InputError(f"TrainingConfig: scale_ratio_weight must be >= 0 (0 = off) and scale_ratio_max >= 1, "
+                             f"got {self.scale_ratio_weight} and {self.scale_ratio_max}")
+        if self.scale_ratio_against not in ("shortest", "middle"):
+            raise InputError(f"TrainingConfig.scale_ratio_against {self.scale_ratio_against!r}: choose one of "
+                             "['shortest', 'middle']")
         if self.moving_loss_weight < 0:
             raise InputError(f"TrainingConfig.moving_loss_weight must be >= 0, got {self.moving_loss_weight}")
         if self.fields < 1:

@@ -60,6 +60,7 @@ from fixer4d.train.losses import masked_l1, masked_l1_device, mean_squared_error
 from fixer4d.train.model_init import scene_extent
 from fixer4d.train.opacity_decay import OpacityDecay
 from fixer4d.train.pseudo_targets import PseudoCache, PseudoTargets, RefreshFn
+from fixer4d.train.scale_ratio import scale_ratio_penalty
 from fixer4d.train.schedule import StageSchedule
 
 log = logging.getLogger("fixer4d.train")
@@ -257,6 +258,9 @@ class Trainer:
             loss_stg = loss_stg + self._novel_depth_term(base, timing)
         if self.response is not None:
             loss_stg = loss_stg + RESPONSE_REG * self.response.regularizer()
+        if self.config.scale_ratio_weight > 0.0:
+            loss_stg = loss_stg + self.config.scale_ratio_weight * scale_ratio_penalty(
+                self.model.log_scales, self.config.scale_ratio_max, self.config.scale_ratio_against)
         loss_gen = torch.zeros((), device=self.device)
         pseudo_outputs: list[RenderedView] = []
         evidence = [] if self._gathers_evidence() else None
