@@ -33,13 +33,14 @@ RESULT_NEUTRAL = ("progress", "checkpoint_every", "keep_checkpoints")
 def result_settings(config: dict[str, Any]) -> dict[str, Any]:
     """A TrainingConfig's settings that decide its result: all but the result-neutral ones, the
     opacity decay's when it is off, the init subsample when it is the random draw, the field count
-    when it is one, the depth prior when it is off, and the requested ``device``, which decides
+    when it is one, the depth prior and the axis-ratio term when they are off, and the requested
+    ``device``, which decides
     nothing until resolved: the device a training runs on (``device_kind``) is recorded beside
     them instead."""
     out = {k: v for k, v in config.items() if k not in RESULT_NEUTRAL and k != "device"}
-    # the reset (an opacity decay that is off), the random init subsample, one field and no depth
-    # prior key a training as every training from before those settings existed, so its finished
-    # stages stay valid
+    # the reset (an opacity decay that is off), the random init subsample, one field, no depth
+    # prior and no axis-ratio term key a training as every training from before those settings
+    # existed, so its finished stages stay valid
     if not (out.get("opacity_decay") or {}).get("enabled", False):
         out.pop("opacity_decay", None)
     if out.get("init_subsample") == "random":
@@ -49,6 +50,9 @@ def result_settings(config: dict[str, Any]) -> dict[str, Any]:
     prior = out.get("depth_prior") or {}
     if not (prior.get("weight", 0.0) > 0.0 or prior.get("novel_weight", 0.0) > 0.0):
         out.pop("depth_prior", None)
+    if not out.get("scale_ratio_weight", 0.0) > 0.0:
+        for key in ("scale_ratio_weight", "scale_ratio_max", "scale_ratio_against"):
+            out.pop(key, None)
     return out
 
 

@@ -21,6 +21,7 @@ from fixer4d.train.background import MEAN, check_background
 from fixer4d.train.depth_prior import DepthPriorConfig
 from fixer4d.train.device import DEVICES
 from fixer4d.train.opacity_decay import OpacityDecayConfig
+from fixer4d.train.scale_ratio import AGAINST as SCALE_RATIO_AGAINST
 
 # Stage2Config.pseudo_mask values: where the pseudo-loss acts.
 PSEUDO_MASKS = ("unobserved", "all")
@@ -116,7 +117,7 @@ class TrainingConfig:
     moving_loss_weight: float = 4.0
     # PhysGaussian's anisotropy term (train.scale_ratio) with this weight beside L_STG, on every
     # Gaussian whose longest axis is more than scale_ratio_max x its shortest; 0 = off
-    # (docs/decisions/scale-ratio.md). 10 : 1 is a needle at the render sizes here.
+    # (docs/decisions/scale-ratio.md). At 10 : 1 a Gaussian a few pixels wide renders as a line.
     scale_ratio_weight: float = 0.0
     scale_ratio_max: float = 10.0
     # the axis the longest is measured against: "shortest" (PhysGaussian; flat discs pay too) or
@@ -204,9 +205,9 @@ class TrainingConfig:
         if not self.scale_ratio_weight >= 0.0 or not self.scale_ratio_max >= 1.0:
             raise InputError(f"TrainingConfig: scale_ratio_weight must be >= 0 (0 = off) and scale_ratio_max >= 1, "
                              f"got {self.scale_ratio_weight} and {self.scale_ratio_max}")
-        if self.scale_ratio_against not in ("shortest", "middle"):
+        if self.scale_ratio_against not in SCALE_RATIO_AGAINST:
             raise InputError(f"TrainingConfig.scale_ratio_against {self.scale_ratio_against!r}: choose one of "
-                             "['shortest', 'middle']")
+                             f"{list(SCALE_RATIO_AGAINST)}")
         if self.moving_loss_weight < 0:
             raise InputError(f"TrainingConfig.moving_loss_weight must be >= 0, got {self.moving_loss_weight}")
         if self.fields < 1:

@@ -9,15 +9,15 @@ largest to its smallest axis with
 
 which is 0 for every Gaussian within r : 1 and pulls the longer axes of the others in (the
 gradient reaches the log-scales only). ``scale_ratio_penalty`` is that term on the model's (N, 3)
-log-scales. Against the shortest axis it also flattens nothing: a flat disc on a wall (two long
-axes, one short) pays as much as a needle; against the middle axis (``against="middle"``) only a
-needle (one long axis, two short) pays.
+log-scales. Against the shortest axis a flat disc on a wall (two long axes, one short) pays as
+much as a needle; against the middle axis (``against="middle"``) only a needle (one long axis, two
+short) pays.
 """
 from __future__ import annotations
 
 import torch
 
-
+# The axis the longest is measured against.
 AGAINST = ("shortest", "middle")
 
 

@@ -68,3 +68,12 @@ def test_a_training_step_with_the_term_reaches_the_log_scales(small_scene, small
     n, views = plain.shape[0], min(make_config(2).views_per_step, len(small_scene.train_ids))
     np.testing.assert_allclose(extra[0], [-8.0 * views / n, 0.0, 8.0 * views / n], rtol=1e-3)
     np.testing.assert_allclose(extra[1:], 0.0, atol=1e-7)
+
+
+def test_off_it_keys_a_training_as_before_the_option_existed():
+    from fixer4d.train.checkpoints import result_settings
+
+    off = result_settings(TrainingConfig().to_dict())
+    assert not any(k.startswith("scale_ratio") for k in off)  # earlier run folders resume as they were
+    on = result_settings(TrainingConfig(scale_ratio_weight=0.01).to_dict())
+    assert (on["scale_ratio_weight"], on["scale_ratio_max"], on["scale_ratio_against"]) == (0.01, 10.0, "shortest")
