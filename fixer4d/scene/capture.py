@@ -93,8 +93,7 @@ def _check_one_kind(root: Path, videos: list[Path], folders: list[Path]) -> None
                      for p in empty}
             raise InputError(f"{root}: camera folder(s) without images: "
                              + "; ".join(f"{n} (found {v[:4] if v else 'nothing'})" for n, v in found.items())
-                             + f"; the other cameras are image folders of {', '.join(IMAGE_EXTS)}: put that "
-                             f"camera's frames there as {', '.join(IMAGE_EXTS)} or remove the folder")
+                             + f"; put each camera's frames there as {', '.join(IMAGE_EXTS)}, or remove the folder")
 
 
 def is_capture(path: str | Path) -> bool:
