@@ -350,7 +350,8 @@ def main(argv: list[str] | None = None) -> int:
     _write(args.out / "summary.json", summary)
     if args.readme is not None:
         write_block(args.readme, summary)
-    print(markdown(summary))
+    out = args.out.resolve()
+    print(markdown(summary, link_prefix=f"{out.relative_to(REPO_ROOT) if out.is_relative_to(REPO_ROOT) else out}/"))
     if args.against is not None:
         comparison = compare(args.out, args.against)
         _write(args.out / f"against_{args.against.name}.json", {"this": str(args.out), "that": str(args.against),

@@ -13,7 +13,7 @@ from fixer4d.pipeline.self_check import fold_fields
 from fixer4d.train.checkpoints import result_settings
 from fixer4d.train.device import device_kind
 
-__all__ = ["init_key", "stage1_key", "restorer_key", "stage2_key", "matched_key", "self_check_key",
+__all__ = ["init_key", "stage1_key", "field_key", "restorer_key", "stage2_key", "matched_key", "self_check_key",
            "SELF_CHECK_DECISION_SETTINGS", "training_settings", "trajectory_settings",
            "shared_static_key", "co_fields_key", "co_fields_weight_key"]
 
@@ -51,12 +51,23 @@ def init_key(config: RunConfig, method: str) -> str:
 def stage1_key(config: RunConfig, method: str) -> str:
     d = config.to_dict()
     training = training_settings(d["training"])
-    if method != config.init_method:  # the sparse baseline trains without the depth prior
+    if method != config.init_method:  # the sparse baseline trains one field without the depth prior
         training.pop("depth_prior", None)
+        training.pop("fields", None)
     # the sections' contents are hashed, not their names: "model_terms" (formerly "effects") keys as before
     return stage_key("stage1", init_key(config, method), training, config.seed,
                      d["model_terms"], *shared_static_key(config),
                      *(co_fields_key(config) if method == config.init_method else ()))
+
+
+def field_key(config: RunConfig, field: int) -> str:
+    """The key of field ``field`` of the main init's stage 1 (``training.fields`` > 1): stage 1's
+    key under one field count, since a field's training (its seed, init draw and budget) does not
+    depend on how many fields are merged."""
+    import dataclasses
+
+    one = dataclasses.replace(config, training=dataclasses.replace(config.training, fields=1))
+    return stage_key("stage1 field", stage1_key(one, config.init_method), int(field))
 
 
 def co_fields_key(config: RunConfig) -> tuple[Any, ...]:

@@ -35,7 +35,7 @@ from fixer4d import atomic
 from fixer4d.errors import InputError
 from fixer4d.geometry.camera import Camera
 from fixer4d.pipeline.config import RunConfig
-from fixer4d.pipeline.keys import (SELF_CHECK_DECISION_SETTINGS, init_key, matched_key, restorer_key, self_check_key,
+from fixer4d.pipeline.keys import (SELF_CHECK_DECISION_SETTINGS, field_key, init_key, matched_key, restorer_key, self_check_key,
                                    stage1_key, stage2_key)
 from fixer4d.pipeline.run_folder import RunFolder, stage_key
 from fixer4d.pipeline.stage_cache import StageCache
@@ -163,7 +163,7 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
     from fixer4d.model.io import load_ply, save_ply
     from fixer4d.model.terms import terms_report
     from fixer4d.train.co_fields import TWIN_DIR, TWIN_NAME
-    from fixer4d.train.fields import FIELDS_DIR
+    from fixer4d.train.fields import FIELDS_DIR, keep_matching_fields
 
     key = stage1_key(ctx.config, method)
     main = method == ctx.config.init_method
@@ -176,7 +176,7 @@ def stage1(ctx: StageContext, method: str, clouds, model_path: Path, name: str):
         _drop_checkpoints(model_path.parent, 1)
         _drop_checkpoints(model_path.parent / TWIN_DIR, 1)
         if main:
-            _clear(model_path.parent / FIELDS_DIR, keep_aside=False)
+            keep_matching_fields(model_path.parent, lambda k: field_key(ctx.config, k))
     if ctx.cache is not None and (seconds := ctx.cache.fetch(key, model_path.parent)) is not None:
         ctx.run.records.finish(name, key, seconds)
         return load_ply(model_path)
@@ -229,7 +229,8 @@ def _stage1_fields(ctx: StageContext, clouds, run_dir: Path, fields: int):
         decisions.append(decision)
         return trainer
 
-    done = train_fields(make_trainer, fields, run_dir, finished=lambda out: _finished(ctx, out, 1))
+    done = train_fields(make_trainer, fields, run_dir, finished=lambda out: _finished(ctx, out, 1),
+                        key=lambda k: field_key(ctx.config, k))
     if not decisions:  # every field was finished: the decision is the init's, whatever the seed
         _, decision = stage1_trainer(ctx, clouds, None)
         decisions.append(decision)

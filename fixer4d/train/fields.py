@@ -45,6 +45,9 @@ FIELD_SEED_OFFSET = 1_000_003
 FIELDS_DIR = "fields"
 FIELD_MODEL = "model.ply"
 FIELD_RECORD = "field.json"
+# The key of the settings a field trains under, written when its training starts: a stage 1 made
+# again under another field count keeps the fields whose key it shares (``keep_matching_fields``).
+FIELD_KEY = "key.txt"
 
 
 def field_seed(seed: int, field: int) -> int:
@@ -134,7 +137,7 @@ class TrainedFields:
 
 def train_fields(make_trainer: Callable[[int, Path], "Trainer"], fields: int, run_dir: str | Path,
                  finished: Callable[[Path], None] | None = None, label: str = "stage 1",
-                 step: str | None = None) -> TrainedFields:
+                 step: str | None = None, key: Callable[[int], str] | None = None) -> TrainedFields:
     """Train ``fields`` fields one after the other and merge them (``merge_fields``).
 
     make_trainer(k, directory): field k's untrained Trainer (seed ``field_seed(seed, k)``, its
@@ -143,7 +146,8 @@ def train_fields(make_trainer: Callable[[int, Path], "Trainer"], fields: int, ru
     model is already in its folder is read back, the one in progress resumes from its checkpoints;
     each finished field writes its model and record there, then ``finished(directory)`` runs (e.g.
     to drop the field's checkpoints). label: what the progress bars call the training
-    ("<label>, field k/n")."""
+    ("<label>, field k/n"). key(k): field k's key, written into its folder before it trains
+    (``FIELD_KEY``)."""
     from fixer4d.model.io import load_ply, save_ply
 
     models, responses, revisions, prior = [], [], {}, 0.0
@@ -157,6 +161,11 @@ def train_fields(make_trainer: Callable[[int, Path], "Trainer"], fields: int, ru
             for what, count in counts.items():
                 revisions[what] = revisions.get(what, 0) + count
             continue
+        if key is not None:
+            from fixer4d.atomic import write_text
+
+            out.mkdir(parents=True, exist_ok=True)
+            write_text(out / FIELD_KEY, key(k))
         trainer = make_trainer(k, out)
         trainer.label = f"{label}, field {k + 1}/{fields}"
         prior += trainer.train_seconds if trainer.resume() else 0.0
@@ -170,6 +179,26 @@ def train_fields(make_trainer: Callable[[int, Path], "Trainer"], fields: int, ru
         if finished is not None:
             finished(out)
     return TrainedFields(merge_fields(models), mean_response(responses), revisions, prior)
+
+
+def keep_matching_fields(run_dir: str | Path, key: Callable[[int], str]) -> list[int]:
+    """Before a stage 1 under new settings: delete every field folder of RUN/fields/ whose recorded
+    key (``FIELD_KEY``) is not ``key(k)`` (or that has none), so that only fields trained under the
+    same settings are read back or resumed. A field does not depend on how many fields the run
+    merges, so a run given more fields trains only the new ones. Returns the kept field numbers."""
+    import re
+    import shutil
+
+    kept = []
+    root = Path(run_dir) / FIELDS_DIR
+    for folder in sorted(root.glob("field*")) if root.is_dir() else []:
+        match = re.fullmatch(r"field(\d+)", folder.name)
+        marker = folder / FIELD_KEY
+        if match and marker.is_file() and marker.read_text() == key(int(match.group(1))):
+            kept.append(int(match.group(1)))
+        else:
+            shutil.rmtree(folder) if folder.is_dir() else folder.unlink()
+    return sorted(kept)
 
 
 def load_field(run_dir: str | Path, field: int, step: str | None = None) -> tuple[SpacetimeGaussians, CameraResponse | None]:
@@ -198,5 +227,6 @@ def _load_record(directory: Path) -> tuple[float, CameraResponse | None, dict[st
             dict(saved.get("revisions") or {}))
 
 
-__all__ = ["FIELD_SEED_OFFSET", "FIELDS_DIR", "FIELD_MODEL", "FIELD_RECORD", "field_seed", "field_dir",
+__all__ = ["FIELD_SEED_OFFSET", "FIELDS_DIR", "FIELD_MODEL", "FIELD_RECORD", "FIELD_KEY", "field_seed", "field_dir",
+           "keep_matching_fields",
            "merged_training", "refined_apart", "merge_fields", "load_field", "mean_response", "train_fields", "TrainedFields"]

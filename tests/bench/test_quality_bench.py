@@ -42,7 +42,7 @@ def test_paired_differences_are_steadier_than_the_rows():
     assert s["self_check"] == ["skip", "skip", "refine"]
 
 
-def test_the_bench_runs_each_set_once_and_summarizes(tmp_path, monkeypatch):
+def test_the_bench_runs_each_set_once_and_summarizes(tmp_path, monkeypatch, capsys):
     calls = []
 
     def fake_runner(argv, log):
@@ -81,6 +81,10 @@ def test_the_bench_runs_each_set_once_and_summarizes(tmp_path, monkeypatch):
     assert calls[-2][-2:] == ["--set", "training.opacity_decay.enabled=true"]
     assert json.loads((tmp_path / "out" / "demo_seed2.json").read_text())["command"].endswith(
         "--set training.opacity_decay.enabled=true")
+    # the printed table links the files where they are, not the committed table's folder
+    capsys.readouterr()
+    assert Q.main(["--summary-only", "--out", str(tmp_path / "out")]) == 0
+    assert f"]({(tmp_path / 'out').resolve()}/demo_seed0.json)" in capsys.readouterr().out
 
 
 def test_a_set_whose_data_is_absent_says_so(tmp_path):

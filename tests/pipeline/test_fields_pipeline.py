@@ -84,6 +84,61 @@ def test_a_stage1_killed_between_fields_resumes_from_the_finished_field(tmp_path
                                rtol=0, atol=0)
 
 
+def test_more_fields_on_a_finished_run_train_only_the_new_ones(tmp_path):
+    """A field trains the same whatever the field count: a run folder given a third field (its
+    config.json rewritten, as a study that copies run folders does) reads fields 0 and 1 back,
+    their files untouched, and merges three; a setting that changes every field's training drops
+    them all."""
+    from fixer4d.model.io import load_ply
+    from fixer4d.pipeline.run import open_context, run_stages
+    from fixer4d.pipeline.run_folder import RunFolder
+    from fixer4d.train.fields import FIELD_KEY, FIELD_MODEL, field_dir, merge_fields
+
+    base = {**TWO, "stage2.rounds": 0, "baseline_sparse": False, "eval.restoration_rows": False,
+            "eval.matched_row": False}
+    run = tmp_path / "run"
+    run_stages(open_context(tiny_config(**base), run, progress=False))
+    written = {k: (field_dir(run, k) / FIELD_MODEL).stat().st_mtime_ns for k in range(2)}
+
+    def rerun(config):
+        RunFolder.open(run).update_config(config)
+        run_stages(open_context(config, run, progress=False))
+
+    rerun(tiny_config(**{**base, "training.fields": 3}))
+    assert {k: (field_dir(run, k) / FIELD_MODEL).stat().st_mtime_ns for k in range(2)} == written
+    fields = [load_ply(field_dir(run, k) / FIELD_MODEL) for k in range(3)]
+    merged = load_ply(run / "model_stage1.ply")
+    torch.testing.assert_close(merged.opacity_logits, merge_fields(fields).opacity_logits, rtol=0, atol=0)
+    assert json.loads((run / "model_terms.json").read_text())["fields"] == 3
+    keys = {(field_dir(run, k) / FIELD_KEY).read_text() for k in range(3)}
+    assert len(keys) == 3  # one key per field number
+    # another learning rate: no field is read back
+    rerun(tiny_config(**{**base, "training.fields": 3, "training.lr_scales": 4e-3}))
+    assert all((field_dir(run, k) / FIELD_MODEL).stat().st_mtime_ns != written[k] for k in range(2))
+    assert {(field_dir(run, k) / FIELD_KEY).read_text() for k in range(3)}.isdisjoint(keys)
+
+
+def test_the_sparse_baseline_is_keyed_without_the_field_count():
+    from fixer4d.pipeline.keys import stage1_key
+
+    one, three = tiny_config(**{"training.fields": 1}), tiny_config(**{"training.fields": 3})
+    assert stage1_key(one, "sparse") == stage1_key(three, "sparse")
+    assert stage1_key(one, "mvs") != stage1_key(three, "mvs")
+
+
+def test_a_field_without_its_key_is_trained_again_under_new_settings(tmp_path):
+    from fixer4d.train.fields import FIELD_KEY, keep_matching_fields
+
+    root = tmp_path / "fields"
+    for k, key in enumerate(["a", "b", None]):
+        (root / f"field{k}").mkdir(parents=True)
+        if key is not None:
+            (root / f"field{k}" / FIELD_KEY).write_text(key)
+    assert keep_matching_fields(tmp_path, lambda k: "ab"[k] if k < 2 else "c") == [0, 1]
+    assert sorted(p.name for p in root.iterdir()) == ["field0", "field1"]
+    assert keep_matching_fields(tmp_path, lambda k: "x") == [] and not list(root.iterdir())
+
+
 def test_a_later_segment_merges_its_fields_around_the_shared_static_rows(tmp_path):
     """share_static with two fields: each field of the second segment trains beside the first
     segment's static rows; the merged model holds them once, frozen, bit for bit."""
