@@ -150,10 +150,11 @@ def main(argv: list[str] | None = None) -> int:
     from fixer4d.bench.machine import cpu_topology
     from fixer4d.pipeline.run_folder import source_commit
 
-    result.update({"date": datetime.date.today().isoformat(), "commit": source_commit(),
-                   "machine": cpu_topology(), "numerics": numerics.status()})
+    command = " ".join(["python benchmarks/field_count.py", *(argv or sys.argv[1:])])
     result.update({"name": "field_count", "set": args.set, "split": args.split, "source": source,
-                   "runs": str(args.runs), "pool": sorted(pool), "command": " ".join(["python benchmarks/field_count.py"] + (argv or sys.argv[1:]))})
+                   "runs": str(args.runs), "pool": sorted(pool), "command": command,
+                   "date": datetime.date.today().isoformat(), "commit": source_commit(), "machine": cpu_topology(),
+                   "numerics": numerics.status()})
     scores: dict[str, dict[str, Any]] = result.setdefault("scores", {})
     models: dict[str, Any] = {}
     with tempfile.TemporaryDirectory(prefix="field_count_") as tmp:
