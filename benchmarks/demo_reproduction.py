@@ -2,10 +2,11 @@
 folder and compares every row with the quality bench's result file.
 
     python benchmarks/demo_reproduction.py [--run DIR] [--against benchmarks/results/quality/demo_seed0.json]
-        [--out benchmarks/results/demo_reproduction.json]
+        [--out benchmarks/results/demo_reproduction.json] [--set KEY=VALUE ...]
 
 DIR (default a fresh temporary folder) must not hold a run: a resumed run would reuse stages and
-say nothing about reproducing them. The result file is the bench's record of the run
+say nothing about reproducing them. ``--set`` adds settings to the command (then compare
+``--against`` a file made under them). The result file is the bench's record of the run
 (``fixer4d.bench.quality.record_run``) with ``compared_with``: the file, its commit, and per row
 the two PSNRs and whether they are identical. Time it on an idle machine: the stage seconds are
 part of the record.
@@ -40,13 +41,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run", type=Path, default=None, help="an empty folder for the run (default: a temporary one)")
     parser.add_argument("--against", type=Path, default=ROOT / "benchmarks/results/quality/demo_seed0.json")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/demo_reproduction.json")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="settings",
+                        help="a setting added to make run's command (repeatable)")
     args = parser.parse_args(argv)
+    extra = [a for kv in args.settings for a in ("--set", kv)]
     with tempfile.TemporaryDirectory(prefix="fixer4d-demo-") as tmp:
         run = args.run if args.run is not None else Path(tmp) / "demo"
         if run.exists() and any(run.iterdir()):
             parser.error(f"{run} is not empty: a resumed run reproduces nothing")
-        subprocess.run([sys.executable, "-m", "fixer4d.cli", *COMMAND, "--out", str(run), "--quiet"], check=True)
-        record = record_run(run, "demo_reproduction", f"make run  (fixer4d {' '.join(COMMAND)} --out runs/demo)")
+        subprocess.run([sys.executable, "-m", "fixer4d.cli", *COMMAND, "--out", str(run), *extra, "--quiet"],
+                       check=True)
+        shown = " ".join([*COMMAND, "--out", "runs/demo", *extra])
+        record = record_run(run, args.out.stem, f"make run  (fixer4d {shown})" if not extra else f"fixer4d {shown}")
     reference = json.loads(args.against.read_text())
     rows = compare(record["rows"], reference["rows"])
     record["compared_with"] = {"file": str(args.against.relative_to(ROOT) if args.against.is_absolute()

@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     folder.update_config(config)
     report = run_stages(StageContext(run=folder, scene=folder.scene, progress=not args.quiet,
-                                     keep_checkpoints=args.keep_checkpoints))
+                                     keep_checkpoints=args.keep_checkpoints, scene_from_config=True))
     for row in report["rows"]:
         if row.get("status") == "ok":
             print(f"{row['method']}: held-out PSNR {row['psnr']:.2f} dB")

@@ -47,7 +47,7 @@ def open_context(config: RunConfig, out: str | Path, *, progress: bool = True,
     run = RunFolder.create(out, config)
     return S.StageContext(run=run, scene=scene, progress=progress,
                           cache=StageCache(stage_cache) if stage_cache is not None else None,
-                          keep_checkpoints=keep_checkpoints)
+                          keep_checkpoints=keep_checkpoints, scene_from_config=True)
 
 
 def run_pipeline(config: RunConfig, out: str | Path, *, progress: bool = True,

@@ -76,11 +76,9 @@ def _fold_restorer(views, init_dir: Path, cfg1, base, out_dir: Path, config, par
     """The learned restorer of the fold: trained like the run's (``train_scene_restorer``) but on
     the fold's cameras, init and stage-1 model only, so that no pair it learns from (target,
     reference or extra view) holds a frame of the held-back camera. Resumable (its own folder)."""
-    from fixer4d.init import load_frame_clouds
-    from fixer4d.init.decompose import DecomposedInit, has_decomposed
     from fixer4d.train.restorer_pairs import train_scene_restorer
 
-    init = DecomposedInit.load(init_dir) if has_decomposed(init_dir) else load_frame_clouds(init_dir)
+    init = _load_init(init_dir)
     t0 = time.perf_counter()
     restorer = train_scene_restorer(views, init, cfg1, out_dir / "restorer", config.restorer, progress=progress,
                                     model=base)
@@ -89,13 +87,16 @@ def _fold_restorer(views, init_dir: Path, cfg1, base, out_dir: Path, config, par
     return restorer
 
 
-def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bool = False) -> dict[str, Any]:
+def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bool = False,
+                   scene_from_config: bool = False) -> dict[str, Any]:
     """The self-check of ``config`` on ``scene`` (module docstring of ``pipeline.self_check``) with
     the run's ``restorer``; working files under ``out_dir`` (the first fold's in it, the others' in
     ``out_dir/fold<k>``). Returns the decision record (also ``out_dir/decision.json``).
     Resumable: the parts finished (PARTS_FILE, a fold's init and model) are reused and an
     interrupted training continues from its last checkpoint, so a resumed check decides as an
-    uninterrupted one."""
+    uninterrupted one. scene_from_config: ``scene`` is the train view of ``load_scene_for(config)``
+    (what the pipeline passes), so the fold's fields may train side by side in worker processes
+    that load it again (``training.field_workers``)."""
     from fixer4d import atomic
 
     sc = config.self_check
@@ -110,7 +111,8 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
     for k, held in enumerate(sc.held_back(train_ids)):
         if len(folds) and progress:
             print(f"[fixer4d] self-check: fold {k + 1} of {sc.cameras} (held-back camera {held})", flush=True)
-        folds.append(_run_fold(scene, config, out_dir if k == 0 else out_dir / f"fold{k}", held, restorer, progress))
+        folds.append(_run_fold(scene, config, out_dir if k == 0 else out_dir / f"fold{k}", held, restorer, progress,
+                               scene_from_config))
 
     candidates = sc.candidates()
     if len(folds) == 1:
@@ -150,7 +152,58 @@ def run_self_check(scene, config, out_dir: str | Path, restorer, *, progress: bo
     return record
 
 
-def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool) -> dict[str, Any]:
+def fold_views(scene, config, held: int):
+    """The fold's view of ``scene``: its train cameras but ``held``, at the check's scale, and
+    only their frames readable."""
+    from fixer4d.scene.train_view import TrainOnlyView
+
+    fold_ids = [i for i in scene.train_ids if i != held]
+    return TrainOnlyView(scene, fold_ids, config.self_check.scale, readable=fold_ids)
+
+
+def fold_stage1_config(config, progress: bool = False):
+    """The TrainingConfig of the fold's stage 1 (``self_check.fold_training``, ``fold_fields``)."""
+    return dataclasses.replace(config.self_check.fold_training(config.training), fields=fold_fields(config),
+                               progress=progress)
+
+
+def _load_init(init_dir: Path):
+    from fixer4d.init import load_frame_clouds
+    from fixer4d.init.decompose import DecomposedInit, has_decomposed
+
+    return DecomposedInit.load(init_dir) if has_decomposed(init_dir) else load_frame_clouds(init_dir)
+
+
+def _fold_trainer(config, cfg1, views, init, field: int, directory: Path):
+    """Field ``field``'s untrained trainer of the fold's stage 1 (``cfg1``: ``fold_stage1_config``)."""
+    from fixer4d.model.camera_response import CameraResponse
+    from fixer4d.train.fields import field_seed
+    from fixer4d.train.model_init import model_from_init
+    from fixer4d.train.trainer import Trainer
+
+    cfg = dataclasses.replace(cfg1, seed=field_seed(cfg1.seed, field))
+    model, terms_decision = model_from_init(init, views, cfg, config.model_terms)
+    response = (CameraResponse(len(views.train_ids))
+                if terms_decision is not None and terms_decision.camera_response else None)
+    return Trainer(model, views, cfg, run_dir=directory, terms=config.model_terms if terms_decision is not None else None,
+                   camera_response=response, depth_init=init)
+
+
+def fold_field_trainer(config: dict[str, Any], held: int, init_dir: str, field: int, directory: Path):
+    """Field ``field`` of the fold that holds back ``held``, built in a worker process
+    (``train.field_workers``): the run's scene loaded again from ``config`` and seen as the
+    pipeline's train view, the fold's finished init read back from ``init_dir``."""
+    from fixer4d.pipeline.config import RunConfig
+    from fixer4d.pipeline.run_folder import load_scene_for
+    from fixer4d.scene.train_view import TrainOnlyView
+
+    run_config = RunConfig.from_dict(config)
+    views = fold_views(TrainOnlyView(load_scene_for(run_config)), run_config, held)
+    return _fold_trainer(run_config, fold_stage1_config(run_config), views, _load_init(Path(init_dir)), field, directory)
+
+
+def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool,
+              scene_from_config: bool = False) -> dict[str, Any]:
     """One fold of the check: train camera ``held`` held back, the others trained on (init,
     stage 1, the fold's learned restorer, the continue and refine candidates); working files in
     ``out_dir``. Returns {"held_back_camera", "held_back_name", "fold_cameras", "fold_names",
@@ -158,8 +211,7 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
     import json
 
     from fixer4d import atomic
-    from fixer4d.init import load_frame_clouds, run_init
-    from fixer4d.init.decompose import DecomposedInit, has_decomposed
+    from fixer4d.init import run_init
     from fixer4d.model.camera_response import CameraResponse
     from fixer4d.model.io import load_ply, save_ply
     from fixer4d.pipeline.keys import stage2_key
@@ -168,18 +220,17 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
     from fixer4d.scene.train_view import TrainOnlyView
     from fixer4d.train.background import resolve_background
     from fixer4d.train.config import matched_config
-    from fixer4d.train.fields import field_seed, merged_training, train_fields
-    from fixer4d.train.model_init import model_from_init
+    from fixer4d.train.field_workers import FieldRecipe, worker_count
+    from fixer4d.train.fields import merged_training, train_fields
     from fixer4d.train.trainer import Trainer
 
     sc = config.self_check
     out_dir.mkdir(parents=True, exist_ok=True)
     parts = _Parts(out_dir)
-    fold_ids = [i for i in scene.train_ids if i != held]
     # every part of the fold reads its own cameras only; the held-back camera's frames are read
     # through ``scored``, by ``_held_back_psnr`` alone
-    views = TrainOnlyView(scene, fold_ids, sc.scale, readable=fold_ids)
-    scored = TrainOnlyView(scene, fold_ids, sc.scale)
+    views = fold_views(scene, config, held)
+    scored = TrainOnlyView(scene, views.train_ids, sc.scale)
     init_dir = out_dir / "init"
     if "init" not in parts.seconds:
         t0 = time.perf_counter()
@@ -187,22 +238,20 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool)
         run_init(views, config.init.method, init_dir, frames=frames, config=config.init, progress=False)
         parts.finish("init", time.perf_counter() - t0)
 
-    cfg1 = dataclasses.replace(sc.fold_training(config.training), fields=fold_fields(config), progress=progress)
+    cfg1 = fold_stage1_config(config, progress)
     if "stage1" not in parts.seconds:
-        init = DecomposedInit.load(init_dir) if has_decomposed(init_dir) else load_frame_clouds(init_dir)
+        init = _load_init(init_dir)
 
         def make_trainer(k: int, directory: Path) -> Trainer:
-            cfg = dataclasses.replace(cfg1, seed=field_seed(cfg1.seed, k))
-            model, terms_decision = model_from_init(init, views, cfg, config.model_terms)
-            response = (CameraResponse(len(views.train_ids))
-                        if terms_decision is not None and terms_decision.camera_response else None)
-            return Trainer(model, views, cfg, run_dir=directory,
-                           terms=config.model_terms if terms_decision is not None else None,
-                           camera_response=response, depth_init=init)
+            return _fold_trainer(config, cfg1, views, init, k, directory)
 
         if cfg1.fields > 1:  # the run's stage 1 as fields merged: the fold's too
             t0 = time.perf_counter()
-            fields = train_fields(make_trainer, cfg1.fields, out_dir / "stage1", label="self-check fold")
+            workers = worker_count(cfg1, cfg1.fields) if scene_from_config else 1
+            recipe = (FieldRecipe("fixer4d.pipeline.self_check_run:fold_field_trainer",
+                                  (config.to_dict(), held, str(init_dir))) if workers > 1 else None)
+            fields = train_fields(make_trainer, cfg1.fields, out_dir / "stage1", label="self-check fold",
+                                  recipe=recipe, workers=workers, progress=progress)
             model, response = fields.model, fields.response
             seconds = time.perf_counter() - t0 + fields.prior_seconds
             shutil.rmtree(out_dir / "stage1", ignore_errors=True)

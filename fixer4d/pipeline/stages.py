@@ -75,6 +75,9 @@ class StageContext:
     # keep a finished stage's checkpoints (`--keep-checkpoints`); by default a stage's checkpoints
     # go once its outputs are written
     keep_checkpoints: bool = False
+    # ``scene`` is ``load_scene_for(config)``, which a worker process can load again: stage 1's fields
+    # and the self-check fold's may then train side by side (train.field_workers)
+    scene_from_config: bool = False
     _train_scene: Any = dataclasses.field(default=None, repr=False)
 
     @property
@@ -229,12 +232,36 @@ def _stage1_fields(ctx: StageContext, clouds, run_dir: Path, fields: int):
         decisions.append(decision)
         return trainer
 
+    recipe, workers = field_recipe(ctx, "fixer4d.pipeline.stages:stage1_field_trainer", str(ctx.path))
     done = train_fields(make_trainer, fields, run_dir, finished=lambda out: _finished(ctx, out, 1),
-                        key=lambda k: field_key(ctx.config, k))
+                        key=lambda k: field_key(ctx.config, k), recipe=recipe, workers=workers, progress=ctx.progress)
     if not decisions:  # every field was finished: the decision is the init's, whatever the seed
         _, decision = stage1_trainer(ctx, clouds, None)
         decisions.append(decision)
     return done.model, decisions[0], done.revisions, done.response, done.prior_seconds
+
+
+def field_recipe(ctx: StageContext, function: str, *args: Any):
+    """(FieldRecipe | None, workers) for a training of the run's fields: a recipe calling
+    ``function(config dict, *args, field=k, directory=out)`` in a worker process where the scene is
+    the config's (``ctx.scene_from_config``) and more than one worker would run; else (None, 1)."""
+    from fixer4d.train.field_workers import FieldRecipe, worker_count
+
+    workers = worker_count(ctx.config.training, ctx.config.training.fields)
+    if not ctx.scene_from_config or workers < 2:
+        return None, 1
+    return FieldRecipe(function, (ctx.config.to_dict(), *args)), workers
+
+
+def stage1_field_trainer(config: dict[str, Any], run_path: str, field: int, directory: Path):
+    """Field ``field``'s stage-1 trainer in a worker process (``field_recipe``): the run's scene
+    loaded again and its finished init read back, built as ``stage1_trainer`` builds it."""
+    from fixer4d.pipeline.run_folder import load_scene_for
+
+    run_config = RunConfig.from_dict(config)
+    ctx = StageContext(run=RunFolder(Path(run_path), run_config), scene=load_scene_for(run_config), progress=False)
+    trainer, _ = stage1_trainer(ctx, init_stage(ctx, run_config.init_method), directory, field=field)
+    return trainer
 
 
 def stage1_trainer(ctx: StageContext, init, run_dir: Path | None, depth_prior: bool = True, field: int = 0):
@@ -481,7 +508,8 @@ def self_check_stage(ctx: StageContext, restorer) -> dict[str, Any]:
         # only the decision's settings changed: decided again below from the finished fold
     elif ctx.run.records.begin("self_check", key):  # an attempt under other settings: start over
         _clear(out, keep_aside=False)
-    record = run_self_check(ctx.train_scene, ctx.config, out, restorer, progress=ctx.progress)
+    record = run_self_check(ctx.train_scene, ctx.config, out, restorer, progress=ctx.progress,
+                            scene_from_config=ctx.scene_from_config)
     ctx.run.records.finish("self_check", key, float(sum(record.get("seconds", {}).values())))
     if ctx.progress:
         print(f"[fixer4d] stage-2 self-check: {record['reason']}", flush=True)

@@ -27,7 +27,7 @@ _CKPT_NAME = re.compile(r"^stage(\d)_(\d{7})\.pt$")
 _CKPT_TEMP = re.compile(r"^\.stage(\d)_\d{7}\.pt\..+$")
 # Training settings that do not change a result (progress display, checkpoint cadence): a run
 # may resume with other values.
-RESULT_NEUTRAL = ("progress", "checkpoint_every", "keep_checkpoints")
+RESULT_NEUTRAL = ("progress", "checkpoint_every", "keep_checkpoints", "field_workers")
 
 
 def result_settings(config: dict[str, Any]) -> dict[str, Any]:

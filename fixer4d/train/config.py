@@ -104,6 +104,10 @@ class TrainingConfig:
     # control get fields x the budget. 2 against 1 on the validation cameras, paired over seeds
     # 0-4: docs/decisions/two-fields.md.
     fields: int = 2
+    # Fields trained side by side, each in a worker process (train.field_workers): 0 = one per
+    # usable CPU, 1 = one after the other in the run's process. The digits are the same either way
+    # (docs/decisions/field-workers.md).
+    field_workers: int = 0
 
     # -- observed loss ---------------------------------------------------------------------
     # Extra per-pixel weight of L_STG on the pixels each train camera's own moving-content mask
@@ -212,6 +216,8 @@ class TrainingConfig:
             raise InputError(f"TrainingConfig.moving_loss_weight must be >= 0, got {self.moving_loss_weight}")
         if self.fields < 1:
             raise InputError(f"TrainingConfig.fields must be >= 1, got {self.fields}")
+        if self.field_workers < 0:
+            raise InputError(f"TrainingConfig.field_workers must be >= 0 (0: one per CPU), got {self.field_workers}")
         if self.max_gaussians < 1 or self.init_max_points < 1:
             raise InputError("TrainingConfig: max_gaussians and init_max_points must be >= 1")
         for name in ("prune_world_scale", "prune_screen_fraction"):

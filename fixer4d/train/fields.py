@@ -11,8 +11,9 @@ region no camera determines) it shows at 1/n of its opacity, as in the mean of t
     train_fields(make_trainer, n, dir) -> field k trains with seed + k x FIELD_SEED_OFFSET under
                                  dir/fields/field<k>/ (its model and record, training seconds,
                                  revisions and camera response, written there when done; a resumed stage 1 reads
-                                 the finished fields back and resumes the one in progress), then
-                                 the fields are merged:
+                                 the finished fields back and resumes the ones in progress), side by
+                                 side in worker processes where the caller gives a recipe
+                                 (train.field_workers), then the fields are merged:
     merge_fields(models)      -> the union, opacities / n                (N_1 + ... + N_n rows)
     mean_response(responses)  -> the camera response of the merged model (the fields' mean)
 
@@ -35,6 +36,7 @@ from fixer4d.model.spacetime import SpacetimeGaussians
 
 if TYPE_CHECKING:
     from fixer4d.train.config import Stage2Config, TrainingConfig
+    from fixer4d.train.field_workers import FieldRecipe
     from fixer4d.train.trainer import Trainer
 
 # Field k's seed is the run's plus k times this: far from the seeds a study sweeps (0, 1, 2, ...),
@@ -137,8 +139,9 @@ class TrainedFields:
 
 def train_fields(make_trainer: Callable[[int, Path], "Trainer"], fields: int, run_dir: str | Path,
                  finished: Callable[[Path], None] | None = None, label: str = "stage 1",
-                 step: str | None = None, key: Callable[[int], str] | None = None) -> TrainedFields:
-    """Train ``fields`` fields one after the other and merge them (``merge_fields``).
+                 step: str | None = None, key: Callable[[int], str] | None = None,
+                 recipe: "FieldRecipe | None" = None, workers: int = 1, progress: bool = True) -> TrainedFields:
+    """Train ``fields`` fields and merge them (``merge_fields``).
 
     make_trainer(k, directory): field k's untrained Trainer (seed ``field_seed(seed, k)``, its
     model drawn from the init with that seed, or for a later ``step`` the field's stage-1 model,
@@ -147,38 +150,68 @@ def train_fields(make_trainer: Callable[[int, Path], "Trainer"], fields: int, ru
     each finished field writes its model and record there, then ``finished(directory)`` runs (e.g.
     to drop the field's checkpoints). label: what the progress bars call the training
     ("<label>, field k/n"). key(k): field k's key, written into its folder before it trains
-    (``FIELD_KEY``)."""
-    from fixer4d.model.io import load_ply, save_ply
+    (``FIELD_KEY``). recipe, workers: with a recipe (``train.field_workers``) and workers > 1, the
+    unfinished fields train side by side in that many worker processes, the recipe standing in for
+    make_trainer there (the same fields, byte for byte); otherwise one after the other here.
+    progress: the workers' progress bar (in this process a trainer's config decides)."""
+    from fixer4d.model.io import load_ply
 
-    models, responses, revisions, prior = [], [], {}, 0.0
-    for k in range(fields):
-        out = field_dir(run_dir, k, step)
-        if (out / FIELD_MODEL).exists() and (out / FIELD_RECORD).exists():
-            seconds, response, counts = _load_record(out)
-            models.append(load_ply(out / FIELD_MODEL))
-            responses.append(response)
-            prior += seconds
-            for what, count in counts.items():
-                revisions[what] = revisions.get(what, 0) + count
-            continue
-        if key is not None:
-            from fixer4d.atomic import write_text
+    pending = [k for k in range(fields) if not _is_finished(field_dir(run_dir, k, step))]
+    if key is not None:
+        from fixer4d.atomic import write_text
 
+        for k in pending:
+            out = field_dir(run_dir, k, step)
             out.mkdir(parents=True, exist_ok=True)
             write_text(out / FIELD_KEY, key(k))
-        trainer = make_trainer(k, out)
-        trainer.label = f"{label}, field {k + 1}/{fields}"
-        prior += trainer.train_seconds if trainer.resume() else 0.0
-        trainer.train()
-        models.append(trainer.host_model())
-        responses.append(trainer.response)
-        for what, count in trainer.revisions.items():
-            revisions[what] = revisions.get(what, 0) + count
-        save_ply(models[-1], out / FIELD_MODEL)
-        _save_record(out, trainer.train_seconds, trainer.response, trainer.revisions)
+    prior, trained = 0.0, {}
+    if recipe is not None and min(workers, len(pending)) > 1:
+        from fixer4d.train.field_workers import train_in_workers
+
+        jobs = [(k, field_dir(run_dir, k, step)) for k in pending]
+        prior += sum(train_in_workers(recipe, jobs, workers, label, save_field, progress).values())
         if finished is not None:
-            finished(out)
+            for _, out in jobs:
+                finished(out)
+    else:
+        for k in pending:
+            out = field_dir(run_dir, k, step)
+            trainer = make_trainer(k, out)
+            trainer.label = f"{label}, field {k + 1}/{fields}"
+            prior += trainer.train_seconds if trainer.resume() else 0.0
+            trainer.train()
+            trained[k] = (save_field(out, trainer), trainer.response, trainer.revisions)
+            if finished is not None:
+                finished(out)
+    models, responses, revisions = [], [], {}
+    for k in range(fields):
+        out = field_dir(run_dir, k, step)
+        if k in trained:
+            model, response, counts = trained[k]
+        else:
+            seconds, response, counts = _load_record(out)
+            model = load_ply(out / FIELD_MODEL)
+            prior += 0.0 if k in pending else seconds
+        models.append(model)
+        responses.append(response)
+        for what, count in counts.items():
+            revisions[what] = revisions.get(what, 0) + count
     return TrainedFields(merge_fields(models), mean_response(responses), revisions, prior)
+
+
+def save_field(directory: str | Path, trainer: "Trainer") -> SpacetimeGaussians:
+    """Write a trained field's model and record into ``directory`` (the record last: a field is
+    finished when both are there); returns the model (host memory)."""
+    from fixer4d.model.io import save_ply
+
+    model = trainer.host_model()
+    save_ply(model, Path(directory) / FIELD_MODEL)
+    _save_record(Path(directory), trainer.train_seconds, trainer.response, trainer.revisions)
+    return model
+
+
+def _is_finished(directory: Path) -> bool:
+    return (directory / FIELD_MODEL).exists() and (directory / FIELD_RECORD).exists()
 
 
 def keep_matching_fields(run_dir: str | Path, key: Callable[[int], str]) -> list[int]:
@@ -229,4 +262,5 @@ def _load_record(directory: Path) -> tuple[float, CameraResponse | None, dict[st
 
 __all__ = ["FIELD_SEED_OFFSET", "FIELDS_DIR", "FIELD_MODEL", "FIELD_RECORD", "FIELD_KEY", "field_seed", "field_dir",
            "keep_matching_fields",
-           "merged_training", "refined_apart", "merge_fields", "load_field", "mean_response", "train_fields", "TrainedFields"]
+           "merged_training", "refined_apart", "merge_fields", "load_field", "mean_response", "train_fields", "save_field",
+           "TrainedFields"]

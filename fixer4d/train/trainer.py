@@ -570,9 +570,12 @@ class Trainer:
     def done(self) -> bool:
         return self.step_count >= self.total_iterations
 
-    def train(self, n: int | None = None, progress: bool | None = None) -> dict[str, float]:
+    def train(self, n: int | None = None, progress: bool | None = None,
+              on_step: Callable[[int], None] | None = None) -> dict[str, float]:
         """Run up to ``n`` more steps (default: until ``total_iterations``), checkpointing every
-        ``checkpoint_every`` steps and at the end. Returns the last step's scalars plus seconds."""
+        ``checkpoint_every`` steps and at the end. ``on_step(step_count)`` after every step (a
+        worker process's progress, ``train.field_workers``). Returns the last step's scalars plus
+        seconds."""
         self._stop.clear()
         end = self.total_iterations if n is None else min(self.step_count + int(n), self.total_iterations)
         show = self.config.progress if progress is None else progress
@@ -590,6 +593,8 @@ class Trainer:
                 self.train_seconds += now - last  # before a checkpoint, so that it records it
                 last = now
                 bar.update(1)
+                if on_step is not None:
+                    on_step(self.step_count)
                 if self.step_count % CHECK_EVERY == 0 or self.step_count == end:
                     with self._lock:
                         rec = self._read_back()

@@ -7,6 +7,9 @@ TINY = {
     "training.iterations": 40, "stage2.rounds": 1, "stage2.refresh_every": 20,
     "trajectories.frames": 3, "trajectories.time_stride": 4, "init_frame_stride": 2, "eval.stride": 2,
     "init.mvs.planes": 24, "eval.examples": 1,
+    # a tiny field trains in less time than a worker process takes to start (train.field_workers;
+    # tests/train/test_field_workers.py runs them)
+    "training.field_workers": 1,
 }
 
 
@@ -64,4 +67,5 @@ def run_spied(config, run_dir, stage_cache=None):
     ctx = open_context(config, run_dir, progress=False, stage_cache=stage_cache)
     spy = HeldOutSpy(ctx.scene)
     ctx.scene = spy
+    ctx.scene_from_config = False  # a worker process would load the scene, not the spy
     return run_stages(ctx), spy

@@ -1,0 +1,71 @@
+"""train.field_workers: how many workers, and what reaches the caller when a worker fails."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+
+def raising_trainer(message: str, field: int, directory: Path):
+    """A recipe's function whose field cannot be built (the caller's input is wrong)."""
+    from fixer4d.errors import InputError
+
+    raise InputError(f"{message} (field {field})")
+
+
+def dying_trainer(field: int, directory: Path):
+    """A recipe's function whose worker dies without a word, as one the kernel kills."""
+    os._exit(3)
+
+
+def test_worker_count_is_one_per_cpu_at_most_one_per_field(monkeypatch):
+    import fixer4d.cpus
+    from fixer4d.train.config import TrainingConfig
+    from fixer4d.train.field_workers import worker_count
+
+    monkeypatch.setattr(fixer4d.cpus, "usable_cpus", lambda root=None: 2)
+    assert worker_count(TrainingConfig(), 4) == 2
+    assert worker_count(TrainingConfig(), 1) == 1
+    assert worker_count(TrainingConfig(field_workers=3), 4) == 3
+    assert worker_count(TrainingConfig(field_workers=3), 2) == 2
+    assert worker_count(TrainingConfig(field_workers=1), 4) == 1
+
+
+def test_worker_count_is_one_on_cuda(monkeypatch):
+    import fixer4d.train.device
+    from fixer4d.train.config import TrainingConfig
+    from fixer4d.train.field_workers import worker_count
+
+    monkeypatch.setattr(fixer4d.train.device, "device_kind", lambda device, backend: "cuda")
+    assert worker_count(TrainingConfig(field_workers=4), 4) == 1
+
+
+def test_a_negative_worker_count_is_refused():
+    from fixer4d.errors import InputError
+    from fixer4d.train.config import TrainingConfig
+
+    with pytest.raises(InputError, match="field_workers"):
+        TrainingConfig(field_workers=-1)
+
+
+def test_a_workers_error_reaches_the_caller_with_its_field(tmp_path):
+    from fixer4d.errors import InputError
+    from fixer4d.train.field_workers import FieldRecipe, train_in_workers
+    from fixer4d.train.fields import save_field
+
+    recipe = FieldRecipe(f"{__name__}:raising_trainer", ("no such camera",))
+    jobs = [(0, tmp_path / "f0"), (1, tmp_path / "f1")]
+    with pytest.raises(InputError, match=r"stage 1, field [12]: InputError: no such camera \(field [01]\)"):
+        train_in_workers(recipe, jobs, 2, "stage 1", save_field, progress=False)
+
+
+def test_a_worker_that_dies_says_how_to_resume(tmp_path):
+    from fixer4d.errors import Fixer4DError
+    from fixer4d.train.field_workers import FieldRecipe, train_in_workers
+    from fixer4d.train.fields import save_field
+
+    recipe = FieldRecipe(f"{__name__}:dying_trainer")
+    with pytest.raises(Fixer4DError, match="exit code 3.*resume from its checkpoints"):
+        train_in_workers(recipe, [(0, tmp_path / "f0"), (1, tmp_path / "f1")], 2, "stage 1", save_field,
+                         progress=False)
