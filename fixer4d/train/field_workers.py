@@ -54,34 +54,41 @@ class FieldRecipe:
         return getattr(importlib.import_module(module), name)(*self.args, field=field, directory=directory)
 
 
-def worker_count(training: "TrainingConfig", pending: int) -> int:
-    """Workers for ``pending`` fields: ``training.field_workers`` (0: one per usable CPU,
-    ``fixer4d.cpus``), at most one per field; 1 on CUDA, where the GPU runs one field's kernels at
-    a time anyway."""
+def cpu_budget() -> int:
+    """The CPUs this process may keep busy: its torch thread count (what a study's executor grants
+    a task), at most the usable CPUs (``fixer4d.cpus``)."""
+    import torch
+
     from fixer4d.cpus import usable_cpus
+
+    return max(1, min(usable_cpus(), torch.get_num_threads()))
+
+
+def worker_count(training: "TrainingConfig", pending: int) -> int:
+    """Workers for ``pending`` fields: ``training.field_workers`` (0: one per CPU of
+    ``cpu_budget``), at most one per field; 1 on CUDA, where the GPU runs one field's kernels at a
+    time anyway."""
     from fixer4d.train.device import device_kind
 
     if device_kind(training.device, training.backend) != "cpu":
         return 1
-    wanted = training.field_workers if training.field_workers > 0 else usable_cpus()
+    wanted = training.field_workers if training.field_workers > 0 else cpu_budget()
     return max(1, min(int(wanted), int(pending)))
 
 
 def train_in_workers(recipe: FieldRecipe, jobs: Sequence[tuple[int, Path]], workers: int, label: str,
                      save: Callable[[Path, "Trainer"], Any], progress: bool = True) -> dict[int, float]:
     """Train every (field, directory) of ``jobs`` to its end in ``workers`` spawned processes (a new
-    one starts as one ends), each on usable CPUs // workers threads; every worker resumes its field
+    one starts as one ends), each on ``cpu_budget()`` // workers threads; every worker resumes its field
     from the checkpoints in its directory and writes the finished model and record there with
     ``save(directory, trainer)`` (top-level, so that it pickles: ``fields.save_field``). Returns
     {field: seconds trained by earlier attempts} (0 for a field that started afresh). Raises
     InputError or Fixer4DError with a worker's error (the others are stopped first)."""
     from tqdm import tqdm
 
-    from fixer4d.cpus import usable_cpus
-
     context = mp.get_context("spawn")
     workers = max(1, min(int(workers), len(jobs)))
-    threads = max(1, usable_cpus() // workers)
+    threads = max(1, cpu_budget() // workers)
     steps = context.Array("q", len(jobs), lock=False)  # each job's steps done (its worker writes them)
     totals = context.Array("q", len(jobs), lock=False)  # each job's total steps, once its worker knows
     waiting = list(range(len(jobs)))
@@ -156,8 +163,10 @@ def _work(recipe: FieldRecipe, save, field: int, directory: str, threads: int, s
     or ("error", "input" | "other", what went wrong) through ``pipe``."""
     import signal
 
-    # Ctrl-C reaches the whole process group: the parent stops the workers (their checkpoints stay)
+    # Ctrl-C reaches the whole process group: the parent stops the workers (their checkpoints stay);
+    # the parent's SIGTERM ends a worker through Python, so that its semaphores are released
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _exit_on_signal)
     try:
         import torch
 
@@ -180,6 +189,8 @@ def _work(recipe: FieldRecipe, save, field: int, directory: str, threads: int, s
         trainer.train(progress=False, on_step=on_step)
         save(out, trainer)
         pipe.send(("done", prior))
+    except SystemExit:
+        raise
     except BaseException as exc:  # noqa: BLE001 - everything goes back to the parent, which raises it
         traceback.print_exc()
         pipe.send(("error", "input" if isinstance(exc, InputError) else "other", f"{type(exc).__name__}: {exc}"))
@@ -187,4 +198,8 @@ def _work(recipe: FieldRecipe, save, field: int, directory: str, threads: int, s
         pipe.close()
 
 
-__all__ = ["FieldRecipe", "worker_count", "train_in_workers", "POLL_SECONDS"]
+def _exit_on_signal(signum: int, _frame) -> None:
+    raise SystemExit(128 + signum)
+
+
+__all__ = ["FieldRecipe", "cpu_budget", "worker_count", "train_in_workers", "POLL_SECONDS"]

@@ -20,16 +20,29 @@ def dying_trainer(field: int, directory: Path):
 
 
 def test_worker_count_is_one_per_cpu_at_most_one_per_field(monkeypatch):
-    import fixer4d.cpus
+    import fixer4d.train.field_workers as fw
     from fixer4d.train.config import TrainingConfig
     from fixer4d.train.field_workers import worker_count
 
-    monkeypatch.setattr(fixer4d.cpus, "usable_cpus", lambda root=None: 2)
+    monkeypatch.setattr(fw, "cpu_budget", lambda: 2)
     assert worker_count(TrainingConfig(), 4) == 2
     assert worker_count(TrainingConfig(), 1) == 1
     assert worker_count(TrainingConfig(field_workers=3), 4) == 3
     assert worker_count(TrainingConfig(field_workers=3), 2) == 2
     assert worker_count(TrainingConfig(field_workers=1), 4) == 1
+
+
+def test_the_cpu_budget_is_the_threads_an_executor_grants(monkeypatch):
+    import torch
+
+    import fixer4d.cpus
+    from fixer4d.train.field_workers import cpu_budget
+
+    monkeypatch.setattr(fixer4d.cpus, "usable_cpus", lambda root=None: 8)
+    monkeypatch.setattr(torch, "get_num_threads", lambda: 2)
+    assert cpu_budget() == 2
+    monkeypatch.setattr(fixer4d.cpus, "usable_cpus", lambda root=None: 1)
+    assert cpu_budget() == 1
 
 
 def test_worker_count_is_one_on_cuda(monkeypatch):
