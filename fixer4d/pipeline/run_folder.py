@@ -29,8 +29,6 @@ from fixer4d.pipeline.config import FORMAT_VERSION, RunConfig, as_saved, migrate
 log = logging.getLogger("fixer4d.pipeline")
 
 CONFIG_NAME = "config.json"
-# Settings a resumed run may change: they decide how the work is carried out, not its digits.
-RESUMABLE_CHANGES = ("training.field_workers",)
 STAGES_NAME = "stages.json"
 
 
@@ -143,8 +141,12 @@ class RunFolder:
         if (path / CONFIG_NAME).exists():
             previous = cls.open(path).config
             changes = config_tree.diff(previous.to_dict(), config.to_dict())
-            # how the run is carried out, not what it computes, may change on a resume
-            changes = [c for c in changes if c.split(":")[0] not in RESUMABLE_CHANGES]
+            from fixer4d.train.checkpoints import RESULT_NEUTRAL
+
+            # how the run is carried out (display, checkpoint cadence, workers), not what it computes,
+            # may change on a resume
+            neutral = {f"training.{k}" for k in RESULT_NEUTRAL}
+            changes = [c for c in changes if c.split(":")[0] not in neutral]
             if changes:
                 from fixer4d.train.config import SCHEDULE_KEYS
 

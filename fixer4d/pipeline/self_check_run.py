@@ -220,7 +220,7 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool,
     from fixer4d.scene.train_view import TrainOnlyView
     from fixer4d.train.background import resolve_background
     from fixer4d.train.config import matched_config
-    from fixer4d.train.field_workers import FieldRecipe, worker_count
+    from fixer4d.train.field_workers import plan_workers
     from fixer4d.train.fields import merged_training, train_fields
     from fixer4d.train.trainer import Trainer
 
@@ -247,9 +247,9 @@ def _run_fold(scene, config, out_dir: Path, held: int, restorer, progress: bool,
 
         if cfg1.fields > 1:  # the run's stage 1 as fields merged: the fold's too
             t0 = time.perf_counter()
-            workers = worker_count(cfg1, cfg1.fields) if scene_from_config else 1
-            recipe = (FieldRecipe("fixer4d.pipeline.self_check_run:fold_field_trainer",
-                                  (config.to_dict(), held, str(init_dir))) if workers > 1 else None)
+            recipe, workers = plan_workers(cfg1, cfg1.fields, scene_from_config,
+                                           "fixer4d.pipeline.self_check_run:fold_field_trainer", config.to_dict(),
+                                           held, str(init_dir))
             fields = train_fields(make_trainer, cfg1.fields, out_dir / "stage1", label="self-check fold",
                                   recipe=recipe, workers=workers, progress=progress)
             model, response = fields.model, fields.response

@@ -220,6 +220,7 @@ def _stage1_fields(ctx: StageContext, clouds, run_dir: Path, fields: int):
     """The main init's stage 1 as ``fields`` fields merged (``train.fields.train_fields``, in
     RUN/fields/). Returns (model, terms decision, revisions, camera response, seconds trained
     before this call)."""
+    from fixer4d.train.field_workers import plan_workers
     from fixer4d.train.fields import train_fields
 
     if ctx.config.co_fields.enabled:
@@ -232,7 +233,8 @@ def _stage1_fields(ctx: StageContext, clouds, run_dir: Path, fields: int):
         decisions.append(decision)
         return trainer
 
-    recipe, workers = field_recipe(ctx, "fixer4d.pipeline.stages:stage1_field_trainer", str(ctx.path))
+    recipe, workers = plan_workers(ctx.config.training, fields, ctx.scene_from_config,
+                                   "fixer4d.pipeline.stages:stage1_field_trainer", ctx.config.to_dict(), str(ctx.path))
     done = train_fields(make_trainer, fields, run_dir, finished=lambda out: _finished(ctx, out, 1),
                         key=lambda k: field_key(ctx.config, k), recipe=recipe, workers=workers, progress=ctx.progress)
     if not decisions:  # every field was finished: the decision is the init's, whatever the seed
@@ -241,20 +243,8 @@ def _stage1_fields(ctx: StageContext, clouds, run_dir: Path, fields: int):
     return done.model, decisions[0], done.revisions, done.response, done.prior_seconds
 
 
-def field_recipe(ctx: StageContext, function: str, *args: Any):
-    """(FieldRecipe | None, workers) for a training of the run's fields: a recipe calling
-    ``function(config dict, *args, field=k, directory=out)`` in a worker process where the scene is
-    the config's (``ctx.scene_from_config``) and more than one worker would run; else (None, 1)."""
-    from fixer4d.train.field_workers import FieldRecipe, worker_count
-
-    workers = worker_count(ctx.config.training, ctx.config.training.fields)
-    if not ctx.scene_from_config or workers < 2:
-        return None, 1
-    return FieldRecipe(function, (ctx.config.to_dict(), *args)), workers
-
-
 def stage1_field_trainer(config: dict[str, Any], run_path: str, field: int, directory: Path):
-    """Field ``field``'s stage-1 trainer in a worker process (``field_recipe``): the run's scene
+    """Field ``field``'s stage-1 trainer in a worker process (``train.field_workers``): the run's scene
     loaded again and its finished init read back, built as ``stage1_trainer`` builds it."""
     from fixer4d.pipeline.run_folder import load_scene_for
 

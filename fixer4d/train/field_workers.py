@@ -15,6 +15,7 @@ fold's held-back camera), which load the scene and the finished init themselves.
 
     worker_count(training, pending) -> how many workers (1: the fields train one after the other
                                         in this process)
+    plan_workers(training, n, scene_from_config, function, *args) -> (recipe or None, workers)
     train_in_workers(recipe, jobs, workers, label, save, progress)
         -> each (field, directory) of ``jobs`` trained to its end by a worker that writes the
            field's model and record into its directory (``save``); one progress bar over all of them; a
@@ -74,6 +75,16 @@ def worker_count(training: "TrainingConfig", pending: int) -> int:
         return 1
     wanted = training.field_workers if training.field_workers > 0 else cpu_budget()
     return max(1, min(int(wanted), int(pending)))
+
+
+def plan_workers(training: "TrainingConfig", fields: int, scene_from_config: bool, function: str,
+                 *args: Any) -> tuple[FieldRecipe | None, int]:
+    """(recipe, workers) for a training of ``fields`` fields: a recipe calling ``function(*args,
+    field=k, directory=out)`` where a worker can load the scene again (``scene_from_config``: the
+    scene is ``load_scene_for(config)``) and more than one worker would run; else (None, 1), the
+    fields one after the other in this process."""
+    workers = worker_count(training, fields) if scene_from_config else 1
+    return (FieldRecipe(function, args), workers) if workers > 1 else (None, 1)
 
 
 def train_in_workers(recipe: FieldRecipe, jobs: Sequence[tuple[int, Path]], workers: int, label: str,
@@ -202,4 +213,4 @@ def _exit_on_signal(signum: int, _frame) -> None:
     raise SystemExit(128 + signum)
 
 
-__all__ = ["FieldRecipe", "cpu_budget", "worker_count", "train_in_workers", "POLL_SECONDS"]
+__all__ = ["FieldRecipe", "cpu_budget", "worker_count", "plan_workers", "train_in_workers", "POLL_SECONDS"]

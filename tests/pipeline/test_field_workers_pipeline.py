@@ -33,10 +33,16 @@ def test_fields_in_workers_give_the_same_run_as_fields_in_process(tmp_path, tiny
     assert "field_workers" not in json.dumps(report["rows"])
 
 
-def test_a_resumed_run_may_change_its_worker_count(tmp_path):
+def test_a_resumed_run_may_change_how_it_runs_not_what_it_computes(tmp_path):
+    import pytest
+
+    from fixer4d.errors import InputError
     from fixer4d.pipeline.run_folder import RunFolder
 
-    first = tiny_config(**{"training.field_workers": 2})
-    RunFolder.create(tmp_path / "run", first)
-    again = RunFolder.create(tmp_path / "run", tiny_config(**{"training.field_workers": 1}))
-    assert again.config.training.field_workers == 1
+    RunFolder.create(tmp_path / "run", tiny_config(**{"training.field_workers": 2}))
+    again = RunFolder.create(tmp_path / "run", tiny_config(**{"training.field_workers": 1,
+                                                              "training.checkpoint_every": 10}))
+    assert again.config.training.field_workers == 1 and again.config.training.checkpoint_every == 10
+    with pytest.raises(InputError, match="training.fields"):
+        RunFolder.create(tmp_path / "run", tiny_config(**{"training.field_workers": 1, "training.checkpoint_every": 10,
+                                                          "training.fields": 3}))

@@ -54,6 +54,17 @@ def test_worker_count_is_one_on_cuda(monkeypatch):
     assert worker_count(TrainingConfig(field_workers=4), 4) == 1
 
 
+def test_fields_go_to_workers_only_where_a_worker_can_load_the_scene(monkeypatch):
+    import fixer4d.train.field_workers as fw
+    from fixer4d.train.config import TrainingConfig
+
+    monkeypatch.setattr(fw, "cpu_budget", lambda: 2)
+    recipe, workers = fw.plan_workers(TrainingConfig(), 2, True, "pkg.mod:fn", {"a": 1}, 3)
+    assert workers == 2 and recipe == fw.FieldRecipe("pkg.mod:fn", ({"a": 1}, 3))
+    assert fw.plan_workers(TrainingConfig(), 2, False, "pkg.mod:fn") == (None, 1)
+    assert fw.plan_workers(TrainingConfig(field_workers=1), 2, True, "pkg.mod:fn") == (None, 1)
+
+
 def test_a_negative_worker_count_is_refused():
     from fixer4d.errors import InputError
     from fixer4d.train.config import TrainingConfig
