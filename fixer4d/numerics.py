@@ -67,6 +67,41 @@ PORTABLE_ENV: dict[str, str] = {
 _PIN_READERS = ("torch", "numpy", "numba", "cv2")
 
 
+class _SettleMklOnImport:
+    """Import hook (portable mode): when torch has been imported, make MKL's first calls, one vector
+    math function and one matrix product, on the importing thread. MKL reads ``MKL_CBWR`` when it
+    first dispatches, and when that first call comes from two OpenMP threads at once (torch.exp
+    on a large tensor does this) it sometimes dispatches without the pin: 2 of 25 runs of one exp
+    gave the unpinned AVX2 digits on a loaded 2-core host, 0 of 40 with this serial first call."""
+
+    settled = False
+
+    def find_spec(self, name, path=None, target=None):
+        if name != "torch":
+            return None
+        sys.meta_path.remove(self)
+        from importlib.util import find_spec
+
+        spec = find_spec(name)
+        if spec is None or spec.loader is None:
+            return spec
+        load = spec.loader.exec_module
+
+        def exec_module(module):
+            load(module)
+            _settle_mkl(module)
+
+        spec.loader.exec_module = exec_module
+        return spec
+
+
+def _settle_mkl(torch) -> None:
+    # sizes below ATen's grain size run on this thread alone
+    torch.exp(torch.zeros(8))
+    torch.mm(torch.ones(2, 2), torch.ones(2, 2))
+    _SettleMklOnImport.settled = True
+
+
 #: The distributions whose versions reach the digits of a run: the kernels (torch, numpy, numba and
 #: its LLVM, SciPy, scikit-image, OpenCV, Pillow) and pycolmap's SIFT and triangulation. The other
 #: OpenCV wheels are listed because an extra that needs one (``fixer4d[sr]``, ``fixer4d[xfeat]``)
@@ -147,8 +182,8 @@ ENV_SAVED = "FIXER4D_NUMERICS_SAVED"
 
 def apply() -> list[str]:
     """In portable mode, set every pin of ``PORTABLE_ENV`` (overriding the environment: a host's own
-    choice, e.g. an OPENBLAS_CORETYPE of its CPU, is what portable mode must not follow); in host
-    mode, undo the pins a portable parent process left in the environment. Returns the names of
+    choice, e.g. an OPENBLAS_CORETYPE of its CPU, is what portable mode must not follow) and hook
+    torch's import to make MKL's first calls on one thread (``_SettleMklOnImport``); in host mode, undo the pins a portable parent process left in the environment. Returns the names of
     the libraries already imported, for which it comes too late (empty when in time)."""
     import json
 
@@ -165,6 +200,8 @@ def apply() -> list[str]:
     if saved is None:
         os.environ[ENV_SAVED] = json.dumps({k: os.environ.get(k) for k in PORTABLE_ENV})
     os.environ.update(PORTABLE_ENV)
+    if "torch" not in sys.modules and not any(isinstance(f, _SettleMklOnImport) for f in sys.meta_path):
+        sys.meta_path.insert(0, _SettleMklOnImport())
     return [name for name in _PIN_READERS if name in sys.modules]
 
 
@@ -188,6 +225,8 @@ def status() -> dict[str, Any]:
         cap = torch.backends.cpu.get_cpu_capability()
         out["aten_cpu_capability"] = cap
         checks.append(cap in ("AVX2", "DEFAULT"))
+        out["mkl_settled"] = _SettleMklOnImport.settled
+        checks.append(_SettleMklOnImport.settled)
         out["torch_threads"] = torch.get_num_threads()
     if "numpy" in sys.modules:
         try:

@@ -108,6 +108,20 @@ def test_status_reports_a_library_loaded_before_the_pins():
         assert status["portable"] is False and status["numpy_avx512"]
 
 
+def test_mkl_makes_its_first_calls_on_the_thread_that_imports_torch():
+    # MKL's first dispatch from two threads at once sometimes ignored MKL_CBWR (the emulated hosts'
+    # exp differed on a loaded CI host): the hook makes it on one thread, in portable mode only
+    code = ("import sys, json; import fixer4d, torch; from fixer4d import numerics; "
+            "print(json.dumps([numerics.status().get('mkl_settled'), "
+            "[type(f).__name__ for f in sys.meta_path]]))")
+    for mode, settled in (("portable", True), ("host", False)):
+        done = subprocess.run([sys.executable, "-c", code], env=_env(mode, {}), capture_output=True, text=True,
+                              timeout=300)
+        assert done.returncode == 0, done.stderr[-2000:]
+        was_settled, finders = json.loads(done.stdout.strip().splitlines()[-1])
+        assert was_settled is settled and "_SettleMklOnImport" not in finders
+
+
 def test_an_unknown_mode_is_refused(monkeypatch, tmp_path):
     monkeypatch.setenv(numerics.ENV_MODE, "fast")
     with pytest.raises(ValueError, match="portable, host"):
