@@ -71,3 +71,25 @@ def benchmark_script():
     yield load
     for name in loaded:
         sys.modules.pop(name, None)
+
+
+# the tests that compare bytes with the fingerprint (a skip: not compared here), by what they compare
+_FINGERPRINT_TESTS = {"test_portable_mode_gives_the_same_bytes_under_every_emulated_host": "probe",
+                      "test_a_tiny_pipeline_gives_the_same_model_and_report_on_two_emulated_hosts": "tiny pipeline"}
+
+
+def pytest_terminal_summary(terminalreporter):
+    """The host's CPU and what became of the cross-host byte checks (tests/numerics/fingerprint.json),
+    at the end of the log where a CI excerpt keeps it: which CPUs a fingerprint was compared on."""
+    from fixer4d.bench.machine import cpu_topology
+
+    cpu = cpu_topology()
+    outcomes = []
+    for outcome in ("passed", "failed", "skipped"):
+        for report in terminalreporter.stats.get(outcome, []):
+            name = getattr(report, "nodeid", "").rsplit("::", 1)[-1]
+            if name in _FINGERPRINT_TESTS and getattr(report, "when", "call") in ("call", "setup"):
+                outcomes.append(f"{_FINGERPRINT_TESTS[name]} {outcome}")
+    terminalreporter.write_line(
+        f"host: {cpu.get('cpu')} (family {cpu.get('cpu_family')}, model {cpu.get('model')}; "
+        f"{' '.join(cpu.get('vector_extensions', []))}); fingerprint (cross-host bytes): {', '.join(outcomes) or 'not run'}")
