@@ -71,8 +71,8 @@ class _SettleMklOnImport:
     """Import hook (portable mode): when torch has been imported, make MKL's first calls, one vector
     math function and one matrix product, on the importing thread. MKL reads ``MKL_CBWR`` when it
     first dispatches, and when that first call comes from two OpenMP threads at once (torch.exp
-    on a large tensor does this) it sometimes dispatches without the pin: 2 of 25 runs of one exp
-    gave the unpinned AVX2 digits on a loaded 2-core host, 0 of 50 with this hook."""
+    on a large tensor does this) it now and then dispatches without the pin: 4 of 225 runs of one
+    exp on a loaded 2-core host, 0 of 290 with this hook (benchmarks/mkl_first_call.py)."""
 
     settled = False
 
