@@ -78,6 +78,7 @@ _FINGERPRINT_TESTS = {"test_portable_mode_gives_the_same_bytes_under_every_emula
                       "test_a_tiny_pipeline_gives_the_same_model_and_report_on_two_emulated_hosts": "tiny pipeline"}
 
 
+@pytest.hookimpl(trylast=True)
 def pytest_terminal_summary(terminalreporter):
     """The host's CPU and what became of the cross-host byte checks (tests/numerics/fingerprint.json),
     at the end of the log where a CI excerpt keeps it: which CPUs a fingerprint was compared on."""
