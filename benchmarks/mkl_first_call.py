@@ -63,7 +63,8 @@ def main(argv: list[str] | None = None) -> int:
     pinned = columns["on"].most_common(1)[0][0]
     result = {"command": "python benchmarks/mkl_first_call.py " + " ".join(argv or sys.argv[1:]),
               "machine": cpu_topology(), "busy_processes": args.busy,
-              "load_average_1min": {"before": load_before[0], "after": os.getloadavg()[0]}, "runs": args.runs, "pinned_digest": pinned,
+              "load_average_1min": {"before": load_before[0], "after": os.getloadavg()[0]},
+              "runs": args.runs, "pinned_digest": pinned,
               **{f"hook_{hook}": {"digests": dict(c), "off_the_pin": args.runs - c[pinned]}
                  for hook, c in columns.items()}}
     write_json(args.out, result)
