@@ -1,8 +1,9 @@
 """numba, set up once for every kernel module (render/cpu_kernels.py, render/project_cpu.py,
 train/loss_cpu.py, init/mvs_kernel.py): the AVX-512 vector-width preference (fixer4d/simd.py),
 which must be in place before numba builds its CPU target, the import guard (numba is a core
-dependency, but each kernel module keeps a torch path that works without it), and the guard that
-keeps numba's thread pool from changing torch's thread count.
+dependency, but each kernel module keeps a torch path that works without it), the guard that
+keeps numba's thread pool from changing torch's thread count, and ``set_compute_threads`` (both
+libraries' counts for a task or worker process granted n CPUs).
 
 Kernel modules import ``njit``/``prange``/``numba`` from here and define their kernels under
 ``if njit is not None`` (``NUMBA_ERROR`` says why not).
@@ -35,3 +36,13 @@ def torch_threads_kept():
     a 50k fwd+bwd render 4.3 s instead of 0.45 s. The count is restored on exit.
     """
     return torch_threads(None)
+
+
+def set_compute_threads(n: int) -> None:
+    """torch's intra-op thread count and numba's parallel kernels' (up to numba's pool size) both
+    ``n``: what a task or worker process granted ``n`` CPUs computes on."""
+    import torch
+
+    torch.set_num_threads(int(n))
+    if numba is not None:
+        numba.set_num_threads(min(int(n), numba.config.NUMBA_NUM_THREADS))

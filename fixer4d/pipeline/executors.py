@@ -81,15 +81,11 @@ def _thread_counts(_job: Any) -> tuple[int, int]:
 def _run_with_threads(fn: Callable[[Any], Any], threads: int, job: Any) -> Any:
     """``fn(job)`` with torch (and numba, up to its pool size) on ``threads`` threads: a Ray task's
     body (top-level, so workers can unpickle it)."""
+    from fixer4d.jit import set_compute_threads
     from fixer4d.threads import torch_threads
 
-    with torch_threads(threads):
-        try:
-            import numba
-
-            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-        except ImportError:
-            pass
+    with torch_threads(None):
+        set_compute_threads(threads)
         return fn(job)
 
 

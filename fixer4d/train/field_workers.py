@@ -179,15 +179,9 @@ def _work(recipe: FieldRecipe, save, field: int, directory: str, threads: int, s
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _exit_on_signal)
     try:
-        import torch
+        from fixer4d.jit import set_compute_threads
 
-        torch.set_num_threads(threads)
-        try:
-            import numba
-
-            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-        except ImportError:
-            pass
+        set_compute_threads(threads)
         out = Path(directory)
         trainer = recipe.build(field, out)
         prior = trainer.train_seconds if trainer.resume() else 0.0
