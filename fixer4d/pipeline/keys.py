@@ -152,6 +152,7 @@ def self_check_key(config: RunConfig) -> str:
     for name, before in (("cameras", 1), ("scale_budget", False)):
         if fold.get(name) == before:
             fold.pop(name)
+    fold.pop("fields", None)  # keyed as the count the fold trains (fold_fields, below)
     # a learned restorer is trained again inside the fold, on the fold's cameras only
     own_restorer = ("fold_restorer",) if config.restorer.kind == "learned" else ()
     # the fold's stage 1: the run's fields merged (train.fields), or one field (pipeline.self_check.fold_fields)

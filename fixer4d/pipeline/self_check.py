@@ -84,6 +84,11 @@ class SelfCheckConfig:
       scale 0.5 costs 60-80 % of the run's stage 1 (the per-Gaussian work does not shrink with the
       image) and the check took 29-43 % of a run; scaled, a Panoptic fold takes 0.44-0.48x the
       CPU, and it decided as the unscaled fold in 11 of 12 runs (docs/decisions/self-check.md).
+    fields: the most fields the fold's stage 1 merges (``fold_fields``; the run's
+      ``training.fields`` when fewer). 2: over the quality bench's 15 runs of four fields (5 seeds of
+      the demo and both Panoptic splits) a two-field fold decided as a four-field one in all 15
+      (skip; refine − skip −0.55 against −0.84 dB on average) at half the fold's training, which
+      keeps a four-field ``make run`` within its ten minutes (docs/decisions/field-workers.md).
     """
 
     enabled: bool = True
@@ -96,14 +101,16 @@ class SelfCheckConfig:
     margin: str = "fixed"
     cameras: int = 1
     scale_budget: bool = True
+    fields: int = 2
 
     def __post_init__(self) -> None:
         if not 0.0 < self.scale <= 1.0:
             raise InputError(f"self_check.scale must be in (0, 1], got {self.scale}")
         if self.margin not in MARGINS:
             raise InputError(f"self_check.margin must be one of {', '.join(MARGINS)}, got {self.margin!r}")
-        if self.eval_frames < 1 or self.fold < 0 or self.tie_db < 0 or self.cameras < 1:
-            raise InputError("self_check: eval_frames >= 1, fold >= 0, tie_db >= 0 and cameras >= 1 are needed")
+        if self.eval_frames < 1 or self.fold < 0 or self.tie_db < 0 or self.cameras < 1 or self.fields < 1:
+            raise InputError("self_check: eval_frames >= 1, fold >= 0, tie_db >= 0, cameras >= 1 and fields >= 1 "
+                             "are needed")
         if not (self.allow_skip or self.allow_continue):
             raise InputError("self_check: allow_skip and allow_continue are both off, which leaves refine alone; "
                              "set self_check.enabled=false to always run stage 2")
@@ -130,13 +137,15 @@ class SelfCheckConfig:
 
 
 def fold_fields(config) -> int:
-    """How many fields the fold's stage 1 trains: the run's ``training.fields``, merged, when stage 2
-    continues the merged model; one when it continues each field apart (``stage2.fields=apart``),
-    since the run then refines every field as one field's model, which is what one field's fold
-    checks, at half the fold's training."""
+    """How many fields the fold's stage 1 trains: the run's ``training.fields``, at most
+    ``self_check.fields``, merged, when stage 2 continues the merged model; one when it continues
+    each field apart (``stage2.fields=apart``), since the run then refines every field as one
+    field's model, which is what one field's fold checks, at half the fold's training."""
     from fixer4d.train.fields import refined_apart
 
-    return 1 if refined_apart(config.training, config.stage2) else config.training.fields
+    if refined_apart(config.training, config.stage2):
+        return 1
+    return min(config.training.fields, config.self_check.fields)
 
 
 def gains(frames: dict[str, Sequence[float]], baseline: str = "skip") -> dict[str, dict[str, float | None]]:

@@ -100,10 +100,11 @@ class TrainingConfig:
     # Stage 1 trains this many fields from the same init with other seeds (the init's subsample
     # draw and the training's draws) and merges them into one model (train.fields): stage 1 is
     # chaotic in its seed, and the merged model keeps what the fields agree on at full strength
-    # and what one guessed at half. Each field has the budget above; stage 2 and the matched
-    # control get fields x the budget. 2 against 1 on the validation cameras, paired over seeds
-    # 0-4: docs/decisions/two-fields.md.
-    fields: int = 2
+    # and what one guessed at 1/fields. Each field has the budget above; stage 2 and the matched
+    # control get fields x the budget. 4 against 2 on the validation cameras, paired over seeds
+    # 0-4: +0.22 / +0.11 / +0.14 dB on demo / Panoptic / split c, the seed spread down on each
+    # (docs/decisions/field-workers.md; 2 against 1: two-fields.md).
+    fields: int = 4
     # Fields trained side by side, each in a worker process (train.field_workers): 0 = one per
     # usable CPU, 1 = one after the other in the run's process. The digits are the same either way
     # (docs/decisions/field-workers.md).

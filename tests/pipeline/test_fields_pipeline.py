@@ -203,6 +203,25 @@ def test_stage2_apart_refines_each_field_and_merges_the_refined_fields(tmp_path,
     assert rows["Full"]["status"] == "ok" and rows["STGS w/ MVS (matched iterations)"]["status"] == "ok"
 
 
+def test_the_fold_merges_at_most_self_check_fields_fields():
+    """A four-field run's fold trains two fields (self_check.fields), a one-field run's one; a
+    larger self_check.fields gives the fold the run's count, never more, and is part of its key."""
+    from fixer4d.errors import InputError
+    from fixer4d.pipeline.keys import self_check_key
+    from fixer4d.pipeline.self_check import fold_fields
+
+    four = tiny_config(**{"training.fields": 4})
+    assert four.self_check.fields == 2 and fold_fields(four) == 2
+    assert fold_fields(tiny_config(**{"training.fields": 1})) == 1
+    wide = tiny_config(**{"training.fields": 4, "self_check.fields": 8})
+    assert fold_fields(wide) == 4
+    assert self_check_key(wide) != self_check_key(four)
+    two = tiny_config(**{"training.fields": 2})
+    assert self_check_key(tiny_config(**{"training.fields": 2, "self_check.fields": 3})) == self_check_key(two)
+    with pytest.raises(InputError, match="fields >= 1"):
+        tiny_config(**{"self_check.fields": 0})
+
+
 def test_with_fields_refined_apart_the_fold_checks_one_field(tmp_path, stage_cache, monkeypatch):
     """stage2.fields=apart refines every field as one field's model, so the fold trains one field."""
     import fixer4d.train.fields as fields_module
