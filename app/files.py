@@ -4,7 +4,7 @@ the viewer's own outputs go (never the working directory).
 A run folder (``fixer4d run`` / ``reconstruct`` output, with config.json) holds model versions:
 ``model_final.ply``, ``model_stage1.ply`` and the viewer's edits ``model_edit_<k>.ply``; a run
 trained with ``co_fields`` also keeps the second stage-1 field, ``model_stage1_twin.ply``, and a
-run of two fields (``training.fields``) keeps each field before the merge, ``fields/field<k>/``. The
+run of several fields (``training.fields``) keeps each field before the merge, ``fields/field<k>/``. The
 session remembers the version last shown (``AppState.model_version``), so a saved edit is what
 the run reopens with. A bare model file (.ply or .npz) opens without a scene; when it sits in a
 run folder, that run's scene and cache come with it.

@@ -1,8 +1,8 @@
 """The undetermined overlay: where the shown model and its twin field disagree.
 
 A run trained with ``co_fields`` keeps a second stage-1 field beside its models
-(``model_stage1_twin.ply``), and every model of the run is compared with it; a run of two fields
-keeps both (``fields/field<k>/model.ply``), and the map compares them with each other
+(``model_stage1_twin.ply``), and every model of the run is compared with it; a run of several
+fields keeps each (``fields/field<k>/model.ply``), and the map compares the first two
 (``app.files.twin_pair``). Where the two renders disagree, the train views do not determine
 the scene (``fixer4d.restore.undetermined``). The map is computed
 for the resting view from two torch renders at the same camera, time and background: the shown

@@ -55,7 +55,7 @@ FORMAT_VERSION = 4
 RENAMED_SECTIONS = {"stage1": "training", "effects": "model_terms"}
 # Settings whose default changed after run folders were saved without them: a run's config.json
 # that lacks one was run with the value here, not with today's default.
-SAVED_BEFORE = {("training", "fields"): 1}
+SAVED_BEFORE = {("training", "fields"): 1, ("self_check", "fields"): 0}
 
 # The paper's stage 2 (`--paper-stage2`): every pseudo-view pixel supervised by the restored
 # frame with the restorer's confidence as weight, densified from every render, stage 2 run

@@ -85,7 +85,7 @@ class SelfCheckConfig:
       image) and the check took 29-43 % of a run; scaled, a Panoptic fold takes 0.44-0.48x the
       CPU, and it decided as the unscaled fold in 11 of 12 runs (docs/decisions/self-check.md).
     fields: the most fields the fold's stage 1 merges (``fold_fields``; the run's
-      ``training.fields`` when fewer). 2: over the quality bench's 15 runs of four fields (5 seeds of
+      ``training.fields`` when fewer; 0: all of the run's, as every fold before the setting). 2: over the quality bench's 15 runs of four fields (5 seeds of
       the demo and both Panoptic splits) a two-field fold decided as a four-field one in all 15
       (skip; refine − skip −0.55 against −0.84 dB on average) at half the fold's training, which
       keeps a four-field ``make run`` within its ten minutes (docs/decisions/field-workers.md).
@@ -108,8 +108,8 @@ class SelfCheckConfig:
             raise InputError(f"self_check.scale must be in (0, 1], got {self.scale}")
         if self.margin not in MARGINS:
             raise InputError(f"self_check.margin must be one of {', '.join(MARGINS)}, got {self.margin!r}")
-        if self.eval_frames < 1 or self.fold < 0 or self.tie_db < 0 or self.cameras < 1 or self.fields < 1:
-            raise InputError("self_check: eval_frames >= 1, fold >= 0, tie_db >= 0, cameras >= 1 and fields >= 1 "
+        if self.eval_frames < 1 or self.fold < 0 or self.tie_db < 0 or self.cameras < 1 or self.fields < 0:
+            raise InputError("self_check: eval_frames >= 1, fold >= 0, tie_db >= 0, cameras >= 1 and fields >= 0 "
                              "are needed")
         if not (self.allow_skip or self.allow_continue):
             raise InputError("self_check: allow_skip and allow_continue are both off, which leaves refine alone; "
@@ -138,14 +138,14 @@ class SelfCheckConfig:
 
 def fold_fields(config) -> int:
     """How many fields the fold's stage 1 trains: the run's ``training.fields``, at most
-    ``self_check.fields``, merged, when stage 2 continues the merged model; one when it continues
+    ``self_check.fields`` (0: no limit), merged, when stage 2 continues the merged model; one when it continues
     each field apart (``stage2.fields=apart``), since the run then refines every field as one
     field's model, which is what one field's fold checks, at half the fold's training."""
     from fixer4d.train.fields import refined_apart
 
     if refined_apart(config.training, config.stage2):
         return 1
-    return min(config.training.fields, config.self_check.fields)
+    return min(config.training.fields, config.self_check.fields or config.training.fields)
 
 
 def gains(frames: dict[str, Sequence[float]], baseline: str = "skip") -> dict[str, dict[str, float | None]]:

@@ -255,11 +255,13 @@ def test_stage1config_is_a_deprecated_name_of_trainingconfig():
 
 def test_a_saved_run_config_without_a_later_setting_reads_as_its_run_had_it(tmp_path):
     """training.fields came after run folders were written: one without it ran one field, whatever
-    today's default; a new run gets the default."""
+    today's default; a new run gets the default. self_check.fields came later: a fold saved
+    without it trained every field of its run."""
     import json
 
     from fixer4d.pipeline.config import SAVED_BEFORE, RunConfig, resolve
     from fixer4d.pipeline.run_folder import RunFolder, read_run_config
+    from fixer4d.pipeline.self_check import fold_fields
 
     folder = RunFolder.create(tmp_path / "run", resolve("tiny"))
     data = json.loads((folder.path / "config.json").read_text())
@@ -267,3 +269,7 @@ def test_a_saved_run_config_without_a_later_setting_reads_as_its_run_had_it(tmp_
     del data["config"]["training"]["fields"]
     (folder.path / "config.json").write_text(json.dumps(data))
     assert read_run_config(folder.path).training.fields == SAVED_BEFORE[("training", "fields")] == 1
+    del data["config"]["self_check"]["fields"]
+    data["config"]["training"]["fields"] = 4
+    (folder.path / "config.json").write_text(json.dumps(data))
+    assert fold_fields(read_run_config(folder.path)) == 4

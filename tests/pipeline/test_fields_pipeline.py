@@ -205,7 +205,8 @@ def test_stage2_apart_refines_each_field_and_merges_the_refined_fields(tmp_path,
 
 def test_the_fold_merges_at_most_self_check_fields_fields():
     """A four-field run's fold trains two fields (self_check.fields), a one-field run's one; a
-    larger self_check.fields gives the fold the run's count, never more, and is part of its key."""
+    larger self_check.fields, or 0, gives the fold the run's count, never more; the key holds the
+    count the fold trains."""
     from fixer4d.errors import InputError
     from fixer4d.pipeline.keys import self_check_key
     from fixer4d.pipeline.self_check import fold_fields
@@ -214,12 +215,12 @@ def test_the_fold_merges_at_most_self_check_fields_fields():
     assert four.self_check.fields == 2 and fold_fields(four) == 2
     assert fold_fields(tiny_config(**{"training.fields": 1})) == 1
     wide = tiny_config(**{"training.fields": 4, "self_check.fields": 8})
-    assert fold_fields(wide) == 4
+    assert fold_fields(wide) == 4 == fold_fields(tiny_config(**{"training.fields": 4, "self_check.fields": 0}))
     assert self_check_key(wide) != self_check_key(four)
     two = tiny_config(**{"training.fields": 2})
     assert self_check_key(tiny_config(**{"training.fields": 2, "self_check.fields": 3})) == self_check_key(two)
-    with pytest.raises(InputError, match="fields >= 1"):
-        tiny_config(**{"self_check.fields": 0})
+    with pytest.raises(InputError, match="fields >= 0"):
+        tiny_config(**{"self_check.fields": -1})
 
 
 def test_with_fields_refined_apart_the_fold_checks_one_field(tmp_path, stage_cache, monkeypatch):
