@@ -87,8 +87,8 @@ class SelfCheckConfig:
     fields: the most fields the fold's stage 1 merges (``fold_fields``; the run's
       ``training.fields`` when fewer; 0: all of the run's, as every fold before the setting). 2: over the quality bench's 15 runs of four fields (5 seeds of
       the demo and both Panoptic splits) a two-field fold decided as a four-field one in all 15
-      (skip; refine − skip −0.55 against −0.84 dB on average) at half the fold's training, which
-      keeps a four-field ``make run`` within its ten minutes (docs/decisions/field-workers.md).
+      (skip; refine − skip −0.55 against −0.84 dB on average) at half the fold's training
+      (docs/decisions/field-workers.md).
     """
 
     enabled: bool = True

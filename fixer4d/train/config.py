@@ -101,10 +101,10 @@ class TrainingConfig:
     # draw and the training's draws) and merges them into one model (train.fields): stage 1 is
     # chaotic in its seed, and the merged model keeps what the fields agree on at full strength
     # and what one guessed at 1/fields. Each field has the budget above; stage 2 and the matched
-    # control get fields x the budget. 4 against 2 on the validation cameras, paired over seeds
-    # 0-4: +0.22 / +0.11 / +0.14 dB on demo / Panoptic / split c, the seed spread down on each
-    # (docs/decisions/field-workers.md; 2 against 1: two-fields.md).
-    fields: int = 4
+    # control get fields x the budget. 2 against 1 on the validation cameras, paired over seeds
+    # 0-4: docs/decisions/two-fields.md. 4 gains 0.11-0.22 dB more on them but takes `make run`
+    # to 9.5 of its 10 minutes (docs/decisions/field-workers.md).
+    fields: int = 2
     # Fields trained side by side, each in a worker process (train.field_workers): 0 = one per
     # usable CPU, 1 = one after the other in the run's process. The digits are the same either way
     # (docs/decisions/field-workers.md).

@@ -10,9 +10,6 @@ TINY = {
     # a tiny field trains in less time than a worker process takes to start (train.field_workers;
     # tests/train/test_field_workers.py runs them)
     "training.field_workers": 1,
-    # two fields: the merge, the fold's fields and the matched control's merged model at the least
-    # training (the default is four)
-    "training.fields": 2,
 }
 
 
