@@ -85,10 +85,10 @@ class SelfCheckConfig:
       image) and the check took 29-43 % of a run; scaled, a Panoptic fold takes 0.44-0.48x the
       CPU, and it decided as the unscaled fold in 11 of 12 runs (docs/decisions/self-check.md).
     fields: the most fields the fold's stage 1 merges (``fold_fields``; the run's
-      ``training.fields`` when fewer; 0: all of the run's, as every fold before the setting). 2: over the quality bench's 15 runs of four fields (5 seeds of
-      the demo and both Panoptic splits) a two-field fold decided as a four-field one in all 15
-      (skip; refine − skip −0.55 against −0.84 dB on average) at half the fold's training
-      (docs/decisions/field-workers.md).
+      ``training.fields`` when fewer; 0: all of the run's, as every fold before the setting). 2:
+      over the quality bench's 15 runs of four fields (5 seeds of the demo and both Panoptic
+      splits) a two-field fold decided as a four-field one in all 15 (skip; refine − skip −0.55
+      against −0.84 dB on average) at half the fold's training (docs/decisions/field-workers.md).
     """
 
     enabled: bool = True
@@ -138,9 +138,9 @@ class SelfCheckConfig:
 
 def fold_fields(config) -> int:
     """How many fields the fold's stage 1 trains: the run's ``training.fields``, at most
-    ``self_check.fields`` (0: no limit), merged, when stage 2 continues the merged model; one when it continues
-    each field apart (``stage2.fields=apart``), since the run then refines every field as one
-    field's model, which is what one field's fold checks, at half the fold's training."""
+    ``self_check.fields`` (0: no limit), merged, when stage 2 continues the merged model; one when
+    it continues each field apart (``stage2.fields=apart``), since the run then refines every field
+    as one field's model, which is what one field's fold checks, at half the fold's training."""
     from fixer4d.train.fields import refined_apart
 
     if refined_apart(config.training, config.stage2):

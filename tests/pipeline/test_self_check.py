@@ -281,9 +281,9 @@ def test_the_fold_budget_and_the_key_of_the_new_settings():
     assert fold.init_max_points == round(config.training.init_max_points * share)
     unscaled = tiny_config(**{"self_check.scale_budget": False})
     assert unscaled.self_check.fold_training(unscaled.training) is unscaled.training  # the run's budget
-    # a check at the settings every check had before cameras / scale_budget existed keeps its key
+    # a check at the settings every check had before cameras / scale_budget / fields existed keeps its key
     before = {k: v for k, v in unscaled.to_dict()["self_check"].items()
-              if k not in ("tie_db", "allow_skip", "margin", "cameras", "scale_budget", "allow_continue")}
+              if k not in ("tie_db", "allow_skip", "margin", "cameras", "scale_budget", "allow_continue", "fields")}
     one_field = tiny_config(**{"training.fields": 1, "self_check.scale_budget": False})
     assert self_check_key(one_field) == stage_key("self_check", stage2_key(one_field), before,
                                                   one_field.init_frame_stride)
