@@ -107,7 +107,7 @@ class TrainingConfig:
     fields: int = 2
     # Fields trained side by side, each in a worker process (train.field_workers): 0 = one per
     # usable CPU, 1 = one after the other in the run's process. The digits are the same either way
-    # up to 32,768 Gaussians a field; past it they follow the thread count
+    # on the demo (20k Gaussians a field), not on Panoptic (40k), where the thread count shows
     # (docs/decisions/field-workers.md).
     field_workers: int = 0
 
