@@ -6,7 +6,7 @@ take 203 s one after the other on a 2-core host and 127 s side by side, one thre
 (docs/decisions/field-workers.md). On the demo the digits do not depend on it: the kernels' sums are fixed in
 order whatever the thread count, and the run with its fields in workers is the run without, byte
 for byte (tests/pipeline/test_field_workers_pipeline.py). Panoptic's fields (40k Gaussians) are not:
-after the first densification (past 32,768 Gaussians) some op follows the thread count, and a
+from the first step past 32,768 Gaussians some op follows the thread count, and a
 worker's one thread gives other digits than the run's two (benchmarks/thread_count_probe.py).
 
 Workers are spawned, not forked: numba's OpenMP threading layer and torch share GNU libgomp,
