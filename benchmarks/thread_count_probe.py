@@ -2,10 +2,11 @@
 built as the pipeline builds it (`pipeline.stages.stage1_trainer`), stepped on THREADS threads;
 a hash of every model tensor at the listed steps (docs/decisions/field-workers.md).
 
-    python benchmarks/thread_count_probe.py RUN THREADS [--steps 50,100,150,200] [--out FILE.json]
+    python benchmarks/thread_count_probe.py RUN THREADS [--steps 50,100,150,200] [--set KEY=VALUE ...] [--out FILE.json]
 
 Run it once per thread count and compare the hashes: the first step where they part is where a
-sum's order follows the thread count. RUN (a finished run with its init) is only read.
+sum's order follows the thread count. ``--set`` changes RUN's config as `fixer4d run --set` does
+(e.g. ``training.opacity_decay.enabled=false``). RUN (a finished run with its init) is only read.
 """
 from __future__ import annotations
 
@@ -17,6 +18,8 @@ import tempfile
 from pathlib import Path
 
 import fixer4d  # noqa: F401  (sets the OpenMP wait policy before torch is imported)
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def state_hash(model) -> str:
@@ -32,6 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("run", type=Path)
     parser.add_argument("threads", type=int)
     parser.add_argument("--steps", default="50,100,150,200")
+    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
 
@@ -41,16 +45,16 @@ def main(argv: list[str] | None = None) -> int:
     from fixer4d.atomic import write_json
     from fixer4d.pipeline import stages as S
     from fixer4d.pipeline.run import open_context
-    from fixer4d.pipeline.run_folder import read_run_config, source_commit
+    from fixer4d.pipeline.run_folder import source_commit
+    from stage1_variants import variant_config
 
     marks = sorted(int(s) for s in args.steps.split(","))
     rows = []
     with tempfile.TemporaryDirectory(prefix="thread_probe_") as tmp:
         work = Path(tmp)
-        shutil.copy(args.run / "config.json", work / "config.json")
-        shutil.copytree(args.run / "init_mvs", work / "init_mvs")
-        config = read_run_config(args.run)
+        config = variant_config(args.run, args.sets)
         ctx = open_context(config, work, progress=False)
+        shutil.copytree(args.run / "init_mvs", work / "init_mvs")
         trainer, _ = S.stage1_trainer(ctx, S.init_stage(ctx, config.init_method), None, field=0)
         for step in range(1, marks[-1] + 1):
             trainer.step()
@@ -58,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
                 rows.append({"step": step, "gaussians": trainer.model.num_gaussians, "hash": state_hash(trainer.model)})
                 print(f"threads {args.threads} step {step}: {rows[-1]['gaussians']} Gaussians, {rows[-1]['hash']}", flush=True)
     if args.out is not None:
-        write_json(args.out, {"run": str(args.run), "threads": args.threads, "commit": source_commit(),
+        write_json(args.out, {"run": str(args.run), "threads": args.threads, "sets": args.sets, "commit": source_commit(),
                               "command": "python benchmarks/thread_count_probe.py " + " ".join(sys.argv[1:] if argv is None else argv),
                               "steps": rows})
     return 0
