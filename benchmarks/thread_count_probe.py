@@ -46,11 +46,12 @@ def main(argv: list[str] | None = None) -> int:
     from fixer4d.pipeline import stages as S
     from fixer4d.pipeline.run import open_context
     from fixer4d.pipeline.run_folder import source_commit
+    from fixer4d.threads import digit_threads
     from stage1_variants import variant_config
 
     marks = sorted(int(s) for s in args.steps.split(","))
     rows = []
-    with tempfile.TemporaryDirectory(prefix="thread_probe_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="thread_probe_") as tmp, digit_threads():
         work = Path(tmp)
         config = variant_config(args.run, args.sets)
         ctx = open_context(config, work, progress=False)

@@ -43,6 +43,6 @@ def set_compute_threads(n: int) -> None:
     ``n``: what a task or worker process granted ``n`` CPUs computes on."""
     import torch
 
-    torch.set_num_threads(int(n))
-    if numba is not None:
+    if numba is not None:  # first: its first use of the pool raises OpenMP's (and torch's) count
         numba.set_num_threads(min(int(n), numba.config.NUMBA_NUM_THREADS))
+    torch.set_num_threads(int(n))

@@ -28,6 +28,7 @@ from fixer4d.pipeline.run_folder import RunFolder, load_scene_for, stage_key
 from fixer4d.pipeline.shared_static import SHARED_DIR, export_shared_static
 from fixer4d.pipeline.stage_cache import StageCache
 from fixer4d.render.views import model_render_fn
+from fixer4d.threads import digit_threads
 from fixer4d.train.device import device_kind, training_device
 
 log = logging.getLogger("fixer4d.pipeline")
@@ -50,6 +51,7 @@ def open_context(config: RunConfig, out: str | Path, *, progress: bool = True,
                           keep_checkpoints=keep_checkpoints, scene_from_config=True)
 
 
+@digit_threads()
 def run_pipeline(config: RunConfig, out: str | Path, *, progress: bool = True,
                  stage_cache: str | Path | None = None, keep_checkpoints: bool = False) -> dict[str, Any]:
     """Run (or resume) the whole method; returns the report dict (also RUN/report.json).
@@ -64,6 +66,7 @@ def run_pipeline(config: RunConfig, out: str | Path, *, progress: bool = True,
     return run_stages(ctx)
 
 
+@digit_threads()
 def run_stages(ctx: S.StageContext) -> dict[str, Any]:
     """Every stage the config asks for, in order, writing the report after each row."""
     config = ctx.config

@@ -172,7 +172,7 @@ def _outcome(message: tuple | None, exitcode: int | None, label: str, field: int
 def _work(recipe: FieldRecipe, save, field: int, directory: str, threads: int, steps, totals, slot: int,
           pipe) -> None:
     """A worker process's body: build field ``field``'s trainer from ``recipe``, resume and train it
-    on ``threads`` threads, ``save`` its model and record, send ("done", seconds of earlier attempts)
+    (numba on ``threads`` threads, torch on ``DIGIT_TORCH_THREADS``), ``save`` its model and record, send ("done", seconds of earlier attempts)
     or ("error", "input" | "other", what went wrong) through ``pipe``."""
     import signal
 
@@ -182,19 +182,21 @@ def _work(recipe: FieldRecipe, save, field: int, directory: str, threads: int, s
     signal.signal(signal.SIGTERM, _exit_on_signal)
     try:
         from fixer4d.jit import set_compute_threads
+        from fixer4d.threads import digit_threads
 
         set_compute_threads(threads)
-        out = Path(directory)
-        trainer = recipe.build(field, out)
-        prior = trainer.train_seconds if trainer.resume() else 0.0
-        totals[slot] = trainer.total_iterations
-        steps[slot] = trainer.step_count
 
         def on_step(step: int) -> None:
             steps[slot] = step
 
-        trainer.train(progress=False, on_step=on_step)
-        save(out, trainer)
+        with digit_threads():
+            out = Path(directory)
+            trainer = recipe.build(field, out)
+            prior = trainer.train_seconds if trainer.resume() else 0.0
+            totals[slot] = trainer.total_iterations
+            steps[slot] = trainer.step_count
+            trainer.train(progress=False, on_step=on_step)
+            save(out, trainer)
         pipe.send(("done", prior))
     except SystemExit:
         raise

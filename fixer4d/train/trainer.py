@@ -50,6 +50,7 @@ from fixer4d.render.api import RenderOutput, render, render_batch, resolve_backe
 from fixer4d.render.constants import ALPHA_MIN
 from fixer4d.render.views import model_render_fn
 from fixer4d.scene.base import MultiViewVideo
+from fixer4d.threads import digit_threads
 from fixer4d.train.background import resolve_background
 from fixer4d.train.checkpoints import (CHECKPOINT_FORMAT, check_resumable, list_checkpoints, read_checkpoint,
                                        remove_partial_checkpoints, training_settings, write_checkpoint)
@@ -231,7 +232,13 @@ class Trainer:
             return self._read_back()
 
     def _step(self) -> None:
-        """One step; its scalars wait on the device in ``_pending`` until ``_read_back``."""
+        """One step, on ``DIGIT_TORCH_THREADS`` torch threads whatever the caller's count
+        (fixer4d/threads.py: its digits then do not depend on the core count); its scalars wait on
+        the device in ``_pending`` until ``_read_back``."""
+        with digit_threads():
+            self._take_step()
+
+    def _take_step(self) -> None:
         timing = dict.fromkeys(TIMING_KEYS, 0.0)
         if self.pseudo is not None:
             tic = time.perf_counter()
