@@ -2,8 +2,9 @@
 train/loss_cpu.py, init/mvs_kernel.py): the AVX-512 vector-width preference (fixer4d/simd.py),
 which must be in place before numba builds its CPU target, the import guard (numba is a core
 dependency, but each kernel module keeps a torch path that works without it), the guard that
-keeps numba's thread pool from changing torch's thread count, and ``set_compute_threads`` (both
-libraries' counts for a task or worker process granted n CPUs).
+keeps numba's thread pool from changing torch's thread count, and ``set_compute_threads`` /
+``compute_threads`` (both libraries' counts for a task or worker process granted n CPUs, and
+how many it was granted).
 
 Kernel modules import ``njit``/``prange``/``numba`` from here and define their kernels under
 ``if njit is not None`` (``NUMBA_ERROR`` says why not).
@@ -36,6 +37,19 @@ def torch_threads_kept():
     a 50k fwd+bwd render 4.3 s instead of 0.45 s. The count is restored on exit.
     """
     return torch_threads(None)
+
+
+def compute_threads() -> int:
+    """The threads this process may compute on: numba's count, what ``set_compute_threads`` granted
+    (every core unless a task or worker was granted fewer). torch's own count is no measure of it:
+    a run's torch computes on ``DIGIT_TORCH_THREADS`` (fixer4d/threads.py). torch's count where
+    numba is missing."""
+    if numba is None:
+        import torch
+
+        return torch.get_num_threads()
+    with torch_threads_kept():
+        return int(numba.get_num_threads())
 
 
 def set_compute_threads(n: int) -> None:

@@ -31,15 +31,14 @@ class LocalExecutor:
 
 
 class RayExecutor:
-    """Each job is a Ray task run with the same torch and numba thread counts as this process,
+    """Each job is a Ray task run on this process's compute threads (``fixer4d.jit.compute_threads``),
     asking Ray for that many CPUs (at most the largest node's); results come back in job order.
 
-    Why the thread counts travel with the job: torch's CPU reductions and convolutions split their
-    work by thread count, so the same stage 1 run with 1 and 2 torch threads drifts apart in the
-    last bits and then, through densification, into different models (a 640x360 Panoptic segment:
-    24.18 dB in this process, 23.70 dB in a Ray worker that Ray had given OMP_NUM_THREADS=1).
-    Asking Ray for as many CPUs as the job's threads also keeps a machine from running more
-    segments than it has cores.
+    The thread count travels with the job for speed and for the count of jobs a machine takes on:
+    Ray gives a worker OMP_NUM_THREADS=1, which would leave numba's kernels one core. The digits do
+    not depend on it: a run's torch computes on ``DIGIT_TORCH_THREADS`` whatever the count
+    (fixer4d/threads.py) and numba's kernels sum in a fixed order. Before that rule a 640x360
+    Panoptic segment gave 24.18 dB in this process and 23.70 dB in a Ray worker on one thread.
     """
 
     name = "ray"
@@ -50,10 +49,10 @@ class RayExecutor:
         except ImportError as exc:
             raise BackendUnavailable("the ray executor needs Ray: pip install 'fixer4d[ray]' (or ray), or use "
                                      "--executor local") from exc
-        import torch
+        from fixer4d.jit import compute_threads
 
         self._ray = ray
-        self.threads = int(threads) if threads is not None else torch.get_num_threads()
+        self.threads = int(threads) if threads is not None else compute_threads()
         if not ray.is_initialized():
             # the workers import fixer4d from this checkout, like the driver
             ray.init(address=address, include_dashboard=False, log_to_driver=False,

@@ -58,13 +58,12 @@ class FieldRecipe:
 
 
 def cpu_budget() -> int:
-    """The CPUs this process may keep busy: its torch thread count (what a study's executor grants
-    a task), at most the usable CPUs (``fixer4d.cpus``)."""
-    import torch
-
+    """The CPUs this process may keep busy: its compute threads (``fixer4d.jit.compute_threads``:
+    what a study's executor grants a task), at most the usable CPUs (``fixer4d.cpus``)."""
     from fixer4d.cpus import usable_cpus
+    from fixer4d.jit import compute_threads
 
-    return max(1, min(usable_cpus(), torch.get_num_threads()))
+    return max(1, min(usable_cpus(), compute_threads()))
 
 
 def worker_count(training: "TrainingConfig", pending: int) -> int:

@@ -33,13 +33,12 @@ def test_worker_count_is_one_per_cpu_at_most_one_per_field(monkeypatch):
 
 
 def test_the_cpu_budget_is_the_threads_an_executor_grants(monkeypatch):
-    import torch
-
     import fixer4d.cpus
+    import fixer4d.jit
     from fixer4d.train.field_workers import cpu_budget
 
     monkeypatch.setattr(fixer4d.cpus, "usable_cpus", lambda root=None: 8)
-    monkeypatch.setattr(torch, "get_num_threads", lambda: 2)
+    monkeypatch.setattr(fixer4d.jit, "compute_threads", lambda: 2)
     assert cpu_budget() == 2
     monkeypatch.setattr(fixer4d.cpus, "usable_cpus", lambda root=None: 1)
     assert cpu_budget() == 1
@@ -93,3 +92,26 @@ def test_a_worker_that_dies_says_how_to_resume(tmp_path):
     with pytest.raises(Fixer4DError, match="exit code 3.*resume from its checkpoints"):
         train_in_workers(recipe, [(0, tmp_path / "f0"), (1, tmp_path / "f1")], 2, "stage 1", save_field,
                          progress=False)
+
+
+def test_the_budget_inside_a_run_is_the_compute_threads_not_torchs_one():
+    """A run's torch computes on DIGIT_TORCH_THREADS (1): the fields' workers still get every
+    granted core."""
+    import numba
+    import torch
+
+    from fixer4d.cpus import usable_cpus
+    from fixer4d.jit import compute_threads, set_compute_threads
+    from fixer4d.threads import digit_threads
+    from fixer4d.train.field_workers import cpu_budget
+
+    before, torch_before = compute_threads(), torch.get_num_threads()
+    granted = min(2, numba.config.NUMBA_NUM_THREADS, usable_cpus())
+    try:
+        set_compute_threads(granted)
+        with digit_threads():
+            assert torch.get_num_threads() == 1
+            assert cpu_budget() == granted
+    finally:
+        set_compute_threads(before)
+        torch.set_num_threads(torch_before)

@@ -18,7 +18,7 @@ import pytest
 import torch
 
 from fixer4d.init.cloud import FrameCloud
-from fixer4d.jit import numba, set_compute_threads
+from fixer4d.jit import compute_threads, numba, set_compute_threads
 from fixer4d.train.model_init import model_from_clouds
 from fixer4d.train.trainer import Trainer
 from fixer4d.threads import digit_threads
@@ -46,7 +46,7 @@ def _big_model(scene, clouds, cfg):
 
 
 def _state_after_steps(model, scene, cfg, threads: int) -> str:
-    before = torch.get_num_threads()
+    before, torch_before = compute_threads(), torch.get_num_threads()
     set_compute_threads(threads)
     try:
         trainer = Trainer(copy.deepcopy(model), scene, cfg)
@@ -58,6 +58,7 @@ def _state_after_steps(model, scene, cfg, threads: int) -> str:
         return h.hexdigest()
     finally:
         set_compute_threads(before)
+        torch.set_num_threads(torch_before)
 
 
 @pytest.mark.skipif(numba is None or numba.config.NUMBA_NUM_THREADS < 2, reason="needs two CPU threads")
