@@ -22,9 +22,9 @@ them to pick the fastest path for the host, whose digits then depend on the CPU.
 The pins are environment variables each library reads once, when it loads, so ``apply`` runs in
 ``fixer4d/__init__`` before torch, numpy or numba is imported; ``status`` reports what took
 effect (a library imported before fixer4d keeps its own choice) and every run records it.
-What is not pinned: the thread count (torch's and numba's parallel reductions split work by it;
-the 2-core machines this project targets all use 2) and CUDA, whose atomics make gsplat's
-backward non-deterministic in any case.
+The thread count needs no pin: a run's torch computes on one thread (fixer4d/threads.py) and
+numba's kernels sum in a fixed order. Not pinned: CUDA, whose atomics make gsplat's backward
+non-deterministic in any case.
 
 The libraries' versions decide the digits as much as the CPU: ``constraints.txt`` at the
 repository's root locks them (``make setup`` installs with it), ``status`` records the installed

@@ -107,8 +107,7 @@ class TrainingConfig:
     fields: int = 2
     # Fields trained side by side, each in a worker process (train.field_workers): 0 = one per
     # usable CPU, 1 = one after the other in the run's process. The digits are the same either way
-    # on the demo (20k Gaussians a field), not on Panoptic (40k), where the thread count shows
-    # (docs/decisions/field-workers.md).
+    # (a run's torch computes on one thread: fixer4d/threads.py, docs/decisions/field-workers.md).
     field_workers: int = 0
 
     # -- observed loss ---------------------------------------------------------------------

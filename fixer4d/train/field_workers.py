@@ -3,11 +3,10 @@
 One field's training is one Python thread that drives small torch ops and numba kernels between
 them, so a second CPU thread speeds it up by far less than twice: `make run`'s two stage-1 fields
 take 203 s one after the other on a 2-core host and 127 s side by side, one thread each
-(docs/decisions/field-workers.md). On the demo the digits do not depend on it: the kernels' sums are fixed in
-order whatever the thread count, and the run with its fields in workers is the run without, byte
-for byte (tests/pipeline/test_field_workers_pipeline.py). Panoptic's fields (40k Gaussians) are not:
-from the first step past 32,768 Gaussians some op follows the thread count, and a
-worker's one thread gives other digits than the run's two (benchmarks/thread_count_probe.py).
+(docs/decisions/field-workers.md). The digits do not depend on it: the kernels' sums are fixed in
+order whatever the thread count and torch computes on one thread (fixer4d/threads.py), so the run
+with its fields in workers is the run without, byte for byte (tests/pipeline/test_field_workers_pipeline.py;
+past 32,768 Gaussians a field: tests/train/test_thread_count_digits.py).
 
 Workers are spawned, not forked: numba's OpenMP threading layer and torch share GNU libgomp,
 which a forked child of a process that used it cannot use (numba terminates such a child). A
