@@ -18,8 +18,9 @@ from fixer4d.cpus import usable_cpus
 #: differently from the vector path (and sums split by thread add in another order): the same
 #: step on 1 and 2 threads parts in the last bits of the elements next to the chunk border. One
 #: thread makes a run's digits independent of the core count; numba's kernels, fixed-order, keep
-#: every granted core. It costs nothing: a 39k-Gaussian field's step took 0.101 s on one torch
-#: thread and 0.111 s on two (numba on two either way, 2-core host; docs/decisions/field-workers.md).
+#: every granted core. It costs nothing: a 39.6k-Gaussian field's step takes 0.103 s on one torch
+#: thread and 0.109 s on two, numba on two either way, idle 2-core host
+#: (benchmarks/results/field_workers/torch_threads_step_cost_panoptic.json).
 DIGIT_TORCH_THREADS = 1
 
 

@@ -51,6 +51,7 @@ from fixer4d.atomic import atomic_path, write_json, write_text
 from fixer4d.errors import InputError, NumericalError
 from fixer4d.eval import metrics as M
 from fixer4d.geometry.camera import Camera
+from fixer4d.threads import digit_threads
 
 METRIC_KEYS = ("psnr", "dssim1", "dssim2", "lpips")
 # Scores over the held-out image's moving / static pixels (None where the region is empty).
@@ -181,6 +182,7 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+@digit_threads()  # LPIPS's digits, like a run's, do not follow the core count
 def evaluate(render_fn: Callable[[Camera, float], np.ndarray], scene, out_dir: str | Path, *,
              frame_stride: int = 1, frames: Sequence[int] | None = None, method_name: str = "fixer4d",
              seconds: dict[str, float] | None = None, save_examples: int = 3,

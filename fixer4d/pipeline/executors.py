@@ -37,8 +37,7 @@ class RayExecutor:
     The thread count travels with the job for speed and for the count of jobs a machine takes on:
     Ray gives a worker OMP_NUM_THREADS=1, which would leave numba's kernels one core. The digits do
     not depend on it: a run's torch computes on ``DIGIT_TORCH_THREADS`` whatever the count
-    (fixer4d/threads.py) and numba's kernels sum in a fixed order. Before that rule a 640x360
-    Panoptic segment gave 24.18 dB in this process and 23.70 dB in a Ray worker on one thread.
+    (fixer4d/threads.py) and numba's kernels sum in a fixed order.
     """
 
     name = "ray"

@@ -170,8 +170,9 @@ def _outcome(message: tuple | None, exitcode: int | None, label: str, field: int
 def _work(recipe: FieldRecipe, save, field: int, directory: str, threads: int, steps, totals, slot: int,
           pipe) -> None:
     """A worker process's body: build field ``field``'s trainer from ``recipe``, resume and train it
-    (numba on ``threads`` threads, torch on ``DIGIT_TORCH_THREADS``), ``save`` its model and record, send ("done", seconds of earlier attempts)
-    or ("error", "input" | "other", what went wrong) through ``pipe``."""
+    (numba on ``threads`` threads, torch on ``DIGIT_TORCH_THREADS``), ``save`` its model and record,
+    send ("done", seconds of earlier attempts) or ("error", "input" | "other", what went wrong)
+    through ``pipe``."""
     import signal
 
     # Ctrl-C reaches the whole process group: the parent stops the workers (their checkpoints stay);
