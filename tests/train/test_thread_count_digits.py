@@ -67,3 +67,4 @@ def test_one_and_two_threads_give_the_same_model_past_the_grain(small_scene, sma
     model = _big_model(small_scene, small_clouds, cfg)
     assert model.num_gaussians > 32_768
     assert _state_after_steps(model, small_scene, cfg, 1) == _state_after_steps(model, small_scene, cfg, 2)
+
