@@ -5,8 +5,8 @@ a hash of every model tensor at the listed steps (docs/decisions/field-workers.m
     python benchmarks/thread_count_probe.py RUN THREADS [--steps 50,100,150,200] [--set KEY=VALUE ...]
                                            [--time-blocks N] [--out FILE.json]
 
-Run it once per thread count and compare the hashes: the first step where they part is where a
-sum's order follows the thread count. ``--set`` changes RUN's config as `fixer4d run --set` does
+Run it once per thread count and compare the hashes: the first step where they part is where an
+op's result follows the thread count (none does under the one-thread rule, fixer4d/threads.py). ``--set`` changes RUN's config as `fixer4d run --set` does
 (e.g. ``training.opacity_decay.enabled=false``). RUN (a finished run with its init) is only read.
 THREADS is numba's count; torch steps on ``fixer4d.threads.DIGIT_TORCH_THREADS`` as in a run.
 ``--time-blocks N``: after the last step, N pairs of blocks of ``BLOCK_STEPS`` steps, one with torch
