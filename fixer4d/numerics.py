@@ -5,8 +5,9 @@ and the choices round differently:
 
 * ATen (torch's CPU kernels): an AVX-512 or an AVX2 build of each vectorized op (exp, sums,
   reductions split by vector width);
-* MKL (torch's matmul and LAPACK): vendor- and ISA-specific kernels, a different summation order on
-  an AMD host than on an Intel one;
+* MKL (torch's matmul, LAPACK and vector math: exp, log, tanh...): ISA-specific kernels, and on a
+  CPU not Intel's a generic branch whatever ``MKL_CBWR`` asks (fixer4d/mkl_vendor.py answers MKL's
+  vendor question with Intel, so that the pin holds on every vendor's CPU);
 * oneDNN (torch's convolutions: the learned restorer, LPIPS): JIT kernels per ISA;
 * OpenBLAS (numpy's matmul) and numpy's own SIMD loops (exp, log, sin: AVX-512 variants with
   other last-bit results);
@@ -62,6 +63,25 @@ PORTABLE_ENV: dict[str, str] = {
     "NUMBA_CPU_FEATURES": NUMBA_FEATURES,
     "OPENCV_CPU_DISABLE": "AVX512-SKX",
 }
+
+
+
+def _host_has_avx512() -> bool:
+    try:
+        flags = Path("/proc/cpuinfo").read_text().split("flags", 1)[1].splitlines()[0]
+    except (OSError, IndexError):
+        return False
+    return " avx512f " in f" {flags} "
+
+
+def portable_env() -> dict[str, str]:
+    """``PORTABLE_ENV`` as this host needs it: OpenCV's AVX-512 switch only on a CPU with AVX-512,
+    where alone OpenCV could take that path (elsewhere the name makes it print a warning in every
+    process)."""
+    if _host_has_avx512():
+        return dict(PORTABLE_ENV)
+    return {k: v for k, v in PORTABLE_ENV.items() if k != "OPENCV_CPU_DISABLE"}
+
 
 # Modules that read a pin when they load: apply() after any of them is too late for that pin.
 _PIN_READERS = ("torch", "numpy", "numba", "cv2")
@@ -184,8 +204,9 @@ ENV_SAVED = "FIXER4D_NUMERICS_SAVED"
 
 
 def apply() -> list[str]:
-    """In portable mode, set every pin of ``PORTABLE_ENV`` (overriding the environment: a host's own
-    choice, e.g. an OPENBLAS_CORETYPE of its CPU, is what portable mode must not follow) and hook
+    """In portable mode, set every pin of ``portable_env()`` (overriding the environment: a host's own
+    choice, e.g. an OPENBLAS_CORETYPE of its CPU, is what portable mode must not follow), make MKL
+    take that branch on any vendor's CPU (``mkl_vendor.load_intel_answer``) and hook
     torch's import to make MKL's first calls on one thread (``_SettleMklOnImport``); in host mode,
     undo the pins a portable parent process left in the environment. Returns the names of the
     libraries already imported, for which it comes too late (empty when in time)."""
@@ -203,7 +224,14 @@ def apply() -> list[str]:
         return []
     if saved is None:
         os.environ[ENV_SAVED] = json.dumps({k: os.environ.get(k) for k in PORTABLE_ENV})
-    os.environ.update(PORTABLE_ENV)
+    pins = portable_env()
+    for key in PORTABLE_ENV.keys() - pins.keys():
+        os.environ.pop(key, None)
+    os.environ.update(pins)
+    if "torch" not in sys.modules:
+        from fixer4d.mkl_vendor import load_intel_answer
+
+        load_intel_answer()
     if "torch" not in sys.modules and not any(isinstance(f, _SettleMklOnImport) for f in sys.meta_path):
         sys.meta_path.insert(0, _SettleMklOnImport())
     return [name for name in _PIN_READERS if name in sys.modules]
@@ -231,6 +259,11 @@ def status() -> dict[str, Any]:
         checks.append(cap in ("AVX2", "DEFAULT"))
         out["mkl_settled"] = _SettleMklOnImport.settled
         checks.append(_SettleMklOnImport.settled)
+        from fixer4d.mkl_vendor import answer_state, mkl_branch
+
+        out["mkl_branch"] = mkl_branch()
+        out["mkl_intel_answer"] = answer_state()
+        checks.append(out["mkl_branch"] in (None, "AVX2"))
         out["torch_threads"] = torch.get_num_threads()
     if "numpy" in sys.modules:
         try:
@@ -253,8 +286,9 @@ def status() -> dict[str, Any]:
     out["env"] = {k: os.environ.get(k) for k in PORTABLE_ENV}
     out["packages"] = packages()
     out["lock_differences"] = lock_differences(out["packages"])
+    pins = portable_env()
     out["portable"] = out["mode"] == "portable" and all(checks) and all(
-        os.environ.get(k) == v for k, v in PORTABLE_ENV.items())
+        os.environ.get(k) == pins.get(k) for k in PORTABLE_ENV)
     return out
 
 
@@ -265,7 +299,7 @@ def describe() -> str:
         return "numerics: host (the libraries' fastest code paths for this CPU; digits depend on the CPU)"
     if s["portable"]:
         return "numerics: portable (AVX2 code paths pinned in ATen, MKL, oneDNN, OpenBLAS, numpy, numba, OpenCV)"
-    late = [k for k in ("aten_cpu_capability", "numpy_avx512", "numba", "opencv_avx512") if k in s]
+    late = [k for k in ("aten_cpu_capability", "mkl_branch", "numpy_avx512", "numba", "opencv_avx512") if k in s]
     return (f"numerics: portable asked for but not in effect ({', '.join(f'{k}={s[k]}' for k in late)}): a library "
             f"was imported before fixer4d; import fixer4d first")
 
@@ -281,5 +315,5 @@ def lock_note(differences: dict[str, list[str | None]] | None) -> str | None:
             f"results (`pip install -c {LOCK_FILE.name} -e '.[all]'` installs the locked set)")
 
 
-__all__ = ["ENV_MODE", "ENV_SAVED", "MODES", "PORTABLE_ENV", "DIGIT_PACKAGES", "LOCK_FILE", "mode", "in_effect",
+__all__ = ["ENV_MODE", "ENV_SAVED", "MODES", "PORTABLE_ENV", "portable_env", "DIGIT_PACKAGES", "LOCK_FILE", "mode", "in_effect",
            "apply", "status", "describe", "packages", "read_lock", "lock_differences", "lock_note"]

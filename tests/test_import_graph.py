@@ -221,7 +221,7 @@ def test_the_library_has_no_gui_import():
 # fixer4d's packages from the bottom layer up; a module may import its own layer and lower ones.
 # The command line (``fixer4d.cli``, and any ``__main__``) is the top layer; the package
 # root (``fixer4d/__init__.py``: process settings, no fixer4d imports) is the bottom.
-LAYERS = (("errors", "atomic", "signals", "threads", "psnr", "cpus", "simd", "jsonfile", "numerics", "stats"), ("geometry",), ("calib",), ("scene", "model", "restore"), ("render", "jit"),
+LAYERS = (("errors", "atomic", "signals", "threads", "psnr", "cpus", "simd", "jsonfile", "numerics", "mkl_vendor", "stats"), ("geometry",), ("calib",), ("scene", "model", "restore"), ("render", "jit"),
           ("init", "eval"), ("train",), ("pipeline",), ("bench", "study"))
 
 

@@ -125,6 +125,17 @@ def test_mkl_makes_its_first_calls_on_the_thread_that_imports_torch():
         assert was_settled is settled and "_SettleMklOnImport" not in finders
 
 
+def test_portable_mode_pins_only_what_the_cpu_has():
+    # OpenCV warns in every process that disables a feature the CPU lacks; on a CPU without AVX-512
+    # it cannot take that path anyway
+    done = subprocess.run([sys.executable, "-c", "import fixer4d, cv2; from fixer4d import numerics; "
+                           "print(numerics.status()['portable'])"], env=_env("portable", {}),
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and done.stdout.split()[-1] == "True"
+    assert "OPENCV" not in done.stderr
+    assert ("OPENCV_CPU_DISABLE" in numerics.portable_env()) is _avx512_host()
+
+
 def test_an_unknown_mode_is_refused(monkeypatch, tmp_path):
     monkeypatch.setenv(numerics.ENV_MODE, "fast")
     with pytest.raises(ValueError, match="portable, host"):
