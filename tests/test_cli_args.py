@@ -46,9 +46,17 @@ def test_bench_all_names_files_like_each_benchmark(monkeypatch, tmp_path, capsys
             outs[self.name] = argv[argv.index("--out") + 1]
             return 0
 
+    class FakeEntryPoint:  # a benchmark another package registers (the viewer's), not run for real
+        name = "viewer"
+
+        def load(self):
+            return Fake("entry point viewer").main
+
     monkeypatch.setattr(bench_cli, "importlib", types.SimpleNamespace(import_module=Fake))
+    monkeypatch.setattr(bench_cli, "entry_points", lambda group: [FakeEntryPoint()])
     assert main(["bench", "all", "--out", str(tmp_path)]) == 0
     assert outs[bench_cli.BENCHES["train-step"]] == f"{tmp_path}/train_step.json"
+    assert outs["entry point viewer"] == f"{tmp_path}/viewer.json"
     assert main(["bench", "all", "--help"]) == 0
     assert "one after the other" in capsys.readouterr().out
 

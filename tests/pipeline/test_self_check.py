@@ -46,7 +46,7 @@ def test_decide_leaves_the_baseline_only_beyond_the_tie():
 
 def test_noise_pseudo_targets_are_caught_without_held_out_cameras(tmp_path):
     # the paper's stage 2 (restored targets on every pixel) with a heavy pseudo-loss on noise
-    common = {"training.iterations": 300, "stage2.lambda_gen": 4.0, "stage2.refresh_every": 100,
+    common = {"training.iterations": 120, "stage2.lambda_gen": 4.0, "stage2.refresh_every": 100,
               "self_check.scale": 1.0, "self_check.eval_frames": 2, "self_check.allow_continue": True}
     config = tiny_config(**common, **PAPER_TARGETS)
     scene = HeldOutSpy(load_scene_for(config))
