@@ -299,6 +299,9 @@ def describe() -> str:
         return "numerics: host (the libraries' fastest code paths for this CPU; digits depend on the CPU)"
     if s["portable"]:
         return "numerics: portable (AVX2 code paths pinned in ATen, MKL, oneDNN, OpenBLAS, numpy, numba, OpenCV)"
+    if s.get("mkl_branch") not in (None, "AVX2") and not str(s.get("mkl_intel_answer")).startswith("late"):
+        return (f"numerics: portable asked for but not in effect: MKL on its {s['mkl_branch']} branch "
+                f"(its vendor answer: {s.get('mkl_intel_answer')})")
     late = [k for k in ("aten_cpu_capability", "mkl_branch", "numpy_avx512", "numba", "opencv_avx512") if k in s]
     return (f"numerics: portable asked for but not in effect ({', '.join(f'{k}={s[k]}' for k in late)}): a library "
             f"was imported before fixer4d; import fixer4d first")

@@ -84,6 +84,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if numerics.in_effect() != "portable":
         print(f"fixer4d: {numerics.describe()}", file=sys.stderr)
+    else:
+        from fixer4d.mkl_vendor import unpinned_warning
+
+        if (warning := unpinned_warning()) is not None:
+            print(f"fixer4d: {warning}", file=sys.stderr)
     from fixer4d.signals import install_sigterm
 
     install_sigterm()

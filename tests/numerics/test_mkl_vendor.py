@@ -74,3 +74,16 @@ def test_the_answer_is_built_once_and_a_missing_compiler_is_named(tmp_path, monk
     assert mkl_vendor.intel_answer_library(1, cache=tmp_path) == built  # cached: no compiler needed
     with pytest.raises(RuntimeError, match="no-such-compiler could not run"):
         mkl_vendor.intel_answer_library(0, cache=tmp_path / "fresh")
+
+
+def test_a_run_says_when_mkl_cannot_be_pinned_on_this_cpu(tmp_path):
+    _libraries()
+    env = {k: v for k, v in os.environ.items() if k not in numerics.PORTABLE_ENV and k != numerics.ENV_SAVED}
+    env.update({"CC": str(tmp_path / "no-such-compiler"), "XDG_CACHE_HOME": str(tmp_path / "cache")})
+    env.pop(numerics.ENV_MODE, None)
+    done = subprocess.run([sys.executable, "-m", "fixer4d.cli", "eval", str(tmp_path / "none")], env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2  # the verb ran (and refused the missing folder)
+    warned = "MKL keeps its own code branch" in done.stderr and "install a C compiler" in done.stderr
+    # on an Intel CPU MKL follows the pin without the answer: nothing to say
+    assert warned is (mkl_vendor.cpu_vendor() not in (None, "GenuineIntel")), done.stderr
