@@ -3,12 +3,12 @@
 MKL, inside torch's CPU library (torch.exp, log, tanh... through its vector math; matmul through its
 BLAS), follows ``MKL_CBWR=AVX2`` only on a CPU whose cpuid says GenuineIntel. On an AMD CPU it keeps
 its generic branch, whose vector exp rounds other last bits than the AVX2 branch's, and every digit
-of a run after the first exp follows the vendor (docs/decisions/numerics.md). MKL asks one function whether the CPU is Intel's,
-``mkl_serv_intel_cpu_true``, which libtorch_cpu.so exports and calls through its procedure linkage
-table, so a library that defines it and is loaded with RTLD_GLOBAL before torch answers in its place.
-This module compiles that one-line library with the system's C compiler (once per machine, cached)
-and loads it; MKL then takes the branch ``MKL_CBWR`` names on every vendor's CPU, as it does on
-Intel's (where the library changes nothing).
+of a run after the first exp follows the vendor (docs/decisions/numerics.md). MKL asks one function
+whether the CPU is Intel's, ``mkl_serv_intel_cpu_true``, which libtorch_cpu.so exports and calls
+through its procedure linkage table, so a library that defines it and is loaded with RTLD_GLOBAL
+before torch answers in its place. This module compiles that one-line library with the system's C
+compiler (once per machine, cached) and loads it; MKL then takes the branch ``MKL_CBWR`` names on
+every vendor's CPU, as it does on Intel's (where the library changes nothing).
 
     load_intel_answer() -> "loaded" | "unavailable: <why>" | "late: ..."   (call before torch loads)
     answer_state()      -> what the last load_intel_answer() returned (None: never called)
@@ -85,8 +85,9 @@ def load_intel_answer() -> str:
     if not _applies():
         _loaded = "not needed: MKL's vendor branches are x86-64 Linux's"
         return _loaded
-    if "torch" in sys.modules:
-        return "late: torch was imported before fixer4d"
+    if "torch" in sys.modules:  # libtorch_cpu.so may already be bound to its own function
+        _loaded = "late: torch was imported before fixer4d"
+        return _loaded
     try:
         ctypes.CDLL(str(intel_answer_library(1)), mode=ctypes.RTLD_GLOBAL)
     except (OSError, RuntimeError) as e:

@@ -65,7 +65,6 @@ PORTABLE_ENV: dict[str, str] = {
 }
 
 
-
 def _host_has_avx512() -> bool:
     try:
         flags = Path("/proc/cpuinfo").read_text().split("flags", 1)[1].splitlines()[0]
@@ -228,10 +227,9 @@ def apply() -> list[str]:
     for key in PORTABLE_ENV.keys() - pins.keys():
         os.environ.pop(key, None)
     os.environ.update(pins)
-    if "torch" not in sys.modules:
-        from fixer4d.mkl_vendor import load_intel_answer
+    from fixer4d.mkl_vendor import load_intel_answer
 
-        load_intel_answer()
+    load_intel_answer()
     if "torch" not in sys.modules and not any(isinstance(f, _SettleMklOnImport) for f in sys.meta_path):
         sys.meta_path.insert(0, _SettleMklOnImport())
     return [name for name in _PIN_READERS if name in sys.modules]
@@ -318,5 +316,5 @@ def lock_note(differences: dict[str, list[str | None]] | None) -> str | None:
             f"results (`pip install -c {LOCK_FILE.name} -e '.[all]'` installs the locked set)")
 
 
-__all__ = ["ENV_MODE", "ENV_SAVED", "MODES", "PORTABLE_ENV", "portable_env", "DIGIT_PACKAGES", "LOCK_FILE", "mode", "in_effect",
-           "apply", "status", "describe", "packages", "read_lock", "lock_differences", "lock_note"]
+__all__ = ["ENV_MODE", "ENV_SAVED", "MODES", "PORTABLE_ENV", "portable_env", "DIGIT_PACKAGES", "LOCK_FILE", "mode",
+           "in_effect", "apply", "status", "describe", "packages", "read_lock", "lock_differences", "lock_note"]
