@@ -1,8 +1,8 @@
-"""How many CPUs this process may keep busy: the scheduler's affinity mask, capped by a cgroup
-CPU quota. Containers and CI runners often grant a quota ("2 CPUs") on a larger host; the
-affinity mask, which numba and torch size their thread pools by, still lists every host CPU
-there, and a pool of one thread per host CPU on a 2-CPU quota is throttled at every parallel
-region. No heavy imports: ``fixer4d/__init__`` calls this before torch or numba load.
+"""How many CPUs this process may keep busy (the scheduler's affinity mask, capped by a cgroup CPU
+quota), and what they are (``cpu_fields``). Containers and CI runners often grant a quota ("2
+CPUs") on a larger host; the affinity mask, which numba and torch size their thread pools by, still
+lists every host CPU there, and a pool of one thread per host CPU on a 2-CPU quota is throttled at
+every parallel region. No heavy imports: ``fixer4d/__init__`` calls this before torch or numba load.
 """
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 
 CGROUP_ROOT = Path("/sys/fs/cgroup")
+CPUINFO = Path("/proc/cpuinfo")
 
 
 def _read(path: Path) -> str | None:
@@ -18,6 +19,20 @@ def _read(path: Path) -> str | None:
         return path.read_text().strip()
     except (OSError, UnicodeDecodeError):
         return None
+
+
+def cpu_fields(path: Path | str | None = None) -> dict[str, str]:
+    """The first processor's fields of ``path`` (default /proc/cpuinfo), e.g. ``vendor_id``,
+    ``flags``; empty where it cannot be read."""
+    text = _read(Path(CPUINFO if path is None else path)) or ""
+    fields: dict[str, str] = {}
+    for line in text.splitlines():
+        if not line.strip():
+            break
+        if ":" in line:
+            key, value = (part.strip() for part in line.split(":", 1))
+            fields.setdefault(key, value)
+    return fields
 
 
 def cgroup_cpu_quota(root: Path | str | None = None) -> float | None:

@@ -97,27 +97,17 @@ def load_intel_answer() -> str:
     return _loaded
 
 
-def cpu_vendor() -> str | None:
-    """The CPU's cpuid vendor string ("GenuineIntel", "AuthenticAMD", ...) from /proc/cpuinfo; None
-    where it cannot be read."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("vendor_id"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        return None
-    return None
-
-
 def unpinned_warning() -> str | None:
     """One line for a run's stderr when MKL will not take the pinned branch on this CPU (not Intel's,
     and the answer could not be loaded), else None."""
-    state = answer_state()
-    if state is None or not state.startswith(("unavailable", "late")) or cpu_vendor() in (None, "GenuineIntel"):
+    from fixer4d.cpus import cpu_fields
+
+    state, vendor = answer_state(), cpu_fields().get("vendor_id")
+    if state is None or not state.startswith(("unavailable", "late")) or vendor in (None, "GenuineIntel"):
         return None
     fix = ("import fixer4d before torch" if state.startswith("late")
            else "install a C compiler (e.g. apt-get install gcc) so fixer4d can build its one-line answer")
-    return (f"numerics: MKL keeps its own code branch on this {cpu_vendor()} CPU ({state}): the digits will "
+    return (f"numerics: MKL keeps its own code branch on this {vendor} CPU ({state}): the digits will "
             f"differ from an Intel host's; {fix}")
 
 
@@ -142,5 +132,5 @@ def mkl_branch() -> str | None:
     return BRANCHES.get(code, f"code {code}")
 
 
-__all__ = ["SYMBOL", "BRANCHES", "intel_answer_library", "load_intel_answer", "answer_state", "cpu_vendor",
-           "unpinned_warning", "mkl_branch"]
+__all__ = ["SYMBOL", "BRANCHES", "intel_answer_library", "load_intel_answer", "answer_state", "unpinned_warning",
+           "mkl_branch"]

@@ -65,19 +65,13 @@ PORTABLE_ENV: dict[str, str] = {
 }
 
 
-def _host_has_avx512() -> bool:
-    try:
-        flags = Path("/proc/cpuinfo").read_text().split("flags", 1)[1].splitlines()[0]
-    except (OSError, IndexError):
-        return False
-    return " avx512f " in f" {flags} "
-
-
 def portable_env() -> dict[str, str]:
     """``PORTABLE_ENV`` as this host needs it: OpenCV's AVX-512 switch only on a CPU with AVX-512,
     where alone OpenCV could take that path (elsewhere the name makes it print a warning in every
     process)."""
-    if _host_has_avx512():
+    from fixer4d.cpus import cpu_fields
+
+    if "avx512f" in cpu_fields().get("flags", "").split():
         return dict(PORTABLE_ENV)
     return {k: v for k, v in PORTABLE_ENV.items() if k != "OPENCV_CPU_DISABLE"}
 

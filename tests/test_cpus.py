@@ -77,3 +77,12 @@ print(numba.get_num_threads(), torch.get_num_threads())
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split()[0] == "2"
+
+
+def test_cpu_fields_reads_the_first_processor_only(tmp_path):
+    info = tmp_path / "cpuinfo"
+    info.write_text("processor\t: 0\nvendor_id\t: AuthenticAMD\nflags\t\t: fpu avx avx2 fma\n\n"
+                    "processor\t: 1\nvendor_id\t: GenuineIntel\nflags\t\t: fpu avx512f\n")
+    fields = cpus.cpu_fields(info)
+    assert fields["vendor_id"] == "AuthenticAMD" and fields["flags"].split() == ["fpu", "avx", "avx2", "fma"]
+    assert cpus.cpu_fields(tmp_path / "missing") == {}

@@ -13,6 +13,7 @@ import sys
 import pytest
 
 from fixer4d import mkl_vendor, numerics
+from fixer4d.cpus import cpu_fields
 
 # exp over 100,003 normal draws (ATen hands a contiguous float tensor to MKL's vector math), and
 # what MKL and portable numerics report; in host mode too MKL's first calls come from one thread (a
@@ -86,4 +87,4 @@ def test_a_run_says_when_mkl_cannot_be_pinned_on_this_cpu(tmp_path):
     assert done.returncode == 2  # the verb ran (and refused the missing folder)
     warned = "MKL keeps its own code branch" in done.stderr and "install a C compiler" in done.stderr
     # on an Intel CPU MKL follows the pin without the answer: nothing to say
-    assert warned is (mkl_vendor.cpu_vendor() not in (None, "GenuineIntel")), done.stderr
+    assert warned is (cpu_fields().get("vendor_id") not in (None, "GenuineIntel")), done.stderr

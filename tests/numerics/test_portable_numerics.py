@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from fixer4d import numerics
+from fixer4d.cpus import cpu_fields
 
 PROBE = Path(__file__).with_name("numerics_probe.py")
 FINGERPRINT = Path(__file__).with_name("fingerprint.json")
@@ -32,10 +33,7 @@ AMD_AVX2 = {"NUMBA_CPU_NAME": "znver3", "NUMBA_CPU_FEATURES": "+avx2,+fma,-avx51
 
 
 def _avx512_host() -> bool:
-    try:
-        return " avx512f " in f" {Path('/proc/cpuinfo').read_text().split('flags')[1].splitlines()[0]} "
-    except (OSError, IndexError):
-        return False
+    return "avx512f" in cpu_fields().get("flags", "").split()
 
 
 def _env(mode: str, host: dict[str, str]) -> dict[str, str]:
