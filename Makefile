@@ -15,7 +15,7 @@ LPIPS  := $(VENV)/share/fixer4d/lpips/alexnet.ckpt
 DEB_PKGS := libegl1 libgl1 libgl1-mesa-dri libegl-mesa0 libglx-mesa0 xvfb xauth xdotool
 TORCH  := torch==2.13.0
 RUN    ?= runs/demo
-PYTEST_ARGS ?=
+PYTEST_ARGS ?= -n auto --dist worksteal
 
 .PHONY: setup run test bench deb clean-venv install-desktop
 

@@ -7,15 +7,31 @@ benchmark_script(name): a script of benchmarks/ loaded as a module (registered w
 from __future__ import annotations
 
 import importlib.util
+import os
 import sys
 from pathlib import Path
 
 import pytest
 
-import fixer4d  # noqa: F401  (first: sets the OpenMP wait policy before any test imports torch)
+# Read before fixer4d's import sets its own defaults: the variables the user set.
+_POOLS_SET_BY_THE_USER = {key for key in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS") if key in os.environ}
+
+import fixer4d  # noqa: E402,F401  (first: sets the OpenMP wait policy before any test imports torch)
+from fixer4d.cpus import usable_cpus  # noqa: E402
+
+from tests.pools import split_pools  # noqa: E402
+
+split_pools(keep=_POOLS_SET_BY_THE_USER)  # before torch or numba loads (importing fixer4d loads neither): tests/pools.py
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PANOPTIC_DIR = Path(__file__).resolve().parents[1].parent / "shared/data/panoptic_basketball"
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto``: one worker per CPU this process may use (the cgroup quota counted), where
+    xdist's own count would start one per host CPU on a CI runner's quota."""
+    return usable_cpus()
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -53,4 +53,4 @@ else:
     cloud, _ = sparse_cloud([scene.frame(0, i) for i in scene.train_ids], scene.train_cameras, 0, 0.0)
     out["pycolmap_sparse"] = np.concatenate([cloud.points, cloud.colors], axis=1)
 print(json.dumps({"hashes": {k: hashlib.sha1(np.ascontiguousarray(v).tobytes()).hexdigest() for k, v in out.items()},
-                  "portable": numerics.status()["portable"]}))
+                  "portable": numerics.status()["portable"], "torch_threads": torch.get_num_threads()}))

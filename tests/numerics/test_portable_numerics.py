@@ -19,6 +19,8 @@ import pytest
 from fixer4d import numerics
 from fixer4d.cpus import cpu_fields
 
+from tests.pools import machine_pools_env
+
 PROBE = Path(__file__).with_name("numerics_probe.py")
 FINGERPRINT = Path(__file__).with_name("fingerprint.json")
 UPDATE_FINGERPRINT = os.environ.get("FIXER4D_UPDATE_FINGERPRINT") == "1"
@@ -37,7 +39,9 @@ def _avx512_host() -> bool:
 
 
 def _env(mode: str, host: dict[str, str]) -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if k not in numerics.PORTABLE_ENV and k != numerics.ENV_SAVED}
+    """A child's environment: the machine's thread pools (not an xdist worker's share), ``host``'s
+    emulated choices and numerics ``mode``."""
+    env = {k: v for k, v in machine_pools_env().items() if k not in numerics.PORTABLE_ENV and k != numerics.ENV_SAVED}
     return {**env, **host, numerics.ENV_MODE: mode}
 
 
@@ -52,16 +56,14 @@ def _sha1(data: bytes) -> str:
     return hashlib.sha1(data).hexdigest()
 
 
-def _check_fingerprint(part: str, hashes: dict[str, str], follows_thread_count: bool = True) -> None:
+def _check_fingerprint(part: str, hashes: dict[str, str], torch_threads: int | None) -> None:
     """Compare ``hashes`` with the committed fingerprint's ``part``, made on another host (or write
     them there with FIXER4D_UPDATE_FINGERPRINT=1). Skips where this host's packages (or, for a part
-    that ``follows_thread_count``, its torch thread count) are not the fingerprint's: other library
-    versions give other digits on any CPU."""
-    import torch
-
+    whose digits follow the torch thread count it was made on, ``torch_threads``; None: they do not)
+    are not the fingerprint's: other library versions give other digits on any CPU."""
     from fixer4d.bench.machine import cpu_topology
 
-    here = {"packages": numerics.packages(), "torch_threads": torch.get_num_threads()}
+    here = {"packages": numerics.packages(), **({} if torch_threads is None else {"torch_threads": torch_threads})}
     committed = json.loads(FINGERPRINT.read_text()) if FINGERPRINT.is_file() else {}
     if UPDATE_FINGERPRINT:
         cpu = cpu_topology()
@@ -72,8 +74,6 @@ def _check_fingerprint(part: str, hashes: dict[str, str], follows_thread_count: 
     if part not in committed:
         pytest.skip(f"{FINGERPRINT.name} has no {part!r}: write it with FIXER4D_UPDATE_FINGERPRINT=1")
     for key in here:
-        if key == "torch_threads" and not follows_thread_count:
-            continue
         if here[key] != committed[key]:
             pytest.skip(f"this host's {key} ({here[key]}) is not the fingerprint's ({committed[key]}): "
                         f"install the locked set (constraints.txt) to compare digits across hosts")
@@ -85,7 +85,7 @@ def test_portable_mode_gives_the_same_bytes_under_every_emulated_host():
     intel, amd = _probe("portable", INTEL_AVX512), _probe("portable", AMD_AVX2)
     assert intel["portable"] and amd["portable"]
     assert intel["hashes"] == amd["hashes"]
-    _check_fingerprint("probe", intel["hashes"])
+    _check_fingerprint("probe", intel["hashes"], intel["torch_threads"])
 
 
 @pytest.mark.skipif(not _avx512_host(), reason="emulating an AVX-512 host's code paths needs an AVX-512 CPU")
@@ -171,7 +171,7 @@ def test_a_tiny_pipeline_gives_the_same_model_and_report_on_two_emulated_hosts(t
     psnr = json.dumps({r["method"]: r.get("psnr") for r in outputs[0][2]}, sort_keys=True)
     _check_fingerprint("tiny_pipeline", {"model_final.ply": _sha1(outputs[0][0]),
                                          "model_stage1.ply": _sha1(outputs[0][1]), "rows_psnr": _sha1(psnr.encode())},
-                       follows_thread_count=False)  # a run's torch computes on one thread (fixer4d/threads.py)
+                       torch_threads=None)  # a run's torch computes on one thread (fixer4d/threads.py)
 
 
 def test_a_host_mode_child_of_a_portable_process_gets_the_environment_back(monkeypatch):

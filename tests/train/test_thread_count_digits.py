@@ -23,6 +23,7 @@ from fixer4d.train.model_init import model_from_clouds
 from fixer4d.train.trainer import Trainer
 from fixer4d.threads import digit_threads
 
+from tests.pools import pools_are_split, rerun_with_machine_pools
 from tests.train.conftest import small_config
 
 # Past ATen's grain (32,768 elements; below it every op runs on one thread whatever the count), and
@@ -61,8 +62,11 @@ def _state_after_steps(model, scene, cfg, threads: int) -> str:
         torch.set_num_threads(torch_before)
 
 
-@pytest.mark.skipif(numba is None or numba.config.NUMBA_NUM_THREADS < 2, reason="needs two CPU threads")
-def test_one_and_two_threads_give_the_same_model_past_the_grain(small_scene, small_clouds):
+@pytest.mark.skipif(numba is None or (numba.config.NUMBA_NUM_THREADS < 2 and not pools_are_split()),
+                    reason="needs two CPU threads")
+def test_one_and_two_threads_give_the_same_model_past_the_grain(request, small_scene, small_clouds):
+    if rerun_with_machine_pools(request):
+        return
     cfg = small_config(50, init_max_points=GAUSSIANS, max_gaussians=GAUSSIANS + 10_000)
     model = _big_model(small_scene, small_clouds, cfg)
     assert model.num_gaussians == GAUSSIANS
