@@ -4,15 +4,18 @@
 
 Runs ``python -m pytest PYTEST_ARGS`` (default: the Makefile's, a worker per usable CPU) from the
 repository's root and records, under LABEL in the result file (other labels kept, so that two ways
-of running the same commit sit side by side): the arguments, the wall seconds, pytest's own
-seconds and outcome counts, the commit and the machine. ``make test`` times the same command plus
+of running the same commit sit side by side): the arguments, the thread variables set, the wall
+seconds, the CPU seconds of the processes it started, pytest's own seconds and outcome counts,
+the commit and the machine. ``make test`` times the same command plus
 the install check. Time it on an idle machine, one run at a time: the suite uses every core.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
+import resource
 import shlex
 import subprocess
 import sys
@@ -26,6 +29,9 @@ sys.path.insert(0, str(ROOT))
 from fixer4d.atomic import write_json  # noqa: E402
 from fixer4d.bench.machine import machine_info  # noqa: E402
 from fixer4d.pipeline.run_folder import source_commit  # noqa: E402
+
+# Set by the caller, they are the pools' sizes in every worker (tests/pools.py splits only the unset).
+THREAD_VARS = ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS")
 
 
 def makefile_pytest_args(makefile: Path = ROOT / "Makefile") -> list[str]:
@@ -56,12 +62,16 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(ours)
     pytest_args = makefile_pytest_args() if pytest_args is None else pytest_args
     machine, commit = machine_info(), source_commit()  # before the run: the code it tests
+    cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *pytest_args], cwd=ROOT,
                           capture_output=True, text=True)
     wall = time.perf_counter() - t0
+    cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
     summary = summary_counts(done.stdout)
-    record = {"pytest_args": pytest_args, "wall_seconds": round(wall, 1), **summary, "returncode": done.returncode,
+    record = {"pytest_args": pytest_args, "wall_seconds": round(wall, 1), "cpu_seconds": round(cpu, 1), **summary,
+              "returncode": done.returncode, "thread_env": {k: os.environ.get(k) for k in THREAD_VARS},
               "commit": commit, "date": datetime.now(timezone.utc).strftime("%Y-%m-%d"),
               "machine": machine}
     results = json.loads(args.out.read_text()) if args.out.is_file() else {}

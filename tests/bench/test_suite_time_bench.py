@@ -23,4 +23,5 @@ def test_times_a_run_and_keeps_the_other_labels(benchmark_script, tmp_path):
     assert runs["earlier"] == {"wall_seconds": 1.0}
     ran = runs["one process"]
     assert ran["pytest_args"] == args and ran["passed"] > 0 and ran["returncode"] == 0
-    assert ran["wall_seconds"] >= ran["pytest_seconds"] > 0 and ran["machine"]["usable_cpus"] >= 1
+    assert ran["wall_seconds"] >= ran["pytest_seconds"] > 0 and ran["cpu_seconds"] > 0
+    assert ran["machine"]["usable_cpus"] >= 1 and set(ran["thread_env"]) == {"NUMBA_NUM_THREADS", "OMP_NUM_THREADS"}
