@@ -8,11 +8,10 @@ process it starts, whose digits follow its own count) asks for the machine's poo
 """
 from __future__ import annotations
 
-from collections.abc import Collection
-
 import os
 import subprocess
 import sys
+from collections.abc import Collection
 
 from fixer4d.cpus import worker_thread_env
 
