@@ -88,17 +88,4 @@ def thread_env_defaults(root: Path | str | None = None) -> dict[str, str]:
     return {"NUMBA_NUM_THREADS": str(n), "OMP_NUM_THREADS": str(n)}
 
 
-def worker_thread_env(workers: int | str | None, root: Path | str | None = None) -> dict[str, str]:
-    """Thread-pool sizes for one of ``workers`` processes that share the usable CPUs evenly (at
-    least one thread each); empty for ``workers`` None or below 2 (one process keeps the defaults)."""
-    try:
-        count = int(workers) if workers is not None else 1
-    except ValueError:
-        return {}
-    if count < 2:
-        return {}
-    n = str(max(1, usable_cpus(root) // count))
-    return {"NUMBA_NUM_THREADS": n, "OMP_NUM_THREADS": n}
-
-
-__all__ = ["cgroup_cpu_quota", "affinity_cpus", "usable_cpus", "thread_env_defaults", "worker_thread_env"]
+__all__ = ["cgroup_cpu_quota", "affinity_cpus", "usable_cpus", "thread_env_defaults"]

@@ -1,7 +1,7 @@
 """Thread pools of the test processes under pytest-xdist (``make test`` runs ``-n auto``).
 
 Each worker computes on its share of the usable CPUs (numba's and OpenMP's pools sized by
-``fixer4d.cpus.worker_thread_env``): a worker whose pools each took every CPU would oversubscribe
+``worker_thread_env``): a worker whose pools each took every CPU would oversubscribe
 the machine at every parallel region. The conftest sets the split before torch or numba loads and
 names the variables it set in ``SPLIT_POOLS_VAR``. A test whose subject is the thread count (or a
 process it starts, whose digits follow its own count) asks for the machine's pools here.
@@ -13,10 +13,24 @@ import subprocess
 import sys
 from collections.abc import Collection
 
-from fixer4d.cpus import worker_thread_env
+from fixer4d import cpus
 
 SPLIT_POOLS_VAR = "FIXER4D_TEST_SPLIT_POOLS"
 XDIST_VARS = ("PYTEST_XDIST_WORKER", "PYTEST_XDIST_WORKER_COUNT", "PYTEST_XDIST_TESTRUNUID")
+
+
+def worker_thread_env(workers: int | str | None) -> dict[str, str]:
+    """Thread-pool sizes for one of ``workers`` processes that share the usable CPUs
+    (``fixer4d.cpus.usable_cpus``) evenly, at least one thread each; empty for ``workers`` None or
+    below 2 (one process keeps the libraries' defaults)."""
+    try:
+        count = int(workers) if workers is not None else 1
+    except ValueError:
+        return {}
+    if count < 2:
+        return {}
+    n = str(max(1, cpus.usable_cpus() // count))
+    return {"NUMBA_NUM_THREADS": n, "OMP_NUM_THREADS": n}
 
 
 def split_pools(keep: Collection[str] = (), environ: dict[str, str] | None = None) -> None:

@@ -87,12 +87,3 @@ def test_cpu_fields_reads_the_first_processor_only(tmp_path):
     assert fields["vendor_id"] == "AuthenticAMD" and fields["flags"].split() == ["fpu", "avx", "avx2", "fma"]
     assert cpus.cpu_fields(tmp_path / "missing") == {}
 
-
-def test_workers_that_share_the_cpus_get_a_share_each_and_at_least_one_thread(tmp_path, monkeypatch):
-    monkeypatch.setattr(cpus, "affinity_cpus", lambda: 8)
-    root = _v2(tmp_path, "400000 100000")  # a 4-CPU quota
-    assert cpus.worker_thread_env("2", root) == {"NUMBA_NUM_THREADS": "2", "OMP_NUM_THREADS": "2"}
-    assert cpus.worker_thread_env(3, root) == {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
-    assert cpus.worker_thread_env(16, root)["NUMBA_NUM_THREADS"] == "1"
-    for alone in (None, 1, "1", "0", "many"):  # one process (or no count) keeps the defaults
-        assert cpus.worker_thread_env(alone, root) == {}

@@ -26,3 +26,12 @@ def test_outside_xdist_nothing_is_split():
     env = {"PATH": "/bin"}
     pools.split_pools(environ=env)
     assert env == {"PATH": "/bin"}
+
+
+def test_workers_that_share_the_cpus_get_a_share_each_and_at_least_one_thread(monkeypatch):
+    monkeypatch.setattr(cpus, "usable_cpus", lambda root=None: 4)
+    assert pools.worker_thread_env("2") == {"NUMBA_NUM_THREADS": "2", "OMP_NUM_THREADS": "2"}
+    assert pools.worker_thread_env(3) == {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    assert pools.worker_thread_env(16)["NUMBA_NUM_THREADS"] == "1"
+    for alone in (None, 1, "1", "0", "many"):  # one process (or no count) keeps the defaults
+        assert pools.worker_thread_env(alone) == {}
